@@ -1,0 +1,1052 @@
+//! The artifact container: its byte layout, the atomic writer, and the validating memory-mapped reader.
+//!
+//! # File layout, format version 1
+//!
+//! All integers are little-endian. Every region starts on a multiple of [`SECTION_ALIGN`]
+//! (64) bytes and the gaps between regions are zero bytes, so every byte of a valid file is
+//! either covered by a checksum or must be zero: one flipped byte anywhere is an error.
+//!
+//! ```text
+//! offset  size  region
+//! 0       256   header
+//! 256     ..    section 0 data, then zero padding up to the next multiple of 64
+//! ..      ..    section 1 data, ... (sections in table order)
+//! ..      ..    metadata: one MessagePack value (struct fields by name), may be empty
+//! ..      64*n  section table: n entries of 64 bytes; its end is the end of the file
+//! ```
+//!
+//! Header (256 bytes):
+//!
+//! ```text
+//! offset  size  field
+//! 0       8     magic: "PCGIART\x01"
+//! 8       4     format version (u32) = 1; a reader accepts exactly its own version
+//! 12      4     artifact kind (u32): 1 octree, 2 vmap, 3 photons, 4 radiosity
+//! 16      4     section count n (u32)
+//! 20      4     flags (u32), 0
+//! 24      32    stage name: UTF-8, 1..=32 bytes, zero padded
+//! 56      16    stage version: UTF-8, 0..=16 bytes, zero padded
+//! 72      16    key: xxh3-128 of the inputs and parameters (see `KeyHasher`)
+//! 88      8     created, unix seconds (u64)
+//! 96      8     file length in bytes (u64)
+//! 104     8     section table offset (u64)
+//! 112     8     section table length in bytes (u64) = 64 * n
+//! 120     8     section table checksum: xxh3-64 of the table bytes (u64)
+//! 128     8     metadata offset (u64)
+//! 136     8     metadata length in bytes (u64)
+//! 144     8     metadata checksum: xxh3-64 of the metadata bytes (u64)
+//! 152     96    reserved, zero
+//! 248     8     header checksum: xxh3-64 of these 256 bytes with this field zeroed (u64)
+//! ```
+//!
+//! Section table entry (64 bytes):
+//!
+//! ```text
+//! offset  size  field
+//! 0       24    name: 1..=24 bytes of [a-z0-9_], zero padded
+//! 24      8     offset of the data in the file (u64), a multiple of 64
+//! 32      8     length of the data in bytes (u64), a multiple of the element size
+//! 40      4     element size in bytes (u32), not 0
+//! 44      4     alignment (u32) = 64
+//! 48      8     checksum: xxh3-64 of the data (u64)
+//! 56      8     reserved, zero
+//! ```
+//!
+//! Section data is a plain array of `bytemuck::Pod` elements exactly as they lie in memory on
+//! a little-endian machine, so a mapped section can be viewed as `&[T]` or uploaded to a GPU
+//! buffer without conversion.
+
+use std::fmt;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, BufWriter, Seek, SeekFrom, Write};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use bytemuck::{Pod, Zeroable};
+use memmap2::Mmap;
+use serde::{Deserialize, Serialize};
+use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+
+use crate::error::{ArtifactError, METADATA_REGION, TABLE_REGION};
+use crate::key::Key;
+use crate::kind::ArtifactKind;
+
+#[cfg(target_endian = "big")]
+compile_error!("pcgi artifacts are little-endian arrays mapped as they are: big-endian targets are not supported");
+
+/// The first eight bytes of every artifact.
+pub const MAGIC: [u8; 8] = *b"PCGIART\x01";
+/// The container format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Every section (and the metadata and the table) starts on a multiple of this many bytes.
+pub const SECTION_ALIGN: u64 = 64;
+/// Size of the header at the start of the file.
+pub const HEADER_SIZE: u64 = 256;
+/// Size of one section table entry.
+pub const TABLE_ENTRY_SIZE: u64 = 64;
+/// Longest section name, in bytes.
+pub const MAX_SECTION_NAME: usize = 24;
+/// Longest stage name, in bytes of UTF-8.
+pub const MAX_STAGE_NAME: usize = 32;
+/// Longest stage version, in bytes of UTF-8.
+pub const MAX_STAGE_VERSION: usize = 16;
+
+/// The header as it lies on disk. Only ever read with `pod_read_unaligned` from a slice whose
+/// length has been checked.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct RawHeader {
+    magic: [u8; 8],
+    format_version: u32,
+    kind: u32,
+    section_count: u32,
+    flags: u32,
+    stage: [u8; 32],
+    stage_version: [u8; 16],
+    key: [u8; 16],
+    created_unix: u64,
+    file_len: u64,
+    table_offset: u64,
+    table_len: u64,
+    table_checksum: u64,
+    metadata_offset: u64,
+    metadata_len: u64,
+    metadata_checksum: u64,
+    reserved: [u64; 12],
+    header_checksum: u64,
+}
+
+/// One section table entry as it lies on disk.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct RawEntry {
+    name: [u8; 24],
+    offset: u64,
+    len: u64,
+    elem_size: u32,
+    align: u32,
+    checksum: u64,
+    reserved: u64,
+}
+
+const _: () = assert!(std::mem::size_of::<RawHeader>() == HEADER_SIZE as usize);
+const _: () = assert!(std::mem::size_of::<RawEntry>() == TABLE_ENTRY_SIZE as usize);
+const _: () = assert!(std::mem::offset_of!(RawHeader, format_version) == 8);
+const _: () = assert!(std::mem::offset_of!(RawHeader, key) == 72);
+const _: () = assert!(std::mem::offset_of!(RawHeader, file_len) == 96);
+const _: () = assert!(std::mem::offset_of!(RawHeader, metadata_checksum) == 144);
+const _: () = assert!(std::mem::offset_of!(RawHeader, header_checksum) == 248);
+const _: () = assert!(std::mem::offset_of!(RawEntry, checksum) == 48);
+
+impl RawHeader {
+    /// xxh3-64 of the header with the checksum field zeroed.
+    fn checksum(&self) -> u64 {
+        let mut copy = *self;
+        copy.header_checksum = 0;
+        xxh3_64(bytemuck::bytes_of(&copy))
+    }
+}
+
+fn align_up(pos: u64) -> u64 {
+    pos.div_ceil(SECTION_ALIGN) * SECTION_ALIGN
+}
+
+/// Whether `name` is a valid section name: 1 to 24 bytes of `[a-z0-9_]`.
+pub fn is_valid_section_name(name: &str) -> bool {
+    valid_name_bytes(name.as_bytes())
+}
+
+fn valid_name_bytes(name: &[u8]) -> bool {
+    (1..=MAX_SECTION_NAME).contains(&name.len())
+        && name
+            .iter()
+            .all(|&b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
+}
+
+/// Encodes a stage name or version into its zero-padded header field.
+fn encode_label<const N: usize>(
+    path: &Path,
+    field: &'static str,
+    value: &str,
+    min: usize,
+) -> Result<[u8; N], ArtifactError> {
+    if value.len() < min || value.len() > N || value.contains('\0') {
+        return Err(ArtifactError::BadLabel {
+            path: path.to_owned(),
+            field,
+            value: value.to_owned(),
+            min,
+            max: N,
+        });
+    }
+    let mut out = [0u8; N];
+    out[..value.len()].copy_from_slice(value.as_bytes());
+    Ok(out)
+}
+
+/// Decodes a zero-padded header field; the padding must be all zero.
+fn decode_label(
+    path: &Path,
+    field: &'static str,
+    raw: &[u8],
+    min: usize,
+) -> Result<String, ArtifactError> {
+    let end = raw.iter().position(|&b| b == 0).unwrap_or(raw.len());
+    let (text, padding) = raw.split_at(end);
+    match std::str::from_utf8(text) {
+        Ok(s) if s.len() >= min && padding.iter().all(|&b| b == 0) => Ok(s.to_owned()),
+        _ => Err(ArtifactError::BadLabel {
+            path: path.to_owned(),
+            field,
+            value: String::from_utf8_lossy(raw).into_owned(),
+            min,
+            max: raw.len(),
+        }),
+    }
+}
+
+fn now_unix() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
+}
+
+/// `NAME.tmp` beside `NAME`.
+fn tmp_path_for(path: &Path) -> Option<PathBuf> {
+    let mut name = path.file_name()?.to_os_string();
+    name.push(".tmp");
+    Some(path.with_file_name(name))
+}
+
+/// The folder holding `path`, `.` for a bare file name.
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writer
+// ---------------------------------------------------------------------------------------------
+
+/// Writes one artifact atomically: everything goes to `NAME.tmp` in the same folder, and
+/// [`finish`](ArtifactWriter::finish) fsyncs it and renames it over `NAME`.
+///
+/// A reader never sees a half-written artifact, and a crash (or an error, or dropping the
+/// writer without calling `finish`) leaves any older artifact at `NAME` as it was; dropping an
+/// unfinished writer deletes `NAME.tmp`. Two writers for the same path at the same time are not
+/// supported (they share the temporary file).
+///
+/// ```no_run
+/// # use pc_artifact::{ArtifactWriter, ArtifactKind, KeyHasher};
+/// # fn main() -> Result<(), pc_artifact::ArtifactError> {
+/// let key = KeyHasher::new().update_str("params").finish();
+/// let mut w = ArtifactWriter::create("out/scene.photons", ArtifactKind::Photons, "pc-photons", "0.1.0", key)?;
+/// w.section("positions", &[[0.0f32; 4]; 8])?;
+/// w.metadata(&("any serde value", 42))?;
+/// let path = w.finish()?;
+/// # Ok(()) }
+/// ```
+pub struct ArtifactWriter {
+    path: PathBuf,
+    tmp_path: PathBuf,
+    file: Option<BufWriter<File>>,
+    header: RawHeader,
+    pos: u64,
+    entries: Vec<RawEntry>,
+    names: Vec<String>,
+    metadata: Vec<u8>,
+    finished: bool,
+}
+
+impl fmt::Debug for ArtifactWriter {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("ArtifactWriter")
+            .field("path", &self.path)
+            .field("sections", &self.names)
+            .field("pos", &self.pos)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ArtifactWriter {
+    /// Starts writing an artifact that [`finish`](ArtifactWriter::finish) will place at `path`.
+    ///
+    /// Creates the parent folders and `<path>.tmp` (replacing a stale one). `stage` is the
+    /// producing stage's name (1 to 32 bytes), `stage_version` its version (0 to 16 bytes),
+    /// `key` the hash of the inputs and parameters the artifact is made from.
+    pub fn create(
+        path: impl AsRef<Path>,
+        kind: ArtifactKind,
+        stage: &str,
+        stage_version: &str,
+        key: Key,
+    ) -> Result<ArtifactWriter, ArtifactError> {
+        let path = path.as_ref().to_path_buf();
+        let stage = encode_label::<MAX_STAGE_NAME>(&path, "stage name", stage, 1)?;
+        let stage_version =
+            encode_label::<MAX_STAGE_VERSION>(&path, "stage version", stage_version, 0)?;
+        let tmp_path = tmp_path_for(&path).ok_or_else(|| {
+            ArtifactError::io(
+                &path,
+                io::Error::new(io::ErrorKind::InvalidInput, "not a file path"),
+            )
+        })?;
+        let dir = parent_dir(&path);
+        fs::create_dir_all(dir).map_err(|e| ArtifactError::io(dir, e))?;
+        let file = OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp_path)
+            .map_err(|e| ArtifactError::io(&tmp_path, e))?;
+        let header = RawHeader {
+            magic: MAGIC,
+            format_version: FORMAT_VERSION,
+            kind: kind.as_u32(),
+            stage,
+            stage_version,
+            key: key.0,
+            ..RawHeader::zeroed()
+        };
+        let mut writer = ArtifactWriter {
+            path,
+            tmp_path,
+            file: Some(BufWriter::with_capacity(1 << 20, file)),
+            header,
+            pos: 0,
+            entries: Vec::new(),
+            names: Vec::new(),
+            metadata: Vec::new(),
+            finished: false,
+        };
+        // Placeholder; `finish` writes the real header once it knows the table and metadata.
+        writer.write_raw(&[0u8; HEADER_SIZE as usize])?;
+        Ok(writer)
+    }
+
+    /// The path the artifact will have once finished.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Appends a section holding `data`, an array of plain-old-data elements.
+    ///
+    /// `name` is 1 to 24 characters of `a-z`, `0-9` and `_`, unique within the artifact.
+    /// `T` must not be zero-sized.
+    pub fn section<T: Pod>(&mut self, name: &str, data: &[T]) -> Result<(), ArtifactError> {
+        let elem_size = u32::try_from(std::mem::size_of::<T>()).unwrap_or(0);
+        self.section_bytes(name, elem_size, bytemuck::cast_slice(data))
+    }
+
+    /// Appends a section of raw bytes holding `bytes.len() / elem_size` elements of
+    /// `elem_size` bytes each (`elem_size` is not 0 and divides `bytes.len()`).
+    pub fn section_bytes(
+        &mut self,
+        name: &str,
+        elem_size: u32,
+        bytes: &[u8],
+    ) -> Result<(), ArtifactError> {
+        if !is_valid_section_name(name) {
+            return Err(ArtifactError::BadName {
+                path: self.path.clone(),
+                name: name.to_owned(),
+            });
+        }
+        if self.names.iter().any(|n| n == name) {
+            return Err(ArtifactError::DuplicateSection {
+                path: self.path.clone(),
+                section: name.to_owned(),
+            });
+        }
+        if elem_size == 0 || bytes.len() % elem_size as usize != 0 {
+            return Err(ArtifactError::Ragged {
+                path: self.path.clone(),
+                section: name.to_owned(),
+                len: bytes.len() as u64,
+                elem_size,
+            });
+        }
+        self.pad()?;
+        let offset = self.pos;
+        let mut hasher = Xxh3::new();
+        for chunk in bytes.chunks(1 << 20) {
+            hasher.update(chunk);
+            self.write_raw(chunk)?;
+        }
+        let mut entry = RawEntry {
+            offset,
+            len: bytes.len() as u64,
+            elem_size,
+            align: SECTION_ALIGN as u32,
+            checksum: hasher.digest(),
+            ..RawEntry::zeroed()
+        };
+        entry.name[..name.len()].copy_from_slice(name.as_bytes());
+        self.entries.push(entry);
+        self.names.push(name.to_owned());
+        Ok(())
+    }
+
+    /// Sets the artifact's metadata, stored as MessagePack (struct fields by name) when the
+    /// artifact is finished. A second call replaces the first.
+    pub fn metadata<M: Serialize + ?Sized>(&mut self, metadata: &M) -> Result<(), ArtifactError> {
+        self.metadata = rmp_serde::to_vec_named(metadata).map_err(|e| ArtifactError::Metadata {
+            path: self.path.clone(),
+            msg: e.to_string(),
+        })?;
+        Ok(())
+    }
+
+    /// Writes the metadata, the section table and the header, fsyncs the file, renames it
+    /// over the final path and fsyncs the folder (best effort). Returns the final path.
+    pub fn finish(mut self) -> Result<PathBuf, ArtifactError> {
+        self.pad()?;
+        let metadata = std::mem::take(&mut self.metadata);
+        self.header.metadata_offset = self.pos;
+        self.header.metadata_len = metadata.len() as u64;
+        self.header.metadata_checksum = xxh3_64(&metadata);
+        self.write_raw(&metadata)?;
+
+        self.pad()?;
+        let entries = std::mem::take(&mut self.entries);
+        let table: &[u8] = bytemuck::cast_slice(&entries);
+        self.header.section_count = entries.len() as u32;
+        self.header.table_offset = self.pos;
+        self.header.table_len = table.len() as u64;
+        self.header.table_checksum = xxh3_64(table);
+        self.write_raw(table)?;
+
+        self.header.file_len = self.pos;
+        self.header.created_unix = now_unix();
+        self.header.header_checksum = self.header.checksum();
+
+        let tmp = self.tmp_path.clone();
+        let io_err = |e| ArtifactError::io(&tmp, e);
+        let buffered = self.file.take().expect("file is present until finish");
+        let mut file = buffered.into_inner().map_err(|e| io_err(e.into_error()))?;
+        file.seek(SeekFrom::Start(0)).map_err(io_err)?;
+        file.write_all(bytemuck::bytes_of(&self.header))
+            .map_err(io_err)?;
+        file.sync_all().map_err(io_err)?;
+        drop(file);
+
+        fs::rename(&self.tmp_path, &self.path).map_err(|e| ArtifactError::io(&self.path, e))?;
+        self.finished = true;
+        // Make the rename itself durable. Not every platform can fsync a folder: best effort.
+        if let Ok(dir) = File::open(parent_dir(&self.path)) {
+            let _ = dir.sync_all();
+        }
+        Ok(self.path.clone())
+    }
+
+    fn write_raw(&mut self, bytes: &[u8]) -> Result<(), ArtifactError> {
+        let file = self.file.as_mut().expect("file is present until finish");
+        file.write_all(bytes)
+            .map_err(|e| ArtifactError::io(&self.tmp_path, e))?;
+        self.pos += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Zero bytes up to the next multiple of [`SECTION_ALIGN`].
+    fn pad(&mut self) -> Result<(), ArtifactError> {
+        let padding = (align_up(self.pos) - self.pos) as usize;
+        self.write_raw(&[0u8; SECTION_ALIGN as usize][..padding])
+    }
+}
+
+impl Drop for ArtifactWriter {
+    fn drop(&mut self) {
+        if !self.finished {
+            if let Some(buffered) = self.file.take() {
+                // Discard the buffer instead of flushing it into a file we are about to delete.
+                let (file, _unflushed) = buffered.into_parts();
+                drop(file);
+            }
+            let _ = fs::remove_file(&self.tmp_path);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reader
+// ---------------------------------------------------------------------------------------------
+
+/// What the header of an artifact says.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct HeaderInfo {
+    pub kind: ArtifactKind,
+    pub format_version: u32,
+    /// The stage that wrote the artifact.
+    pub stage: String,
+    /// That stage's version.
+    pub stage_version: String,
+    /// The hash of the inputs and parameters the artifact was made from.
+    pub key: Key,
+    pub created_unix: u64,
+    pub file_len: u64,
+}
+
+/// One entry of the section table, validated.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SectionInfo {
+    pub name: String,
+    /// Offset of the data in the file, a multiple of [`SECTION_ALIGN`].
+    pub offset: u64,
+    /// Length of the data in bytes.
+    pub len: u64,
+    /// Size of one element in bytes (not 0; divides `len`).
+    pub elem_size: u32,
+    pub align: u32,
+    /// xxh3-64 of the data.
+    pub checksum: u64,
+}
+
+impl SectionInfo {
+    /// The number of elements in the section.
+    pub fn count(&self) -> u64 {
+        self.len / self.elem_size as u64
+    }
+}
+
+/// A validated, memory-mapped artifact.
+///
+/// [`open`](Artifact::open) checks the whole file (lengths, magic, version, every bound,
+/// alignment, and the checksums of the header, every section, the metadata and the table)
+/// before it hands out anything, so a truncated or corrupt file is an error, never undefined
+/// behaviour. Sections are borrowed straight from the mapping.
+///
+/// The mapping relies on pcgi's writers never modifying an artifact in place (they rename a
+/// finished temporary file over it). If another program truncates a mapped artifact, reading
+/// it raises SIGBUS; pcgi accepts that rather than copying every artifact into memory.
+pub struct Artifact {
+    path: PathBuf,
+    map: Mmap,
+    header: HeaderInfo,
+    sections: Vec<SectionInfo>,
+    metadata: Range<usize>,
+}
+
+impl fmt::Debug for Artifact {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Artifact")
+            .field("path", &self.path)
+            .field("header", &self.header)
+            .field("sections", &self.sections)
+            .finish_non_exhaustive()
+    }
+}
+
+/// What validation found, for [`Artifact`] to keep.
+struct Validated {
+    header: HeaderInfo,
+    sections: Vec<SectionInfo>,
+    metadata: Range<usize>,
+}
+
+impl Artifact {
+    /// Maps and validates the artifact at `path`, of any kind this build knows.
+    pub fn open(path: impl AsRef<Path>) -> Result<Artifact, ArtifactError> {
+        Artifact::open_inner(path.as_ref(), None)
+    }
+
+    /// Like [`open`](Artifact::open), and the artifact must be of `kind` (else
+    /// [`ArtifactError::WrongKind`], reported before the sections are checked).
+    pub fn open_kind(
+        path: impl AsRef<Path>,
+        kind: ArtifactKind,
+    ) -> Result<Artifact, ArtifactError> {
+        Artifact::open_inner(path.as_ref(), Some(kind))
+    }
+
+    fn open_inner(path: &Path, expected: Option<ArtifactKind>) -> Result<Artifact, ArtifactError> {
+        let io_err = |e| ArtifactError::io(path, e);
+        let file = File::open(path).map_err(io_err)?;
+        let meta = file.metadata().map_err(io_err)?;
+        if meta.is_dir() {
+            return Err(io_err(io::Error::new(
+                io::ErrorKind::IsADirectory,
+                "this is a folder, not an artifact file",
+            )));
+        }
+        if !meta.is_file() {
+            return Err(io_err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "not a regular file",
+            )));
+        }
+        if meta.len() < HEADER_SIZE {
+            return Err(ArtifactError::Truncated {
+                path: path.to_owned(),
+                what: "header",
+                need: HEADER_SIZE,
+                have: meta.len(),
+            });
+        }
+        // SAFETY: mapping a file is sound only while nobody modifies or truncates it. pcgi's
+        // writers never modify an artifact in place: `ArtifactWriter` writes `NAME.tmp` and
+        // renames the finished file over `NAME`, which replaces the directory entry and leaves
+        // the inode mapped here unchanged. Every byte is validated below before any cast, and
+        // the mapping is read-only. Another program truncating the file while it is mapped
+        // would make reads raise SIGBUS; we accept and document that (see `Artifact`).
+        let map = unsafe { Mmap::map(&file) }.map_err(io_err)?;
+        let validated = validate(path, &map, expected)?;
+        Ok(Artifact {
+            path: path.to_owned(),
+            map,
+            header: validated.header,
+            sections: validated.sections,
+            metadata: validated.metadata,
+        })
+    }
+
+    /// The file this artifact was opened from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// What the header says.
+    pub fn header(&self) -> &HeaderInfo {
+        &self.header
+    }
+
+    /// The artifact's kind.
+    pub fn kind(&self) -> ArtifactKind {
+        self.header.kind
+    }
+
+    /// The key of the inputs and parameters the artifact was made from.
+    pub fn key(&self) -> Key {
+        self.header.key
+    }
+
+    /// The sections, in file order.
+    pub fn sections(&self) -> &[SectionInfo] {
+        &self.sections
+    }
+
+    /// The section named `name`, if there is one.
+    pub fn section_info(&self, name: &str) -> Option<&SectionInfo> {
+        self.sections.iter().find(|s| s.name == name)
+    }
+
+    /// Whether the artifact has a section named `name`.
+    pub fn has_section(&self, name: &str) -> bool {
+        self.section_info(name).is_some()
+    }
+
+    fn find(&self, name: &str) -> Result<&SectionInfo, ArtifactError> {
+        self.section_info(name)
+            .ok_or_else(|| ArtifactError::MissingSection {
+                path: self.path.clone(),
+                section: name.to_owned(),
+            })
+    }
+
+    fn data(&self, info: &SectionInfo) -> &[u8] {
+        // In bounds: checked by `validate` against this very mapping.
+        let bytes = &self.map[info.offset as usize..(info.offset + info.len) as usize];
+        debug_assert_eq!(bytes.as_ptr() as usize % SECTION_ALIGN as usize, 0);
+        bytes
+    }
+
+    /// The section named `name` as a slice of `T`, borrowed from the mapping (64-byte aligned).
+    ///
+    /// Errors if there is no such section ([`ArtifactError::MissingSection`]) or its element
+    /// size is not `size_of::<T>()` ([`ArtifactError::ElementSize`]).
+    pub fn section<T: Pod>(&self, name: &str) -> Result<&[T], ArtifactError> {
+        let info = self.find(name)?;
+        if info.elem_size as usize != std::mem::size_of::<T>() {
+            return Err(ArtifactError::ElementSize {
+                path: self.path.clone(),
+                section: name.to_owned(),
+                expected: std::mem::size_of::<T>(),
+                got: info.elem_size,
+            });
+        }
+        let bytes = self.data(info);
+        if bytes.is_empty() {
+            return Ok(&[]);
+        }
+        bytemuck::try_cast_slice(bytes).map_err(|e| ArtifactError::Cast {
+            path: self.path.clone(),
+            section: name.to_owned(),
+            msg: e.to_string(),
+        })
+    }
+
+    /// The raw bytes of the section named `name`, whatever its element size.
+    pub fn section_bytes(&self, name: &str) -> Result<&[u8], ArtifactError> {
+        let info = self.find(name)?;
+        Ok(self.data(info))
+    }
+
+    /// Decodes the MessagePack metadata.
+    pub fn metadata<'a, M: Deserialize<'a>>(&'a self) -> Result<M, ArtifactError> {
+        let bytes = self.metadata_bytes();
+        if bytes.is_empty() {
+            return Err(ArtifactError::Metadata {
+                path: self.path.clone(),
+                msg: "the artifact has no metadata".to_owned(),
+            });
+        }
+        rmp_serde::from_slice(bytes).map_err(|e| ArtifactError::Metadata {
+            path: self.path.clone(),
+            msg: e.to_string(),
+        })
+    }
+
+    /// The raw MessagePack metadata (empty if the writer set none).
+    pub fn metadata_bytes(&self) -> &[u8] {
+        &self.map[self.metadata.clone()]
+    }
+
+    /// Errors with [`ArtifactError::StaleKey`] unless the artifact was made with key `expected`.
+    pub fn expect_key(&self, expected: &Key) -> Result<(), ArtifactError> {
+        if self.header.key == *expected {
+            Ok(())
+        } else {
+            Err(ArtifactError::StaleKey {
+                path: self.path.clone(),
+                expected: *expected,
+                got: self.header.key,
+            })
+        }
+    }
+
+    /// An [`ArtifactError::Invalid`] naming this file, for the structural checks of the crate
+    /// that owns this kind of artifact.
+    pub fn invalid(&self, msg: impl Into<String>) -> ArtifactError {
+        ArtifactError::invalid(&self.path, msg)
+    }
+}
+
+/// Checks every byte of `bytes` (the whole file) before anything is cast.
+fn validate(
+    path: &Path,
+    bytes: &[u8],
+    expected_kind: Option<ArtifactKind>,
+) -> Result<Validated, ArtifactError> {
+    let file_len = bytes.len() as u64;
+    let err_path = || path.to_owned();
+
+    // Header: length, magic, version, checksum, kind, file length.
+    if file_len < HEADER_SIZE {
+        return Err(ArtifactError::Truncated {
+            path: err_path(),
+            what: "header",
+            need: HEADER_SIZE,
+            have: file_len,
+        });
+    }
+    let raw: RawHeader = bytemuck::pod_read_unaligned(&bytes[..HEADER_SIZE as usize]);
+    if raw.magic != MAGIC {
+        return Err(ArtifactError::BadMagic {
+            path: err_path(),
+            found: raw.magic,
+        });
+    }
+    // Before the checksum: another version may lay its header out differently, and "rerun
+    // the stage" is the useful message then.
+    if raw.format_version != FORMAT_VERSION {
+        return Err(ArtifactError::Version {
+            path: err_path(),
+            expected: FORMAT_VERSION,
+            got: raw.format_version,
+        });
+    }
+    let header_checksum = raw.checksum();
+    if header_checksum != raw.header_checksum {
+        return Err(ArtifactError::HeaderChecksum {
+            path: err_path(),
+            expected: raw.header_checksum,
+            got: header_checksum,
+        });
+    }
+    let kind = ArtifactKind::from_u32(raw.kind);
+    match (expected_kind, kind) {
+        (Some(want), Some(got)) if want == got => {}
+        (Some(want), got) => {
+            return Err(ArtifactError::WrongKind {
+                path: err_path(),
+                expected: want,
+                got: match got {
+                    Some(k) => k.name().to_owned(),
+                    None => format!("unknown kind {}", raw.kind),
+                },
+            })
+        }
+        (None, Some(_)) => {}
+        (None, None) => {
+            return Err(ArtifactError::UnknownKind {
+                path: err_path(),
+                kind: raw.kind,
+            })
+        }
+    }
+    let kind = kind.expect("checked above");
+    if file_len < raw.file_len {
+        return Err(ArtifactError::Truncated {
+            path: err_path(),
+            what: "artifact",
+            need: raw.file_len,
+            have: file_len,
+        });
+    }
+    if file_len > raw.file_len {
+        return Err(ArtifactError::FileLength {
+            path: err_path(),
+            expected: raw.file_len,
+            have: file_len,
+        });
+    }
+    let stage = decode_label(path, "stage name", &raw.stage, 1)?;
+    let stage_version = decode_label(path, "stage version", &raw.stage_version, 0)?;
+
+    // Byte range of a region, once it is known to lie inside the file.
+    let region = |name: &str, offset: u64, len: u64| -> Result<Range<usize>, ArtifactError> {
+        match offset.checked_add(len) {
+            Some(end) if offset >= HEADER_SIZE && end <= file_len => {
+                Ok(offset as usize..end as usize)
+            }
+            _ => Err(ArtifactError::SectionBounds {
+                path: err_path(),
+                section: name.to_owned(),
+                offset,
+                len,
+                file_len,
+            }),
+        }
+    };
+    let checksum = |name: &str, data: &[u8], expected: u64| -> Result<(), ArtifactError> {
+        let got = xxh3_64(data);
+        if got == expected {
+            Ok(())
+        } else {
+            Err(ArtifactError::Checksum {
+                path: err_path(),
+                section: name.to_owned(),
+                expected,
+                got,
+            })
+        }
+    };
+
+    // Section table.
+    if raw.table_len != raw.section_count as u64 * TABLE_ENTRY_SIZE {
+        return Err(ArtifactError::Layout {
+            path: err_path(),
+            msg: format!(
+                "the section table is {} bytes, {} sections need {}",
+                raw.table_len,
+                raw.section_count,
+                raw.section_count as u64 * TABLE_ENTRY_SIZE
+            ),
+        });
+    }
+    let table_range = region(TABLE_REGION, raw.table_offset, raw.table_len)?;
+    let table = &bytes[table_range.clone()];
+    checksum(TABLE_REGION, table, raw.table_checksum)?;
+
+    // Metadata.
+    let metadata = region(METADATA_REGION, raw.metadata_offset, raw.metadata_len)?;
+    checksum(
+        METADATA_REGION,
+        &bytes[metadata.clone()],
+        raw.metadata_checksum,
+    )?;
+
+    // Sections.
+    let mut sections: Vec<SectionInfo> = Vec::with_capacity(raw.section_count as usize);
+    for entry_bytes in table.chunks_exact(TABLE_ENTRY_SIZE as usize) {
+        let entry: RawEntry = bytemuck::pod_read_unaligned(entry_bytes);
+        let end = entry
+            .name
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(entry.name.len());
+        let (name, padding) = entry.name.split_at(end);
+        if !valid_name_bytes(name) || padding.iter().any(|&b| b != 0) {
+            return Err(ArtifactError::BadName {
+                path: err_path(),
+                name: String::from_utf8_lossy(&entry.name).into_owned(),
+            });
+        }
+        let name = std::str::from_utf8(name).expect("checked ASCII").to_owned();
+        if sections.iter().any(|s| s.name == name) {
+            return Err(ArtifactError::DuplicateSection {
+                path: err_path(),
+                section: name,
+            });
+        }
+        let range = region(&name, entry.offset, entry.len)?;
+        if entry.offset % SECTION_ALIGN != 0 || entry.align as u64 != SECTION_ALIGN {
+            return Err(ArtifactError::Misaligned {
+                path: err_path(),
+                section: name,
+                offset: entry.offset,
+                align: entry.align,
+            });
+        }
+        if entry.elem_size == 0 || entry.len % entry.elem_size as u64 != 0 {
+            return Err(ArtifactError::Ragged {
+                path: err_path(),
+                section: name,
+                len: entry.len,
+                elem_size: entry.elem_size,
+            });
+        }
+        if entry.reserved != 0 {
+            return Err(ArtifactError::Layout {
+                path: err_path(),
+                msg: format!("section `{name}` has a nonzero reserved field"),
+            });
+        }
+        checksum(&name, &bytes[range], entry.checksum)?;
+        sections.push(SectionInfo {
+            name,
+            offset: entry.offset,
+            len: entry.len,
+            elem_size: entry.elem_size,
+            align: entry.align,
+            checksum: entry.checksum,
+        });
+    }
+
+    // Layout: the regions follow the header in order, each on the next 64-byte boundary, with
+    // zero padding between them and nothing after the table. Together with the checksums
+    // this leaves no byte of the file unchecked.
+    let mut pos = HEADER_SIZE;
+    let regions = sections
+        .iter()
+        .map(|s| (format!("section `{}`", s.name), s.offset, s.len))
+        .chain([
+            (
+                "the metadata".to_owned(),
+                raw.metadata_offset,
+                raw.metadata_len,
+            ),
+            (
+                "the section table".to_owned(),
+                raw.table_offset,
+                raw.table_len,
+            ),
+        ]);
+    for (what, offset, len) in regions {
+        let start = align_up(pos);
+        if offset != start {
+            return Err(ArtifactError::Layout {
+                path: err_path(),
+                msg: format!(
+                    "{what} starts at offset {offset}, expected {start} \
+                     (each region starts on the 64-byte boundary after the previous one)"
+                ),
+            });
+        }
+        if let Some(i) = bytes[pos as usize..start as usize]
+            .iter()
+            .position(|&b| b != 0)
+        {
+            return Err(ArtifactError::Layout {
+                path: err_path(),
+                msg: format!(
+                    "nonzero padding byte at offset {} before {what}",
+                    pos + i as u64
+                ),
+            });
+        }
+        pos = offset + len;
+    }
+    if pos != file_len {
+        return Err(ArtifactError::Layout {
+            path: err_path(),
+            msg: format!(
+                "{} bytes after the section table",
+                file_len.saturating_sub(pos)
+            ),
+        });
+    }
+
+    Ok(Validated {
+        header: HeaderInfo {
+            kind,
+            format_version: raw.format_version,
+            stage,
+            stage_version,
+            key: Key(raw.key),
+            created_unix: raw.created_unix,
+            file_len,
+        },
+        sections,
+        metadata,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn section_names() {
+        assert!(is_valid_section_name("nodes"));
+        assert!(is_valid_section_name("a"));
+        assert!(is_valid_section_name("abcdefghijklmnopqrstuvwx"));
+        assert!(is_valid_section_name("level_0_points"));
+        assert!(!is_valid_section_name(""));
+        assert!(!is_valid_section_name("abcdefghijklmnopqrstuvwxy"));
+        assert!(!is_valid_section_name("Nodes"));
+        assert!(!is_valid_section_name("a-b"));
+        assert!(!is_valid_section_name("a b"));
+        assert!(!is_valid_section_name("é"));
+    }
+
+    #[test]
+    fn labels() {
+        let p = Path::new("x");
+        let field = encode_label::<16>(p, "stage version", "0.1.0", 0).unwrap();
+        assert_eq!(
+            decode_label(p, "stage version", &field, 0).unwrap(),
+            "0.1.0"
+        );
+        let empty = encode_label::<16>(p, "stage version", "", 0).unwrap();
+        assert_eq!(decode_label(p, "stage version", &empty, 0).unwrap(), "");
+        assert!(encode_label::<32>(p, "stage name", "", 1).is_err());
+        assert!(encode_label::<4>(p, "stage name", "toolong", 1).is_err());
+        assert!(encode_label::<8>(p, "stage name", "a\0b", 1).is_err());
+        let full = encode_label::<4>(p, "stage name", "abcd", 1).unwrap();
+        assert_eq!(decode_label(p, "stage name", &full, 1).unwrap(), "abcd");
+        assert!(decode_label(p, "stage name", b"ab\0c", 1).is_err());
+        assert!(decode_label(p, "stage name", b"\xff\0\0\0", 1).is_err());
+    }
+
+    #[test]
+    fn tmp_paths() {
+        assert_eq!(
+            tmp_path_for(Path::new("out/a.octree")).unwrap(),
+            Path::new("out/a.octree.tmp")
+        );
+        assert_eq!(tmp_path_for(Path::new("a")).unwrap(), Path::new("a.tmp"));
+        assert!(tmp_path_for(Path::new("/")).is_none());
+        assert_eq!(parent_dir(Path::new("a")), Path::new("."));
+        assert_eq!(parent_dir(Path::new("out/a")), Path::new("out"));
+    }
+
+    #[test]
+    fn types_cross_threads() {
+        fn send_sync<T: Send + Sync + 'static>() {}
+        send_sync::<Artifact>();
+        send_sync::<ArtifactWriter>();
+        send_sync::<ArtifactError>();
+    }
+
+    #[test]
+    fn align() {
+        assert_eq!(align_up(0), 0);
+        assert_eq!(align_up(1), 64);
+        assert_eq!(align_up(64), 64);
+        assert_eq!(align_up(256), 256);
+        assert_eq!(align_up(257), 320);
+    }
+}

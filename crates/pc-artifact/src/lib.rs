@@ -1,0 +1,22 @@
+//! The artifact container: every on-disk format of pcgi, validated before any cast and written atomically.
+//!
+//! One file per artifact: a fixed header (magic, format version, artifact kind, producing stage
+//! and version, the key hashed from the inputs and parameters that made it), 64-byte aligned
+//! sections of plain little-endian arrays (uploadable to a GPU buffer as they are), MessagePack
+//! metadata, and a section table with a checksum per section. The byte layout is documented in
+//! [`container`].
+
+pub mod container;
+pub mod error;
+pub mod key;
+pub mod kind;
+pub mod octree;
+
+pub use container::{
+    is_valid_section_name, Artifact, ArtifactWriter, HeaderInfo, SectionInfo, FORMAT_VERSION,
+    HEADER_SIZE, MAGIC, MAX_SECTION_NAME, MAX_STAGE_NAME, MAX_STAGE_VERSION, SECTION_ALIGN,
+    TABLE_ENTRY_SIZE,
+};
+pub use error::{ArtifactError, METADATA_REGION, TABLE_REGION};
+pub use key::{Key, KeyHasher};
+pub use kind::ArtifactKind;

@@ -1,0 +1,282 @@
+//! Octree artifact schema: the GPU node pool of seed §8.5.10-§8.5.13 as plain little-endian sections.
+//!
+//! Every record here is `#[repr(C)]`, `Pod`, and laid out so that the section can be bound as a
+//! WGSL storage buffer as it is (`vec3<f32>` followed by a scalar fills 16 bytes). The WGSL twins
+//! live in `shaders/common/octree.wgsl`; a test in pc-octree checks the sizes and offsets match.
+//!
+//! Sections of an `octree` artifact:
+//!
+//! | name         | element        | meaning |
+//! |--------------|----------------|---------|
+//! | `nodes`      | `u32`          | node pool: 32-bit nodes, the 8 children of a node contiguous, in Morton (SFC) order |
+//! | `begin_end`  | `u32`          | the begin/end table of §8.5.12-§8.5.13 (Fig. 27), see [`BeginEnd`] |
+//! | `splats`     | [`Splat`]      | the data pool: splat records sorted by Morton code of their centre |
+//! | `node_info`  | [`NodeInfo`]   | per node-pool slot: average disk, normal field, area, count, class |
+//! | `splat_area` | `f32`          | per data-pool splat: the surface area the splat stands for |
+//! | `splat_leaf` | `u32`          | per data-pool splat: node-pool index of the leaf that owns it |
+//! | `materials`  | [`MaterialRecord`] | the material table that `Splat::material` indexes |
+//! | `frame`      | [`Frame`]      | one record: the root cube and the tree parameters |
+
+use bytemuck::{Pod, Zeroable};
+
+/// Section names of an octree artifact.
+pub mod sections {
+    pub const NODES: &str = "nodes";
+    pub const BEGIN_END: &str = "begin_end";
+    pub const SPLATS: &str = "splats";
+    pub const NODE_INFO: &str = "node_info";
+    pub const SPLAT_AREA: &str = "splat_area";
+    pub const SPLAT_LEAF: &str = "splat_leaf";
+    pub const MATERIALS: &str = "materials";
+    pub const FRAME: &str = "frame";
+}
+
+/// Node pool encoding (seed §8.5.10, Fig. 21): 30 bits of pointer and 2 flag bits.
+///
+/// * internal node: flags `00`, pointer = node-pool index of the first of its 8 children;
+/// * leaf: `LEAF` set, pointer = offset of the leaf's `beginP` entry in the begin/end table;
+/// * empty node: `EMPTY` set, pointer 0. An empty cell that a splat disk reaches into is not
+///   empty: it becomes a leaf with no own splats and only references (see docs/octree.md).
+pub mod node {
+    pub const LEAF: u32 = 1 << 31;
+    pub const EMPTY: u32 = 1 << 30;
+    pub const PTR_MASK: u32 = (1 << 30) - 1;
+    /// Largest node-pool index or begin/end offset a node can hold.
+    pub const MAX_PTR: u32 = PTR_MASK;
+
+    #[inline]
+    pub const fn internal(first_child: u32) -> u32 {
+        first_child & PTR_MASK
+    }
+    #[inline]
+    pub const fn leaf(begin_end_offset: u32) -> u32 {
+        LEAF | (begin_end_offset & PTR_MASK)
+    }
+    pub const EMPTY_NODE: u32 = EMPTY;
+    #[inline]
+    pub const fn is_leaf(n: u32) -> bool {
+        n & LEAF != 0
+    }
+    #[inline]
+    pub const fn is_empty(n: u32) -> bool {
+        n & EMPTY != 0
+    }
+    #[inline]
+    pub const fn ptr(n: u32) -> u32 {
+        n & PTR_MASK
+    }
+}
+
+/// Reading the begin/end table (seed §8.5.13, Fig. 27).
+///
+/// For a leaf whose node holds offset `o`:
+/// `table[o]` = beginP (first own splat in the data pool), `table[o + 1]` = E (number of
+/// referenced splats from neighbouring leaves), `table[o + 2 .. o + 2 + E]` = their data-pool
+/// indices, and `table[o + 2 + E]` = endP, which is also the next leaf's beginP. The table ends
+/// with one sentinel entry holding the data-pool length. Leaves are laid out in SFC order, so
+/// own splat ranges are contiguous and consecutive.
+pub struct BeginEnd;
+
+impl BeginEnd {
+    /// Own splat range `[begin, end)` and the referenced splats of the leaf at `offset`.
+    /// Returns `None` when the offset or the counts run outside the table.
+    #[inline]
+    pub fn leaf(table: &[u32], offset: u32) -> Option<(u32, u32, &[u32])> {
+        let o = offset as usize;
+        let begin = *table.get(o)?;
+        let extra = *table.get(o + 1)? as usize;
+        let refs = table.get(o + 2..o + 2 + extra)?;
+        let end = *table.get(o + 2 + extra)?;
+        Some((begin, end, refs))
+    }
+}
+
+/// Material classes. Diffuse and specular splats never share a leaf (§8.5.1).
+pub mod class {
+    pub const DIFFUSE: u32 = 0;
+    pub const EMITTER: u32 = 1;
+    pub const MIRROR: u32 = 2;
+    pub const DIELECTRIC: u32 = 3;
+    /// `NodeInfo::class` of an empty node.
+    pub const NONE: u32 = 0xFF;
+    /// `NodeInfo::class` of an internal node whose subtree mixes classes.
+    pub const MIXED: u32 = 0xFE;
+
+    /// Specular classes are traced by rays; the others hold radiosity.
+    #[inline]
+    pub const fn is_specular(c: u32) -> bool {
+        c == MIRROR || c == DIELECTRIC
+    }
+}
+
+/// One splat of the data pool: 48 bytes, three `vec4`s (seed §8.5.12 packs 44 bytes in 3 texels).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Splat {
+    pub position: [f32; 3],
+    pub radius: f32,
+    /// Unit normal; the surface's front side.
+    pub normal: [f32; 3],
+    /// Index into the `materials` section.
+    pub material: u32,
+    /// Per-point linear RGB color from the PLY, or (1, 1, 1). The effective albedo /
+    /// reflectance / tint is `MaterialRecord::color * albedo`, so a material's color can change
+    /// without rebuilding the octree.
+    pub albedo: [f32; 3],
+    /// Index of the splat in the imported scene (models concatenated in config order).
+    pub source: u32,
+}
+
+/// Per node-pool slot: the average disk of Fig. 13 and the normal field of §8.5.5.
+///
+/// For empty slots everything is zero and `class == class::NONE`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct NodeInfo {
+    /// Area-weighted centroid of the splat centres in the node (the average disk's centre).
+    pub centroid: [f32; 3],
+    /// Average-disk radius: max over the node's splats of |centroid - centre| + radius (Fig. 13).
+    pub disk_radius: f32,
+    /// Area-weighted average normal, normalised; zero when the normals cancel out.
+    pub normal: [f32; 3],
+    /// Sum of the splat areas (`splat_area`) of the node's own splats.
+    pub area: f32,
+    /// Normal-field tilt factors ν, ω of §8.5.5 (leaves only; zero elsewhere), along
+    /// [`tangent_frame`]`(normal)` scaled by `disk_radius`.
+    pub tilt: [f32; 2],
+    /// Number of splats the node owns (its subtree's, for internal nodes).
+    pub count: u32,
+    /// Material class (`class::*`), `MIXED` for an internal node over several classes.
+    pub class: u32,
+}
+
+/// A material as the renderer and solvers need it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MaterialRecord {
+    /// Albedo (diffuse, emitter), reflectance (mirror) or tint (dielectric), linear RGB.
+    pub color: [f32; 3],
+    /// One of `class::*`.
+    pub class: u32,
+    /// Emitted radiance (emitters), linear RGB; zero for the others.
+    pub radiance: [f32; 3],
+    /// Index of refraction (dielectric); 1 otherwise.
+    pub ior: f32,
+    /// Phong highlight exponent of specular materials; 0 = no highlight.
+    pub phong: f32,
+    /// 1 when the albedo comes per point from the PLY colors.
+    pub per_point_color: u32,
+    pub _pad: [u32; 2],
+}
+
+/// The root cube and tree parameters (one record).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Frame {
+    /// Minimum corner of the root cube.
+    pub origin: [f32; 3],
+    /// Edge length of the root cube.
+    pub size: f32,
+    /// 1 / size, used for the point-location descent so CPU and GPU round the same way.
+    pub inv_size: f32,
+    /// Deepest level of any leaf (root = 0).
+    pub depth: u32,
+    /// Maximum depth the build allowed.
+    pub max_depth: u32,
+    /// k, the maximum number of own splats per leaf (unless at maximum depth).
+    pub max_leaf_points: u32,
+    pub node_count: u32,
+    pub leaf_count: u32,
+    pub splat_count: u32,
+    pub ref_count: u32,
+}
+
+/// The tangent frame (u, v) of a unit normal used for the normal field and for the splat's
+/// bounding square (§8.5.5, §8.5.13): deterministic, orthonormal, `v = n × u`.
+///
+/// Duff et al. 2017, "Building an Orthonormal Basis, Revisited" (branchless, continuous except
+/// at n.z = -1 where the sign switches). The WGSL twin is `tangent_frame` in
+/// `shaders/common/octree.wgsl`.
+#[inline]
+pub fn tangent_frame(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+    let sign = if n[2] >= 0.0 { 1.0f32 } else { -1.0 };
+    let a = -1.0 / (sign + n[2]);
+    let b = n[0] * n[1] * a;
+    let u = [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]];
+    // v = n × u
+    let v = [
+        n[1] * u[2] - n[2] * u[1],
+        n[2] * u[0] - n[0] * u[2],
+        n[0] * u[1] - n[1] * u[0],
+    ];
+    (u, v)
+}
+
+/// Metadata stored with an octree artifact (MessagePack).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct OctreeMeta {
+    /// The pipeline.toml that described the scene, as given.
+    pub config: String,
+    /// Input PLY files with their content hashes.
+    pub inputs: Vec<InputFile>,
+    pub max_leaf_points: u32,
+    pub max_depth: u32,
+    pub splats: u64,
+    pub nodes: u64,
+    pub leaves: u64,
+    pub empty_nodes: u64,
+    pub ref_leaves: u64,
+    pub extra_refs: u64,
+    pub depth: u32,
+    pub leaves_at_max_depth: u64,
+    pub material_names: Vec<String>,
+    /// Wall-clock seconds per build phase, in order.
+    pub timings: Vec<(String, f64)>,
+    pub dropped_points: u64,
+}
+
+/// One input file of a stage, for provenance.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct InputFile {
+    pub path: String,
+    pub bytes: u64,
+    pub hash: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn record_sizes_are_gpu_friendly() {
+        assert_eq!(std::mem::size_of::<Splat>(), 48);
+        assert_eq!(std::mem::size_of::<NodeInfo>(), 48);
+        assert_eq!(std::mem::size_of::<MaterialRecord>(), 48);
+        assert_eq!(std::mem::size_of::<Frame>(), 48);
+    }
+
+    #[test]
+    fn tangent_frame_is_orthonormal() {
+        for n in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [1.0, 0.0, 0.0],
+            [0.6, 0.0, -0.8],
+            [0.0, -1.0, 0.0],
+        ] {
+            let (u, v) = tangent_frame(n);
+            let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            assert!(dot(u, n).abs() < 1e-6 && dot(v, n).abs() < 1e-6 && dot(u, v).abs() < 1e-6);
+            assert!((dot(u, u) - 1.0).abs() < 1e-6 && (dot(v, v) - 1.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn begin_end_reads_fig27_layout() {
+        // leaf A: own [0,3), refs {7, 9}; leaf B: own [3,5), no refs; sentinel 5.
+        let t = [0, 2, 7, 9, 3, 0, 5];
+        assert_eq!(BeginEnd::leaf(&t, 0), Some((0, 3, &[7u32, 9][..])));
+        assert_eq!(BeginEnd::leaf(&t, 4), Some((3, 5, &[][..])));
+        assert_eq!(BeginEnd::leaf(&t, 6), None);
+    }
+}

@@ -1,0 +1,7 @@
+//! Integration tests of the artifact container: round trips, the atomic writer, keys, and corrupt files.
+
+mod common;
+mod corrupt;
+mod key;
+mod roundtrip;
+mod writer;

@@ -1,0 +1,312 @@
+//! The one crate that owns the GPU: wgpu instance, adapter and device, kernel pipelines, buffers.
+//!
+//! Stage crates get a [`GpuContext`] and build [`Kernel`]s from WGSL sources composed with
+//! [`compose`] (shared code from `shaders/common/` first). Every kernel has a CPU twin in its
+//! stage crate; tests hold the two together. [`test_context`] is how tests get a device: with
+//! `PC_REQUIRE_GPU=1` a missing adapter fails the test instead of skipping it.
+
+use std::sync::mpsc;
+
+use wgpu::util::DeviceExt;
+
+/// Errors from the GPU layer.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error("no GPU adapter found (wgpu: {0}); on Debian install mesa-vulkan-drivers for a software Vulkan driver, or use --backend cpu")]
+    NoAdapter(String),
+    #[error("the GPU adapter `{adapter}` refused a device: {msg}")]
+    Device { adapter: String, msg: String },
+    #[error("GPU buffer of {need} bytes exceeds the device limit of {limit} bytes ({what})")]
+    TooLarge { what: String, need: u64, limit: u64 },
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+    #[error("WGSL kernel `{label}` failed validation: {msg}")]
+    Shader { label: String, msg: String },
+}
+
+/// Instance, adapter, device and queue.
+pub struct GpuContext {
+    pub adapter: wgpu::Adapter,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+}
+
+impl GpuContext {
+    /// Find an adapter (hardware first, then any software one) and open a device with the
+    /// adapter's own limits, so large scenes fit.
+    pub fn new() -> Result<GpuContext, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let mut last_err = String::from("no adapter");
+        let mut adapter = None;
+        for fallback in [false, true] {
+            let opts = wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                force_fallback_adapter: fallback,
+                compatible_surface: None,
+                ..Default::default()
+            };
+            match pollster::block_on(instance.request_adapter(&opts)) {
+                Ok(a) => {
+                    adapter = Some(a);
+                    break;
+                }
+                Err(e) => last_err = e.to_string(),
+            }
+        }
+        let adapter = adapter.ok_or(GpuError::NoAdapter(last_err))?;
+        let info = adapter.get_info();
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("pcgi"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
+            .map_err(|e| GpuError::Device { adapter: info.name.clone(), msg: e.to_string() })?;
+        Ok(GpuContext { adapter, device, queue, info })
+    }
+
+    /// One line naming the adapter, for logs and benchmark tables.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?}, {:?})", self.info.name, self.info.device_type, self.info.backend)
+    }
+
+    /// True for software rasterizers such as llvmpipe.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    fn check_size(&self, what: &str, need: u64) -> Result<(), GpuError> {
+        let limits = self.device.limits();
+        let limit = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+        if need > limit {
+            return Err(GpuError::TooLarge { what: what.to_string(), need, limit });
+        }
+        Ok(())
+    }
+
+    /// A storage buffer holding `bytes` (at least 16 bytes, so empty arrays can still bind).
+    pub fn storage(&self, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer, GpuError> {
+        self.check_size(label, bytes.len() as u64)?;
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        if bytes.len() < 16 {
+            let mut padded = [0u8; 16];
+            padded[..bytes.len()].copy_from_slice(bytes);
+            return Ok(self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &padded,
+                usage,
+            }));
+        }
+        Ok(self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage }))
+    }
+
+    /// A zeroed read-write storage buffer of `size` bytes for kernel output.
+    pub fn output(&self, label: &str, size: u64) -> Result<wgpu::Buffer, GpuError> {
+        self.check_size(label, size)?;
+        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(16).next_multiple_of(4),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        }))
+    }
+
+    /// A uniform buffer holding `bytes`.
+    pub fn uniform(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytes,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        })
+    }
+
+    /// Copy the first `size` bytes of `buffer` back to the host (blocking).
+    pub fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: padded,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let view = staging.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
+        let out = view[..size as usize].to_vec();
+        drop(view);
+        staging.unmap();
+        Ok(out)
+    }
+
+    /// Build a compute kernel from WGSL source. `bindings` lists group 0's bindings in order.
+    /// The source is validated with naga first so a broken shader is a clear error.
+    pub fn kernel(&self, label: &str, source: &str, entry: &str, bindings: &[Binding]) -> Result<Kernel, GpuError> {
+        validate_wgsl(source).map_err(|msg| GpuError::Shader { label: label.to_string(), msg })?;
+        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupLayoutEntry {
+                binding: i as u32,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: match b {
+                    Binding::Uniform => wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    Binding::ReadOnly => wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    Binding::ReadWrite => wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                },
+                count: None,
+            })
+            .collect();
+        let layout = self
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries });
+        let pipeline_layout = self.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(label),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(label),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        Ok(Kernel { label: label.to_string(), pipeline, layout })
+    }
+}
+
+/// The kind of one binding of a kernel's group 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Binding {
+    Uniform,
+    ReadOnly,
+    ReadWrite,
+}
+
+/// A compute pipeline with its bind-group layout, made once and dispatched many times.
+pub struct Kernel {
+    label: String,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl Kernel {
+    /// Bind `buffers` (in binding order) and dispatch `groups` workgroups, then wait.
+    pub fn run(&self, ctx: &GpuContext, buffers: &[&wgpu::Buffer], groups: (u32, u32, u32)) -> Result<(), GpuError> {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&self.label),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(&self.label) });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(&self.label), timestamp_writes: None });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+        }
+        ctx.queue.submit([enc.finish()]);
+        ctx.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(())
+    }
+}
+
+/// Workgroup grid for `n` invocations of `group_size` threads: x at most 65535, the rest in y.
+/// Kernels index with `gid.x + gid.y * (num_workgroups.x * group_size)`.
+pub fn grid(n: u32, group_size: u32) -> (u32, u32, u32) {
+    let groups = n.div_ceil(group_size).max(1);
+    if groups <= 65535 {
+        (groups, 1, 1)
+    } else {
+        (65535, groups.div_ceil(65535), 1)
+    }
+}
+
+/// Concatenate WGSL parts (shared code from `shaders/common/` first, the kernel last).
+pub fn compose(parts: &[&str]) -> String {
+    let mut s = String::new();
+    for p in parts {
+        s.push_str(p);
+        s.push('\n');
+    }
+    s
+}
+
+/// Parse and validate WGSL with naga; the error is naga's report.
+pub fn validate_wgsl(source: &str) -> Result<naga::Module, String> {
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+        .validate(&module)
+        .map_err(|e| e.emit_to_string(source))?;
+    Ok(module)
+}
+
+/// Size, alignment and member offsets of a WGSL struct, as naga lays it out, for tests that hold
+/// Rust `#[repr(C)]` records to their WGSL twins.
+pub fn wgsl_struct_layout(module: &naga::Module, name: &str) -> Option<(u32, Vec<(String, u32)>)> {
+    module.types.iter().find_map(|(_, ty)| match &ty.inner {
+        naga::TypeInner::Struct { members, span } if ty.name.as_deref() == Some(name) => Some((
+            *span,
+            members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect(),
+        )),
+        _ => None,
+    })
+}
+
+/// Whether tests must have a GPU (`PC_REQUIRE_GPU=1`, set in CI).
+pub fn gpu_required() -> bool {
+    std::env::var("PC_REQUIRE_GPU").is_ok_and(|v| v == "1" || v.eq_ignore_ascii_case("true"))
+}
+
+/// The context GPU tests use: `None` (with a note on stderr) when no adapter exists, unless
+/// `PC_REQUIRE_GPU=1`, in which case a missing adapter fails the test.
+pub fn test_context() -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(ctx) => Some(ctx),
+        Err(e) if gpu_required() => panic!("PC_REQUIRE_GPU=1 but {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU comparison: {e}");
+            None
+        }
+    }
+}

@@ -1,0 +1,557 @@
+//! The octree build: root cube, Morton sort, level-by-level adaptive split, node pool, leaf
+//! references (§8.5.13), begin/end table, per-node statistics and normal fields.
+//!
+//! Every phase is a parallel pass (rayon) over splats or over the nodes of one level; the only
+//! sequential work is a prefix sum per level to place the child groups. See docs/octree.md.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use pc_artifact::octree::{class, node, tangent_frame, Frame, NodeInfo, Splat};
+use pc_tree::{locate_normalized, OctreeView};
+use rayon::prelude::*;
+
+use crate::morton;
+
+/// Why a build failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    #[error("the scene has no splats")]
+    Empty,
+    #[error("splat {index}: {what} is not finite or not positive")]
+    BadSplat { index: usize, what: &'static str },
+    #[error("the octree needs {need} {what}, more than the 30-bit pointers of the node format allow ({max})")]
+    TooLarge { what: &'static str, need: u64, max: u64 },
+    #[error("invalid parameter: {0}")]
+    Param(String),
+}
+
+/// Build parameters (pipeline.toml `[octree]`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BuildParams {
+    pub max_leaf_points: u32,
+    pub max_depth: u32,
+    pub area_samples: u32,
+}
+
+impl Default for BuildParams {
+    fn default() -> Self {
+        BuildParams { max_leaf_points: 16, max_depth: morton::BITS, area_samples: 8 }
+    }
+}
+
+/// The splats to build over (structure of arrays, as the importer makes them).
+#[derive(Clone, Copy, Debug)]
+pub struct BuildInput<'a> {
+    pub positions: &'a [Vec3],
+    pub normals: &'a [Vec3],
+    pub radii: &'a [f32],
+    pub albedo: &'a [Vec3],
+    /// Material index per splat.
+    pub material: &'a [u32],
+    /// `class::*` of each material.
+    pub material_class: &'a [u32],
+}
+
+/// Counts that describe a built tree.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BuildStats {
+    pub splats: u64,
+    pub nodes: u64,
+    pub leaves: u64,
+    pub empty_nodes: u64,
+    /// Leaves without own splats that exist only because neighbouring disks reach into them.
+    pub ref_leaves: u64,
+    /// Splat references added to leaves other than the owner (§8.5.13).
+    pub extra_refs: u64,
+    pub depth: u32,
+    /// Leaves at the maximum depth that still exceed k or mix classes.
+    pub leaves_at_max_depth: u64,
+    pub timings: Vec<(String, f64)>,
+}
+
+/// A built octree, owning its sections.
+#[derive(Clone, Debug)]
+pub struct Octree {
+    pub frame: Frame,
+    pub nodes: Vec<u32>,
+    pub begin_end: Vec<u32>,
+    pub splats: Vec<Splat>,
+    pub node_info: Vec<NodeInfo>,
+    pub splat_area: Vec<f32>,
+    pub splat_leaf: Vec<u32>,
+    pub stats: BuildStats,
+}
+
+impl Octree {
+    pub fn view(&self) -> OctreeView<'_> {
+        OctreeView {
+            frame: self.frame,
+            nodes: &self.nodes,
+            begin_end: &self.begin_end,
+            splats: &self.splats,
+            node_info: &self.node_info,
+            splat_area: &self.splat_area,
+            splat_leaf: &self.splat_leaf,
+        }
+    }
+}
+
+/// A non-empty node found during the split: its slot, splat range in Morton order and depth.
+#[derive(Clone, Copy, Debug)]
+struct Span {
+    slot: u32,
+    lo: u32,
+    hi: u32,
+    depth: u32,
+}
+
+/// Purity key: 0 for every non-specular material, 1 + material index for specular ones, so a
+/// leaf never mixes diffuse and specular splats, nor two different specular materials.
+fn purity_key(material: u32, material_class: &[u32]) -> u32 {
+    if class::is_specular(material_class[material as usize]) {
+        1 + material
+    } else {
+        0
+    }
+}
+
+/// Build the octree. `phase` is called with the name of each phase as it starts.
+pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&str)) -> Result<Octree, BuildError> {
+    let n = input.positions.len();
+    if n == 0 {
+        return Err(BuildError::Empty);
+    }
+    if params.max_leaf_points == 0 || params.max_depth == 0 || params.max_depth > morton::BITS {
+        return Err(BuildError::Param(format!(
+            "max_leaf_points must be >= 1 and max_depth in 1..={} (got {} and {})",
+            morton::BITS,
+            params.max_leaf_points,
+            params.max_depth
+        )));
+    }
+    if n as u64 > node::MAX_PTR as u64 {
+        return Err(BuildError::TooLarge { what: "splats", need: n as u64, max: node::MAX_PTR as u64 });
+    }
+    for (what, len) in [("normals", input.normals.len()), ("radii", input.radii.len()), ("albedo", input.albedo.len()), ("material", input.material.len())] {
+        if len != n {
+            return Err(BuildError::Param(format!("{what} has {len} entries for {n} positions")));
+        }
+    }
+    if let Some(i) = input.material.iter().position(|&m| m as usize >= input.material_class.len()) {
+        return Err(BuildError::Param(format!("splat {i} names material {} of {}", input.material[i], input.material_class.len())));
+    }
+    let mut timings = Vec::new();
+    let mut t0 = Instant::now();
+    let lap = |name: &str, timings: &mut Vec<(String, f64)>, t0: &mut Instant| {
+        timings.push((name.to_string(), t0.elapsed().as_secs_f64()));
+        *t0 = Instant::now();
+    };
+
+    // ---- root cube -------------------------------------------------------------------------
+    phase("bounds");
+    if let Some(i) = (0..n).into_par_iter().find_first(|&i| {
+        !input.positions[i].is_finite() || !(input.radii[i].is_finite() && input.radii[i] > 0.0)
+    }) {
+        let what = if input.positions[i].is_finite() { "radius" } else { "position" };
+        return Err(BuildError::BadSplat { index: i, what });
+    }
+    let (lo, hi) = (0..n)
+        .into_par_iter()
+        .fold(
+            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), i| {
+                let r = Vec3::splat(input.radii[i]);
+                (lo.min(input.positions[i] - r), hi.max(input.positions[i] + r))
+            },
+        )
+        .reduce(
+            || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |a, b| (a.0.min(b.0), a.1.max(b.1)),
+        );
+    let extent = (hi - lo).max_element();
+    let center = (lo + hi) * 0.5;
+    // A small margin keeps every normalised coordinate strictly inside [0, 1).
+    let size = (extent * 1.002).max(center.abs().max_element() * 1e-5).max(f32::MIN_POSITIVE * 1e6);
+    let origin = center - Vec3::splat(size * 0.5);
+    let inv_size = 1.0 / size;
+    let mut frame = Frame {
+        origin: origin.into(),
+        size,
+        inv_size,
+        max_depth: params.max_depth,
+        max_leaf_points: params.max_leaf_points,
+        splat_count: n as u32,
+        ..Default::default()
+    };
+    lap("bounds", &mut timings, &mut t0);
+
+    // ---- Morton codes and parallel sort -----------------------------------------------------
+    phase("morton sort");
+    let mut keyed: Vec<(u64, u32)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let q = (input.positions[i] - origin) * inv_size;
+            let code = morton::encode(morton::quantize(q.x), morton::quantize(q.y), morton::quantize(q.z));
+            (code, i as u32)
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    let codes: Vec<u64> = keyed.par_iter().map(|k| k.0).collect();
+    let order: Vec<u32> = keyed.par_iter().map(|k| k.1).collect();
+    drop(keyed);
+    let purity: Vec<u32> = order
+        .par_iter()
+        .map(|&i| purity_key(input.material[i as usize], input.material_class))
+        .collect();
+    lap("morton sort", &mut timings, &mut t0);
+
+    // ---- adaptive split, level by level -----------------------------------------------------
+    phase("split");
+    let k = params.max_leaf_points;
+    let mut nodes: Vec<u32> = vec![0];
+    let mut spans: Vec<Span> = Vec::new(); // every non-empty node
+    let mut leaves: Vec<Span> = Vec::new();
+    let mut empties: Vec<(u32, u32)> = Vec::new(); // (slot, position in Morton order)
+    let mut level = vec![Span { slot: 0, lo: 0, hi: n as u32, depth: 0 }];
+    let mut leaves_at_max_depth = 0u64;
+    while !level.is_empty() {
+        let splits: Vec<Option<[u32; 9]>> = level
+            .par_iter()
+            .map(|s| {
+                let count = s.hi - s.lo;
+                let range = s.lo as usize..s.hi as usize;
+                let impure = count > 1 && {
+                    let p0 = purity[s.lo as usize];
+                    purity[range.clone()].iter().any(|&p| p != p0)
+                };
+                if s.depth >= params.max_depth || (count <= k && !impure) {
+                    return None;
+                }
+                let c = &codes[range];
+                let mut b = [s.lo; 9];
+                for (child, slot) in b.iter_mut().enumerate().skip(1) {
+                    *slot = s.lo + c.partition_point(|&x| morton::child_at(x, s.depth) < child as u32) as u32;
+                }
+                b[8] = s.hi;
+                Some(b)
+            })
+            .collect();
+        let mut next = Vec::new();
+        for (s, split) in level.iter().zip(splits) {
+            spans.push(*s);
+            match split {
+                None => {
+                    let count = s.hi - s.lo;
+                    if s.depth >= params.max_depth && (count > k || {
+                        let p0 = purity[s.lo as usize];
+                        purity[s.lo as usize..s.hi as usize].iter().any(|&p| p != p0)
+                    }) {
+                        leaves_at_max_depth += 1;
+                    }
+                    leaves.push(*s);
+                }
+                Some(b) => {
+                    let base = nodes.len() as u64;
+                    if base + 8 > node::MAX_PTR as u64 {
+                        return Err(BuildError::TooLarge { what: "nodes", need: base + 8, max: node::MAX_PTR as u64 });
+                    }
+                    nodes[s.slot as usize] = node::internal(base as u32);
+                    nodes.extend_from_slice(&[0; 8]);
+                    for c in 0..8 {
+                        let slot = base as u32 + c as u32;
+                        if b[c] == b[c + 1] {
+                            nodes[slot as usize] = node::EMPTY_NODE;
+                            empties.push((slot, b[c]));
+                        } else {
+                            next.push(Span { slot, lo: b[c], hi: b[c + 1], depth: s.depth + 1 });
+                        }
+                    }
+                }
+            }
+        }
+        level = next;
+    }
+    lap("split", &mut timings, &mut t0);
+
+    // ---- data pool in Morton order ------------------------------------------------------------
+    phase("data pool");
+    let splats: Vec<Splat> = order
+        .par_iter()
+        .map(|&i| {
+            let i = i as usize;
+            Splat {
+                position: input.positions[i].into(),
+                radius: input.radii[i],
+                normal: input.normals[i].normalize_or(Vec3::Z).into(),
+                material: input.material[i],
+                albedo: input.albedo[i].into(),
+                source: i as u32,
+            }
+        })
+        .collect();
+    let mut splat_leaf = vec![0u32; n];
+    for l in &leaves {
+        splat_leaf[l.lo as usize..l.hi as usize].fill(l.slot);
+    }
+    // Leaves are marked now (pointer filled below) so the overlap pass can tell them apart.
+    for l in &leaves {
+        nodes[l.slot as usize] = node::LEAF;
+    }
+    lap("data pool", &mut timings, &mut t0);
+
+    // ---- §8.5.13: every leaf a disk reaches references it -----------------------------------
+    phase("leaf references");
+    let mut refs: Vec<(u32, u32)> = (0..n as u32)
+        .into_par_iter()
+        .flat_map_iter(|s| overlapped_cells(&frame, &nodes, &splats[s as usize], splat_leaf[s as usize]).map(move |slot| (slot, s)))
+        .collect();
+    refs.par_sort_unstable();
+    lap("leaf references", &mut timings, &mut t0);
+
+    // ---- leaves in SFC order and the begin/end table ------------------------------------------
+    phase("begin/end table");
+    // Empty cells that a disk reaches into become leaves with references only.
+    let mut all_leaves: Vec<(u32, u32, u32)> = leaves.iter().map(|l| (l.lo, l.hi, l.slot)).collect();
+    let mut ref_leaves = 0u64;
+    {
+        let mut r = 0;
+        let mut sorted_empties = empties.clone();
+        sorted_empties.sort_unstable();
+        for &(slot, at) in &sorted_empties {
+            while r < refs.len() && refs[r].0 < slot {
+                r += 1;
+            }
+            if r < refs.len() && refs[r].0 == slot {
+                all_leaves.push((at, at, slot));
+                ref_leaves += 1;
+            }
+        }
+    }
+    all_leaves.par_sort_unstable();
+    let table_len = 2 * all_leaves.len() as u64 + refs.len() as u64 + 1;
+    if table_len > node::MAX_PTR as u64 {
+        return Err(BuildError::TooLarge { what: "begin/end entries", need: table_len, max: node::MAX_PTR as u64 });
+    }
+    let mut begin_end = Vec::with_capacity(table_len as usize);
+    for &(lo, _hi, slot) in &all_leaves {
+        let first = refs.partition_point(|r| r.0 < slot);
+        let last = refs.partition_point(|r| r.0 <= slot);
+        nodes[slot as usize] = node::leaf(begin_end.len() as u32);
+        begin_end.push(lo);
+        begin_end.push((last - first) as u32);
+        begin_end.extend(refs[first..last].iter().map(|r| r.1));
+    }
+    begin_end.push(n as u32);
+    lap("begin/end table", &mut timings, &mut t0);
+
+    // ---- splat areas: partition of unity over overlapping disks ---------------------------------
+    phase("splat areas");
+    let splat_area = splat_areas(&frame, &nodes, &begin_end, &splats, params.area_samples);
+    lap("splat areas", &mut timings, &mut t0);
+
+    // ---- per-node average disk, normal, area, class; normal fields of leaves ------------------
+    phase("node statistics");
+    let infos: Vec<(u32, NodeInfo)> = spans
+        .par_iter()
+        .map(|s| {
+            let range = s.lo as usize..s.hi as usize;
+            (s.slot, node_info(&splats[range.clone()], &splat_area[range], input.material_class, node::is_leaf(nodes[s.slot as usize])))
+        })
+        .collect();
+    let mut node_info = vec![NodeInfo { class: class::NONE, ..Default::default() }; nodes.len()];
+    for (slot, info) in infos {
+        node_info[slot as usize] = info;
+    }
+    lap("node statistics", &mut timings, &mut t0);
+
+    let depth = spans.iter().map(|s| s.depth).max().unwrap_or(0);
+    let leaf_count = all_leaves.len() as u64;
+    frame.depth = depth;
+    frame.node_count = nodes.len() as u32;
+    frame.leaf_count = leaf_count as u32;
+    frame.ref_count = refs.len() as u32;
+    let stats = BuildStats {
+        splats: n as u64,
+        nodes: nodes.len() as u64,
+        leaves: leaf_count,
+        empty_nodes: empties.len() as u64 - ref_leaves,
+        ref_leaves,
+        extra_refs: refs.len() as u64,
+        depth,
+        leaves_at_max_depth,
+        timings,
+    };
+    Ok(Octree { frame, nodes, begin_end, splats, node_info, splat_area, splat_leaf, stats })
+}
+
+/// Half extents of a disk's exact axis-aligned bounding box: r·sqrt(1 − n_axis²).
+#[inline]
+pub fn disk_half_extent(n: Vec3, r: f32) -> Vec3 {
+    (Vec3::ONE - n * n).max(Vec3::ZERO).sqrt() * r
+}
+
+/// Leaves and empty cells, other than `owner`, that the splat's disk may overlap: the nested
+/// test of §8.5.13, box first (the disk's exact bounding box against the cell, pruning whole
+/// subtrees), then plane (the cell's 8 corners against the splat's plane; all on one side means
+/// the disk cannot touch the cell). Both tests are conservative, so there are no false
+/// negatives; cells are inflated by a tiny epsilon for robustness against rounding.
+pub fn overlapped_cells(frame: &Frame, nodes: &[u32], s: &Splat, owner: u32) -> impl Iterator<Item = u32> {
+    let c = Vec3::from(s.position);
+    let n = Vec3::from(s.normal);
+    let half = disk_half_extent(n, s.radius);
+    let (bmin, bmax) = (c - half, c + half);
+    let eps = frame.size * 1e-6;
+    let mut out: Vec<u32> = Vec::new();
+    // (slot, cell min corner, cell size)
+    let mut stack: Vec<(u32, Vec3, f32)> = vec![(0, Vec3::from(frame.origin), frame.size)];
+    while let Some((slot, lo, size)) = stack.pop() {
+        let w = nodes[slot as usize];
+        if w & (node::LEAF | node::EMPTY) != 0 {
+            if slot != owner && plane_crosses_cell(c, n, lo - Vec3::splat(eps), size + 2.0 * eps) {
+                out.push(slot);
+            }
+            continue;
+        }
+        let half_size = size * 0.5;
+        let first = node::ptr(w);
+        for child in 0..8u32 {
+            let off = Vec3::new((child & 1) as f32, ((child >> 1) & 1) as f32, ((child >> 2) & 1) as f32);
+            let clo = lo + off * half_size;
+            let chi = clo + Vec3::splat(half_size);
+            if (bmin.cmple(chi + Vec3::splat(eps)) & bmax.cmpge(clo - Vec3::splat(eps))).all() {
+                stack.push((first + child, clo, half_size));
+            }
+        }
+    }
+    out.into_iter()
+}
+
+/// True unless all 8 corners of the cell lie strictly on one side of the plane (c, n).
+#[inline]
+fn plane_crosses_cell(c: Vec3, n: Vec3, lo: Vec3, size: f32) -> bool {
+    // Signed distance range of the box to the plane: centre distance ± projected half extent.
+    let half = Vec3::splat(size * 0.5);
+    let center = lo + half;
+    let d = (center - c).dot(n);
+    let reach = half.dot(n.abs());
+    d.abs() <= reach
+}
+
+/// Points on the unit disk for the area estimate: a Fibonacci (golden-angle) spiral, area
+/// uniform, deterministic.
+fn disk_pattern(m: u32) -> impl Iterator<Item = (f32, f32)> {
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    (0..m).map(move |k| {
+        let r = ((k as f32 + 0.5) / m as f32).sqrt();
+        let a = k as f32 * golden;
+        (r * a.cos(), r * a.sin())
+    })
+}
+
+/// Area each splat stands for: A_i = ∫_{disk i} 1 / m(x) dA, where m(x) counts the disks of
+/// the same surface covering x. The A_i sum to the area of the union of the disks (a partition
+/// of unity), whatever the overlap; estimated with `samples` points per disk. A disk covers x
+/// when x is within its radius in its plane, within half a radius of its plane, and the two
+/// normals agree within 60° (so the two sides of a thin wall, or the faces meeting at an edge,
+/// do not share area).
+pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Splat], samples: u32) -> Vec<f32> {
+    let pattern: Vec<(f32, f32)> = disk_pattern(samples.max(1)).collect();
+    let origin = Vec3::from(frame.origin);
+    splats
+        .par_iter()
+        .map(|s| {
+            let c = Vec3::from(s.position);
+            let n = Vec3::from(s.normal);
+            let (u, v) = tangent_frame(s.normal);
+            let (u, v) = (Vec3::from(u), Vec3::from(v));
+            let mut acc = 0.0f32;
+            for &(a, b) in &pattern {
+                let x = c + (u * a + v * b) * s.radius;
+                let q = (x - origin) * frame.inv_size;
+                let mut cover = 0u32;
+                if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
+                    let loc = locate_normalized(nodes, q);
+                    if node::is_leaf(loc.node) {
+                        if let Some((b0, e0, extra)) = pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(loc.node)) {
+                            let own = (b0..e0).map(|j| &splats[j as usize]);
+                            let other = extra.iter().map(|&j| &splats[j as usize]);
+                            cover = own.chain(other).filter(|o| covers(o, x, n)).count() as u32;
+                        }
+                    }
+                }
+                acc += 1.0 / cover.max(1) as f32;
+            }
+            std::f32::consts::PI * s.radius * s.radius * acc / pattern.len() as f32
+        })
+        .collect()
+}
+
+#[inline]
+fn covers(o: &Splat, x: Vec3, n: Vec3) -> bool {
+    let on = Vec3::from(o.normal);
+    if on.dot(n) < 0.5 {
+        return false;
+    }
+    let d = x - Vec3::from(o.position);
+    let h = d.dot(on);
+    let r2 = o.radius * o.radius;
+    h.abs() <= 0.5 * o.radius && d.length_squared() - h * h <= r2
+}
+
+/// Average disk (Fig. 13), normal, area, count and class of the splats of one node, and for
+/// leaves the normal field of §8.5.5.
+fn node_info(splats: &[Splat], areas: &[f32], material_class: &[u32], is_leaf: bool) -> NodeInfo {
+    let total: f32 = areas.iter().sum();
+    let weight = |i: usize| if total > 0.0 { areas[i] } else { 1.0 };
+    let wsum: f32 = (0..splats.len()).map(weight).sum();
+    let centroid = splats.iter().enumerate().map(|(i, s)| Vec3::from(s.position) * weight(i)).sum::<Vec3>() / wsum;
+    let nsum = splats.iter().enumerate().map(|(i, s)| Vec3::from(s.normal) * weight(i)).sum::<Vec3>();
+    let normal = if nsum.length() > 1e-3 * wsum { nsum.normalize() } else { Vec3::ZERO };
+    let disk_radius = splats
+        .iter()
+        .map(|s| (Vec3::from(s.position) - centroid).length() + s.radius)
+        .fold(0.0f32, f32::max);
+    let c0 = material_class[splats[0].material as usize];
+    let cls = if splats.iter().all(|s| material_class[s.material as usize] == c0) { c0 } else { class::MIXED };
+    let tilt = if is_leaf && normal != Vec3::ZERO { normal_field(splats, centroid, normal) } else { [0.0; 2] };
+    NodeInfo {
+        centroid: centroid.into(),
+        disk_radius,
+        normal: normal.into(),
+        area: total,
+        tilt,
+        count: splats.len() as u32,
+        class: cls,
+    }
+}
+
+/// Least-squares tilt factors (ν, ω) of the linear normal field n(x) = n̄ + ν ((x − c)·û) û +
+/// ω ((x − c)·v̂) v̂ over a leaf's average disk (§8.5.5 with u_j = r û, v_j = r v̂, the disk
+/// radius cancels). Each axis is an independent one-unknown least-squares problem:
+/// ν = Σ d_u (n_l·û) / Σ d_u², d_u = (p_l − c)·û. For a sphere of radius R, ν = ω = 1/R.
+pub fn normal_field(splats: &[Splat], c: Vec3, n: Vec3) -> [f32; 2] {
+    let (u, v) = tangent_frame(n.into());
+    let (u, v) = (Vec3::from(u), Vec3::from(v));
+    let (mut nu_num, mut nu_den, mut om_num, mut om_den) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for s in splats {
+        let d = Vec3::from(s.position) - c;
+        let nl = Vec3::from(s.normal);
+        let (du, dv) = (d.dot(u) as f64, d.dot(v) as f64);
+        nu_num += du * nl.dot(u) as f64;
+        nu_den += du * du;
+        om_num += dv * nl.dot(v) as f64;
+        om_den += dv * dv;
+    }
+    let solve = |num: f64, den: f64| if den > 1e-20 { (num / den) as f32 } else { 0.0 };
+    [solve(nu_num, nu_den), solve(om_num, om_den)]
+}
+
+/// The normal of a leaf's normal field at `x` (unit length).
+pub fn field_normal(info: &NodeInfo, x: Vec3) -> Vec3 {
+    let n = Vec3::from(info.normal);
+    let (u, v) = tangent_frame(info.normal);
+    let (u, v) = (Vec3::from(u), Vec3::from(v));
+    let d = x - Vec3::from(info.centroid);
+    (n + u * (info.tilt[0] * d.dot(u)) + v * (info.tilt[1] * d.dot(v))).normalize_or(n)
+}

@@ -1,0 +1,14 @@
+//! pc-octree: the adaptive, Morton-ordered octree over the splats and its GPU layout.
+//!
+//! Seed §8.5.1 (split while a node holds more than k splats or mixes diffuse and specular
+//! ones), §8.5.5 (per-leaf average disk and normal field), §8.5.10-§8.5.12 (node pool of 32-bit
+//! nodes with 8 contiguous children in SFC order, begin/end table, data pool), §8.5.13 (splats
+//! referenced by every leaf they overlap). The binary `pc-octree` is a thin wrapper around
+//! [`stage::run`]. See docs/octree.md.
+
+pub mod build;
+pub mod gpu;
+pub mod morton;
+pub mod stage;
+
+pub use build::{build, field_normal, BuildError, BuildInput, BuildParams, BuildStats, Octree};

@@ -1,0 +1,74 @@
+//! pc-octree: build the octree artifact of the scene in pipeline.toml (thin wrapper over the library).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Parser;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Build the adaptive octree (node pool, begin/end table, data pool) of the scene's splats.
+#[derive(Parser)]
+#[command(name = "pc-octree", version, about)]
+struct Args {
+    /// The pipeline description.
+    #[arg(long, default_value = "pipeline.toml")]
+    config: PathBuf,
+    /// Override a config key, e.g. `--set octree.max_leaf_points=8` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Write the artifact here instead of `<output.dir>/<octree.file>`.
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pc-octree: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(args: &Args) -> anyhow::Result<()> {
+    let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
+    let out = args.output.clone().unwrap_or_else(|| cfg.octree_path());
+    let started = Instant::now();
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(cfg.config.models.len() as u64) };
+    bar.set_style(ProgressStyle::with_template("{spinner} {prefix:>10} [{bar:30}] {pos}/{len} {msg}")?.progress_chars("=> "));
+    bar.set_prefix("import");
+    bar.enable_steady_tick(Duration::from_millis(100));
+    let mut on_import = |done: usize, _total: usize| bar.set_position(done as u64);
+    let mut on_phase = |name: &str| {
+        bar.set_prefix("build");
+        bar.set_message(name.to_string());
+    };
+    let summary = pc_octree::stage::run(&cfg, &out, &mut on_import, &mut on_phase)
+        .with_context(|| format!("building the octree for {}", args.config.display()))?;
+    bar.finish_and_clear();
+    let s = &summary.octree.stats;
+    let secs = started.elapsed().as_secs_f64();
+    let dropped = if summary.dropped > 0 { format!(", dropped {} invalid points", summary.dropped) } else { String::new() };
+    println!(
+        "pc-octree: wrote {} ({} splats, {} nodes, {} leaves, depth {}, {} extra refs{}) in {:.2} s (import {:.2} s, build {:.2} s, {:.1} M splats/s)",
+        summary.path.display(),
+        s.splats,
+        s.nodes,
+        s.leaves,
+        s.depth,
+        s.extra_refs,
+        dropped,
+        secs,
+        summary.import_seconds,
+        summary.build_seconds,
+        s.splats as f64 / summary.build_seconds.max(1e-9) / 1e6
+    );
+    Ok(())
+}

@@ -1,0 +1,165 @@
+//! The stage end to end: PLY files + pipeline.toml → octree artifact; keys; corrupted artifacts.
+
+use std::path::{Path, PathBuf};
+
+use pc_artifact::{Artifact, ArtifactError, ArtifactKind};
+use pc_octree::stage;
+use pc_scene::ply_write::{write_ply, PlyFormat, PlyPoints};
+use pc_tree::OctreeView;
+
+use crate::{mixed_scene, Soa};
+
+fn write_scene(dir: &Path) -> PathBuf {
+    let (s, _) = mixed_scene(0.08);
+    let names = ["walls", "mirror", "glass"];
+    for (m, name) in names.iter().enumerate() {
+        let idx: Vec<usize> = (0..s.p.len()).filter(|&i| s.m[i] == m as u32).collect();
+        let sub = Soa {
+            p: idx.iter().map(|&i| s.p[i]).collect(),
+            n: idx.iter().map(|&i| s.n[i]).collect(),
+            r: idx.iter().map(|&i| s.r[i]).collect(),
+            m: vec![],
+        };
+        let pts = PlyPoints { positions: &sub.p, normals: Some(&sub.n), radii: Some(&sub.r), colors: None };
+        write_ply(&dir.join(format!("{name}.ply")), &pts, PlyFormat::BinaryLittleEndian, &[]).unwrap();
+    }
+    let toml = r#"
+[output]
+dir = "out"
+[materials.white]
+type = "diffuse"
+albedo = [0.7, 0.7, 0.7]
+[materials.chrome]
+type = "mirror"
+reflectance = [0.9, 0.9, 0.9]
+[materials.glass]
+type = "dielectric"
+ior = 1.5
+[[models]]
+file = "walls.ply"
+material = "white"
+[[models]]
+file = "mirror.ply"
+material = "chrome"
+[[models]]
+file = "glass.ply"
+material = "glass"
+[octree]
+max_leaf_points = 8
+area_samples = 4
+"#;
+    let path = dir.join("pipeline.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+fn run_stage(config: &Path, overrides: &[&str]) -> (stage::Summary, pc_scene::config::LoadedConfig) {
+    let set: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let cfg = pc_scene::config::load_config(config, &set).unwrap();
+    let out = cfg.octree_path();
+    let summary = stage::run(&cfg, &out, &mut |_, _| {}, &mut |_| {}).unwrap();
+    (summary, cfg)
+}
+
+#[test]
+fn stage_writes_an_artifact_that_maps_back_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let (summary, cfg) = run_stage(&config, &[]);
+    let a = Artifact::open_kind(&summary.path, ArtifactKind::Octree).unwrap();
+    assert_eq!(a.header().stage, "pc-octree");
+    assert_eq!(a.header().key, stage::octree_key(&cfg).unwrap());
+    let view = OctreeView::from_artifact(&a).unwrap();
+    let o = &summary.octree;
+    assert_eq!(view.nodes, &o.nodes[..]);
+    assert_eq!(view.begin_end, &o.begin_end[..]);
+    assert_eq!(view.splats, &o.splats[..]);
+    assert_eq!(view.node_info, &o.node_info[..]);
+    let meta: pc_artifact::octree::OctreeMeta = a.metadata().unwrap();
+    assert_eq!(meta.splats, o.splats.len() as u64);
+    assert_eq!(meta.material_names, vec!["chrome", "glass", "white"]);
+    assert_eq!(meta.inputs.len(), 3);
+    // The material table carries the classes; the splats reference it.
+    let mats: &[pc_artifact::octree::MaterialRecord] = a.section("materials").unwrap();
+    assert_eq!(mats.len(), 3);
+    assert!((mats[1].ior - 1.5).abs() < 1e-6);
+    // No temporary file is left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(cfg.out_dir()).unwrap().filter_map(|e| e.ok()).filter(|e| e.path().extension().is_some_and(|x| x == "tmp")).collect();
+    assert!(leftovers.is_empty());
+}
+
+#[test]
+fn key_follows_what_changes_the_tree_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let key = |over: &[&str]| {
+        let set: Vec<String> = over.iter().map(|s| s.to_string()).collect();
+        stage::octree_key(&pc_scene::config::load_config(&config, &set).unwrap()).unwrap()
+    };
+    let base = key(&[]);
+    assert_eq!(base, key(&[]));
+    // Albedo, camera and lights do not change the tree.
+    assert_eq!(base, key(&["materials.white.albedo=[0.2, 0.3, 0.4]"]));
+    assert_eq!(base, key(&["camera.origin=[1, 1, 5]"]));
+    // Parameters, transforms, classes and file contents do.
+    assert_ne!(base, key(&["octree.max_leaf_points=9"]));
+    assert_ne!(base, key(&["models.0.translate=[0, 0.1, 0]"]));
+    assert_ne!(base, key(&["models.1.material=glass"]));
+    let before = key(&[]);
+    let mut bytes = std::fs::read(dir.path().join("walls.ply")).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    std::fs::write(dir.path().join("walls.ply"), bytes).unwrap();
+    assert_ne!(before, key(&[]));
+}
+
+#[test]
+fn corrupted_octree_artifacts_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let (summary, _) = run_stage(&config, &[]);
+    let good = std::fs::read(&summary.path).unwrap();
+    let bad = dir.path().join("bad.pcgi");
+    let a = Artifact::open(&summary.path).unwrap();
+    // Flip a byte in the middle of every section.
+    for s in a.sections() {
+        if s.len == 0 {
+            continue;
+        }
+        let mut b = good.clone();
+        b[(s.offset + s.len / 2) as usize] ^= 0x40;
+        std::fs::write(&bad, &b).unwrap();
+        match Artifact::open(&bad) {
+            Err(ArtifactError::Checksum { section, .. }) => assert_eq!(section, s.name),
+            Err(e) => panic!("section {}: unexpected error {e}", s.name),
+            Ok(_) => panic!("section {}: corruption not detected", s.name),
+        }
+    }
+    // Truncate at many lengths.
+    for len in [0, 1, 100, 256, good.len() / 3, good.len() / 2, good.len() - 1] {
+        std::fs::write(&bad, &good[..len]).unwrap();
+        let e = Artifact::open(&bad).err().unwrap_or_else(|| panic!("truncated to {len} accepted"));
+        assert!(e.to_string().contains("bad.pcgi"), "{e}");
+    }
+    // Right container, wrong kind.
+    match Artifact::open_kind(&summary.path, ArtifactKind::Vmap) {
+        Err(ArtifactError::WrongKind { .. }) => {}
+        other => panic!("{:?}", other.map(|_| ())),
+    }
+}
+
+#[test]
+fn structural_check_rejects_a_tampered_node_pool() {
+    // A node pool whose checksums are right but whose pointers are wrong (a buggy writer)
+    // must be rejected by the view, not crash a traversal.
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let (summary, _) = run_stage(&config, &[]);
+    let mut o = summary.octree.clone();
+    o.nodes[0] = pc_artifact::octree::node::internal(o.nodes.len() as u32 + 5);
+    assert!(o.view().check().unwrap_err().contains("children"));
+    let mut o = summary.octree.clone();
+    let last = o.begin_end.len() - 1;
+    o.begin_end[last] = o.splats.len() as u32 + 1;
+    assert!(o.view().check().is_err());
+}

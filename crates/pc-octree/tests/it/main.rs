@@ -1,0 +1,432 @@
+//! Integration tests of the octree build: structure invariants checked by brute force, point
+//! location CPU vs brute force vs GPU, WGSL layouts, areas, normal fields, artifacts.
+
+use glam::Vec3;
+use pc_artifact::octree::{class, node, Frame, NodeInfo, Splat};
+use pc_octree::{build, field_normal, BuildError, BuildInput, BuildParams, Octree};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+mod artifact;
+
+/// A test scene in structure-of-arrays form.
+#[derive(Default, Clone)]
+pub struct Soa {
+    pub p: Vec<Vec3>,
+    pub n: Vec<Vec3>,
+    pub r: Vec<f32>,
+    pub m: Vec<u32>,
+}
+
+impl Soa {
+    pub fn push(&mut self, p: Vec3, n: Vec3, r: f32, m: u32) {
+        self.p.push(p);
+        self.n.push(n);
+        self.r.push(r);
+        self.m.push(m);
+    }
+    pub fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError> {
+        let albedo = vec![Vec3::ONE; self.p.len()];
+        let input = BuildInput {
+            positions: &self.p,
+            normals: &self.n,
+            radii: &self.r,
+            albedo: &albedo,
+            material: &self.m,
+            material_class: classes,
+        };
+        build(&input, &params, &mut |_| {})
+    }
+}
+
+/// Jittered grid on the rectangle c + a·u + b·v, a, b ∈ [-1, 1], spacing h, radius h.
+pub fn plane(s: &mut Soa, c: Vec3, u: Vec3, v: Vec3, h: f32, m: u32, rng: &mut Pcg64) {
+    let (nu, nv) = ((2.0 * u.length() / h).round() as i32, (2.0 * v.length() / h).round() as i32);
+    let n = u.cross(v).normalize();
+    for i in 0..nu {
+        for j in 0..nv {
+            let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
+            let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
+            s.push(c + u * a + v * b, n, h, m);
+        }
+    }
+}
+
+/// Fibonacci sphere of `count` splats, outward normals, radius chosen so disks overlap.
+pub fn sphere(s: &mut Soa, c: Vec3, radius: f32, count: usize, m: u32) {
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    let h = (4.0 * std::f32::consts::PI * radius * radius / count as f32).sqrt();
+    for k in 0..count {
+        let z = 1.0 - 2.0 * (k as f32 + 0.5) / count as f32;
+        let rho = (1.0 - z * z).sqrt();
+        let a = k as f32 * golden;
+        let n = Vec3::new(rho * a.cos(), rho * a.sin(), z);
+        s.push(c + n * radius, n, h, m);
+    }
+}
+
+/// Diffuse box room (5 planes) with a mirror sphere and a glass sphere: classes 0, 2, 3.
+pub fn mixed_scene(h: f32) -> (Soa, Vec<u32>) {
+    let mut rng = Pcg64::seed_from_u64(7);
+    let mut s = Soa::default();
+    plane(&mut s, Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, 0, &mut rng);
+    plane(&mut s, Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng);
+    plane(&mut s, Vec3::new(-1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, h, 0, &mut rng);
+    sphere(&mut s, Vec3::new(-0.4, -0.6, -0.3), 0.4, 1500, 1);
+    sphere(&mut s, Vec3::new(0.45, -0.7, 0.2), 0.3, 900, 2);
+    (s, vec![class::DIFFUSE, class::MIRROR, class::DIELECTRIC])
+}
+
+/// Every leaf and empty node with its integer cell, by an independent depth-first walk.
+pub fn cells(o: &Octree) -> Vec<(u32, u32, [u32; 3])> {
+    let mut out = Vec::new();
+    let mut stack = vec![(0u32, 0u32, [0u32; 3])];
+    while let Some((slot, depth, c)) = stack.pop() {
+        let w = o.nodes[slot as usize];
+        if node::is_leaf(w) || node::is_empty(w) {
+            out.push((slot, depth, c));
+            continue;
+        }
+        for k in 0..8u32 {
+            let cc = [2 * c[0] + (k & 1), 2 * c[1] + ((k >> 1) & 1), 2 * c[2] + ((k >> 2) & 1)];
+            stack.push((node::ptr(w) + k, depth + 1, cc));
+        }
+    }
+    out
+}
+
+fn cell_contains(frame: &Frame, depth: u32, c: [u32; 3], p: Vec3) -> bool {
+    // Exact integer comparison on the 21-bit quantised coordinate.
+    let q = (p - Vec3::from(frame.origin)) * frame.inv_size;
+    if q.cmplt(Vec3::ZERO).any() || q.cmpge(Vec3::ONE).any() {
+        return false;
+    }
+    let qi = [q.x, q.y, q.z].map(|x| ((x * (1u32 << 21) as f32) as u32) >> (21 - depth));
+    qi == c
+}
+
+fn own_range(o: &Octree, slot: u32) -> (u32, u32, Vec<u32>) {
+    let (r, refs) = o.view().leaf(o.nodes[slot as usize]);
+    (r.start, r.end, refs.to_vec())
+}
+
+#[test]
+fn every_splat_is_owned_by_exactly_one_leaf() {
+    let (s, classes) = mixed_scene(0.05);
+    let o = s.build(&classes, BuildParams::default()).unwrap();
+    o.view().check().unwrap();
+    let mut owned = vec![0u32; o.splats.len()];
+    for (slot, _, _) in cells(&o) {
+        if node::is_leaf(o.nodes[slot as usize]) {
+            let (b, e, _) = own_range(&o, slot);
+            for i in b..e {
+                owned[i as usize] += 1;
+                assert_eq!(o.splat_leaf[i as usize], slot);
+            }
+        }
+    }
+    assert!(owned.iter().all(|&c| c == 1), "some splat owned by 0 or 2+ leaves");
+    // The data pool is a permutation of the input.
+    let mut src: Vec<u32> = o.splats.iter().map(|s| s.source).collect();
+    src.sort_unstable();
+    assert!(src.iter().enumerate().all(|(i, &s)| i as u32 == s));
+}
+
+#[test]
+fn leaves_respect_k_and_purity_and_own_their_cell() {
+    let (s, classes) = mixed_scene(0.05);
+    for k in [1u32, 4, 16, 64] {
+        let o = s.build(&classes, BuildParams { max_leaf_points: k, ..Default::default() }).unwrap();
+        assert_eq!(o.stats.leaves_at_max_depth, 0);
+        for (slot, depth, c) in cells(&o) {
+            if !node::is_leaf(o.nodes[slot as usize]) {
+                continue;
+            }
+            let (b, e, _) = own_range(&o, slot);
+            assert!(e - b <= k, "leaf with {} > k = {k} splats", e - b);
+            let sp = &o.splats[b as usize..e as usize];
+            let spec: Vec<bool> = sp.iter().map(|x| class::is_specular(classes[x.material as usize])).collect();
+            assert!(spec.iter().all(|&x| x == spec[0]) || sp.is_empty(), "leaf mixes diffuse and specular");
+            for x in sp {
+                assert!(cell_contains(&o.frame, depth, c, Vec3::from(x.position)), "splat outside its leaf's cell");
+            }
+        }
+    }
+}
+
+#[test]
+fn node_pool_groups_are_contiguous_in_sfc_order() {
+    let (s, classes) = mixed_scene(0.08);
+    let o = s.build(&classes, BuildParams::default()).unwrap();
+    assert_eq!((o.nodes.len() - 1) % 8, 0);
+    // The splats under child k of a node all lie in octant k of the node's cell.
+    for (slot, depth, c) in cells(&o) {
+        if node::is_leaf(o.nodes[slot as usize]) {
+            let (b, e, _) = own_range(&o, slot);
+            for i in b..e {
+                assert!(cell_contains(&o.frame, depth, c, Vec3::from(o.splats[i as usize].position)));
+            }
+        }
+    }
+    // Morton order of the data pool: codes non-decreasing.
+    let codes: Vec<u64> = o
+        .splats
+        .iter()
+        .map(|x| {
+            let q = (Vec3::from(x.position) - Vec3::from(o.frame.origin)) * o.frame.inv_size;
+            pc_octree::morton::encode(
+                pc_octree::morton::quantize(q.x),
+                pc_octree::morton::quantize(q.y),
+                pc_octree::morton::quantize(q.z),
+            )
+        })
+        .collect();
+    assert!(codes.windows(2).all(|w| w[0] <= w[1]));
+}
+
+#[test]
+fn duplicated_points_terminate_at_max_depth() {
+    let mut s = Soa::default();
+    for _ in 0..100 {
+        s.push(Vec3::new(0.3, 0.3, 0.3), Vec3::Y, 0.01, 0);
+    }
+    s.push(Vec3::ZERO, Vec3::Y, 0.01, 0);
+    let o = s.build(&[class::DIFFUSE], BuildParams { max_leaf_points: 4, max_depth: 12, area_samples: 4 }).unwrap();
+    assert_eq!(o.stats.depth, 12);
+    assert_eq!(o.stats.leaves_at_max_depth, 1);
+    o.view().check().unwrap();
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_panic() {
+    let s = Soa::default();
+    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::Empty)));
+    let mut s = Soa::default();
+    s.push(Vec3::ZERO, Vec3::Y, 0.1, 0);
+    s.push(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::Y, 0.1, 0);
+    match s.build(&[class::DIFFUSE], BuildParams::default()) {
+        Err(BuildError::BadSplat { index: 1, what: "position" }) => {}
+        other => panic!("{other:?}"),
+    }
+    let mut s = Soa::default();
+    s.push(Vec3::ZERO, Vec3::Y, 0.0, 0);
+    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::BadSplat { index: 0, what: "radius" })));
+    let mut s = Soa::default();
+    s.push(Vec3::ZERO, Vec3::Y, 0.1, 3);
+    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::Param(_))));
+    let mut s = Soa::default();
+    s.push(Vec3::ZERO, Vec3::Y, 0.1, 0);
+    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams { max_depth: 22, ..Default::default() }), Err(BuildError::Param(_))));
+}
+
+/// Points densely sampled on a disk (for the brute-force overlap check).
+fn disk_samples(x: &Splat, count: usize) -> Vec<Vec3> {
+    let (u, v) = pc_artifact::octree::tangent_frame(x.normal);
+    let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(x.position));
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    (0..count)
+        .map(|k| {
+            let r = ((k as f32 + 0.5) / count as f32).sqrt() * x.radius * 0.9999;
+            let a = k as f32 * golden;
+            c + (u * a.cos() + v * a.sin()) * r
+        })
+        .collect()
+}
+
+#[test]
+fn every_leaf_a_disk_overlaps_references_it() {
+    let (s, classes) = mixed_scene(0.1);
+    let o = s.build(&classes, BuildParams { max_leaf_points: 4, ..Default::default() }).unwrap();
+    let all = cells(&o);
+    let mut missing = 0;
+    let mut checked = 0;
+    for (i, x) in o.splats.iter().enumerate() {
+        for p in disk_samples(x, 200) {
+            // Brute force: the cell containing p, by testing every leaf and empty cell.
+            let Some(&(slot, _, _)) = all.iter().find(|(_, d, c)| cell_contains(&o.frame, *d, *c, p)) else {
+                continue;
+            };
+            checked += 1;
+            let w = o.nodes[slot as usize];
+            assert!(!node::is_empty(w), "splat {i}'s disk reaches an empty cell");
+            let (b, e, refs) = own_range(&o, slot);
+            if !((b..e).contains(&(i as u32)) || refs.contains(&(i as u32))) {
+                missing += 1;
+            }
+        }
+    }
+    assert!(checked > 100_000);
+    assert_eq!(missing, 0, "disk samples in leaves that do not reference the splat");
+    assert!(o.stats.extra_refs > 0);
+}
+
+#[test]
+fn point_location_agrees_with_brute_force() {
+    let (s, classes) = mixed_scene(0.05);
+    let o = s.build(&classes, BuildParams { max_leaf_points: 8, ..Default::default() }).unwrap();
+    let all = cells(&o);
+    let view = o.view();
+    let mut rng = Pcg64::seed_from_u64(3);
+    let lo = Vec3::from(o.frame.origin);
+    for _ in 0..3000 {
+        let p = lo + Vec3::new(rng.random(), rng.random(), rng.random()) * o.frame.size;
+        let got = view.locate(p).expect("inside the root cube");
+        let want: Vec<_> = all.iter().filter(|(_, d, c)| cell_contains(&o.frame, *d, *c, p)).collect();
+        assert_eq!(want.len(), 1);
+        assert_eq!(got.slot, want[0].0);
+        assert_eq!(got.depth, want[0].1);
+    }
+    assert!(view.locate(lo - Vec3::ONE).is_none());
+    assert!(view.locate(lo + Vec3::splat(o.frame.size * 1.01)).is_none());
+}
+
+#[test]
+fn gpu_point_location_matches_cpu() {
+    let Some(ctx) = pc_gpu::test_context() else { return };
+    let (s, classes) = mixed_scene(0.05);
+    let o = s.build(&classes, BuildParams { max_leaf_points: 8, ..Default::default() }).unwrap();
+    let view = o.view();
+    let mut rng = Pcg64::seed_from_u64(11);
+    let lo = Vec3::from(o.frame.origin);
+    let mut pts: Vec<Vec3> = (0..20_000)
+        .map(|_| lo + Vec3::new(rng.random(), rng.random(), rng.random()) * o.frame.size * 1.1 - Vec3::splat(0.05 * o.frame.size))
+        .collect();
+    // Splat centres and points exactly on cell boundaries too.
+    pts.extend(o.splats.iter().map(|x| Vec3::from(x.position)));
+    pts.push(lo);
+    pts.push(lo + Vec3::splat(o.frame.size * 0.5));
+    let kernel = pc_octree::gpu::locate::LocateKernel::new(&ctx).unwrap();
+    let gpu = kernel.run(&ctx, &view, &pts).unwrap();
+    for (p, g) in pts.iter().zip(&gpu) {
+        assert_eq!(*g, view.locate(*p), "point {p} on {}", ctx.describe());
+    }
+}
+
+#[test]
+fn wgsl_records_match_rust_layouts() {
+    let src = pc_octree::gpu::locate::source();
+    let module = pc_gpu::validate_wgsl(&src).unwrap();
+    let (size, members) = pc_gpu::wgsl_struct_layout(&module, "Splat").unwrap();
+    assert_eq!(size as usize, std::mem::size_of::<Splat>());
+    let offsets: Vec<u32> = members.iter().map(|m| m.1).collect();
+    assert_eq!(offsets, vec![0, 12, 16, 28, 32, 44]);
+    assert_eq!(std::mem::offset_of!(Splat, radius), 12);
+    assert_eq!(std::mem::offset_of!(Splat, material), 28);
+    assert_eq!(std::mem::offset_of!(Splat, source), 44);
+    let (size, members) = pc_gpu::wgsl_struct_layout(&module, "NodeInfo").unwrap();
+    assert_eq!(size as usize, std::mem::size_of::<NodeInfo>());
+    let offsets: Vec<u32> = members.iter().map(|m| m.1).collect();
+    assert_eq!(
+        offsets,
+        vec![
+            std::mem::offset_of!(NodeInfo, centroid) as u32,
+            std::mem::offset_of!(NodeInfo, disk_radius) as u32,
+            std::mem::offset_of!(NodeInfo, normal) as u32,
+            std::mem::offset_of!(NodeInfo, area) as u32,
+            std::mem::offset_of!(NodeInfo, tilt) as u32,
+            std::mem::offset_of!(NodeInfo, count) as u32,
+            std::mem::offset_of!(NodeInfo, class) as u32,
+        ]
+    );
+    let (size, members) = pc_gpu::wgsl_struct_layout(&module, "Frame").unwrap();
+    assert_eq!(size as usize, std::mem::size_of::<Frame>());
+    assert_eq!(members[1].1 as usize, std::mem::offset_of!(Frame, size));
+    assert_eq!(members.last().unwrap().1 as usize, std::mem::offset_of!(Frame, ref_count));
+}
+
+#[test]
+fn every_shader_in_the_tree_validates() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shaders");
+    let common = std::fs::read_to_string(format!("{root}/common/octree.wgsl")).unwrap();
+    let mut count = 0;
+    for dir in std::fs::read_dir(root).unwrap() {
+        let dir = dir.unwrap().path();
+        if dir.file_name().unwrap() == "common" {
+            pc_gpu::validate_wgsl(&common).map(|_| ()).or_else(|e| {
+                // Common files reference the kernel's bindings; they validate inside kernels.
+                if e.contains("octree_frame") || e.contains("octree_nodes") { Ok(()) } else { Err(e) }
+            }).unwrap();
+            continue;
+        }
+        for f in std::fs::read_dir(&dir).unwrap() {
+            let f = f.unwrap().path();
+            if f.extension().is_some_and(|e| e == "wgsl") {
+                let src = pc_gpu::compose(&[&common, &std::fs::read_to_string(&f).unwrap()]);
+                pc_gpu::validate_wgsl(&src).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+                count += 1;
+            }
+        }
+    }
+    assert!(count >= 1);
+}
+
+#[test]
+fn splat_areas_sum_to_the_surface_area() {
+    // A closed sphere has no boundary: the union of the disks is the sphere (plus the thin
+    // shell the flat disks stick out by), so the areas must sum to 4πR² closely.
+    for count in [2000usize, 8000] {
+        let mut s = Soa::default();
+        sphere(&mut s, Vec3::ZERO, 1.0, count, 0);
+        let o = s.build(&[class::DIFFUSE], BuildParams { area_samples: 16, ..Default::default() }).unwrap();
+        let total: f32 = o.splat_area.iter().sum();
+        let want = 4.0 * std::f32::consts::PI;
+        assert!((total / want - 1.0).abs() < 0.02, "{count} splats: area {total} vs {want}");
+        // Disks overlap about three times: πr² is far from the area each splat stands for.
+        let disks: f32 = o.splats.iter().map(|x| std::f32::consts::PI * x.radius * x.radius).sum();
+        assert!(disks > 2.0 * want);
+        // Node areas add up.
+        assert!((o.node_info[0].area - total).abs() < 1e-3 * total);
+    }
+}
+
+#[test]
+fn normal_fields_follow_the_curvature() {
+    let mut s = Soa::default();
+    sphere(&mut s, Vec3::ZERO, 2.0, 20_000, 0);
+    let o = s.build(&[class::MIRROR], BuildParams { max_leaf_points: 32, ..Default::default() }).unwrap();
+    let (mut err_field, mut err_flat, mut count) = (0.0f64, 0.0f64, 0);
+    let mut tilts = Vec::new();
+    for (i, x) in o.splats.iter().enumerate() {
+        let info = &o.node_info[o.splat_leaf[i] as usize];
+        if info.count < 8 {
+            continue;
+        }
+        let p = Vec3::from(x.position);
+        let truth = p.normalize();
+        err_field += field_normal(info, p).angle_between(truth) as f64;
+        err_flat += Vec3::from(info.normal).angle_between(truth) as f64;
+        count += 1;
+        tilts.push(info.tilt[0]);
+        tilts.push(info.tilt[1]);
+    }
+    assert!(count > 10_000);
+    let (err_field, err_flat) = (err_field / count as f64, err_flat / count as f64);
+    assert!(err_field < 0.25 * err_flat, "field {err_field} rad vs flat {err_flat} rad");
+    tilts.sort_by(f32::total_cmp);
+    let median = tilts[tilts.len() / 2];
+    assert!((median - 0.5).abs() < 0.05, "tilt median {median}, 1/R = 0.5");
+}
+
+#[test]
+fn node_statistics_describe_the_subtree() {
+    let (s, classes) = mixed_scene(0.05);
+    let o = s.build(&classes, BuildParams::default()).unwrap();
+    let root = &o.node_info[0];
+    assert_eq!(root.count as usize, o.splats.len());
+    assert_eq!(root.class, class::MIXED);
+    for (slot, _, _) in cells(&o) {
+        let w = o.nodes[slot as usize];
+        let info = &o.node_info[slot as usize];
+        if node::is_empty(w) {
+            assert_eq!(info.class, class::NONE);
+            continue;
+        }
+        let (b, e, _) = own_range(&o, slot);
+        assert_eq!(info.count, e - b);
+        let c = Vec3::from(info.centroid);
+        for x in &o.splats[b as usize..e as usize] {
+            // Fig. 13: the average disk reaches every splat's far edge.
+            assert!((Vec3::from(x.position) - c).length() + x.radius <= info.disk_radius * 1.0001);
+        }
+    }
+}

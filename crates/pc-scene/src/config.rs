@@ -1,0 +1,595 @@
+//! pipeline.toml: the scene (models, materials, lights, camera) and every stage's parameters.
+//!
+//! Loading merges `include`d files (their model paths resolved relative to the file that names
+//! them), applies `--set key=value` overrides on the TOML tree, then deserializes with unknown
+//! keys rejected, and validates values. Every key is documented in docs/pipeline.md.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::SceneError;
+
+/// The whole pipeline description.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Other TOML files merged under this one (already merged after loading).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub include: Vec<PathBuf>,
+    #[serde(default)]
+    pub output: OutputConfig,
+    #[serde(default)]
+    pub materials: BTreeMap<String, MaterialConfig>,
+    #[serde(default)]
+    pub models: Vec<ModelConfig>,
+    #[serde(default)]
+    pub lights: Vec<PointLightConfig>,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub import: ImportConfig,
+    #[serde(default)]
+    pub octree: OctreeConfig,
+}
+
+/// Where artifacts and images go.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Folder for artifacts and images, relative to the config file's folder.
+    #[serde(default = "default_out_dir")]
+    pub dir: PathBuf,
+}
+
+fn default_out_dir() -> PathBuf {
+    PathBuf::from("out")
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self { dir: default_out_dir() }
+    }
+}
+
+/// A model: one PLY file with a material and an optional similarity transform.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// PLY path; after loading it is resolved (relative paths against the declaring file).
+    pub file: PathBuf,
+    pub material: String,
+    /// Translation applied last.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub translate: Option<[f32; 3]>,
+    /// Rotation in degrees about X, then Y, then Z (world axes), applied after scaling.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotate: Option<[f32; 3]>,
+    /// Uniform scale, applied first (radii scale with it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f32>,
+}
+
+/// Diffuse albedo: an RGB triple, or `"vertex"` for the PLY's per-point colors.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum Albedo {
+    Rgb([f32; 3]),
+    Source(String),
+}
+
+/// A material.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+pub enum MaterialConfig {
+    Diffuse {
+        albedo: Albedo,
+    },
+    Emitter {
+        /// Emitted radiance (linear RGB), from the front side only.
+        radiance: [f32; 3],
+        /// Diffuse albedo of the emitter's surface; default 0 (a pure emitter).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        albedo: Option<[f32; 3]>,
+    },
+    Mirror {
+        reflectance: [f32; 3],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        phong: Option<f32>,
+    },
+    Dielectric {
+        ior: f32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        tint: Option<[f32; 3]>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        phong: Option<f32>,
+    },
+}
+
+impl MaterialConfig {
+    pub fn is_specular(&self) -> bool {
+        matches!(self, MaterialConfig::Mirror { .. } | MaterialConfig::Dielectric { .. })
+    }
+    /// True when the albedo comes from the PLY's colors.
+    pub fn wants_vertex_colors(&self) -> bool {
+        matches!(self, MaterialConfig::Diffuse { albedo: Albedo::Source(_) })
+    }
+}
+
+/// A point light.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PointLightConfig {
+    pub position: [f32; 3],
+    /// Radiant intensity, W/sr, linear RGB.
+    pub intensity: [f32; 3],
+}
+
+/// Which image axis the field of view spans.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FovAxis {
+    X,
+    Y,
+    #[default]
+    Smaller,
+    Larger,
+}
+
+/// A pinhole camera. Pixel (0, 0) is the top-left pixel. Missing keys take the defaults.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct CameraConfig {
+    pub origin: [f32; 3],
+    pub target: [f32; 3],
+    #[serde(default = "default_up")]
+    pub up: [f32; 3],
+    /// Field of view in degrees along `fov_axis`.
+    pub fov: f32,
+    #[serde(default)]
+    pub fov_axis: FovAxis,
+    pub width: u32,
+    pub height: u32,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            origin: [0.0, 0.0, 3.9],
+            target: [0.0, 0.0, 0.0],
+            up: default_up(),
+            fov: 39.3077,
+            fov_axis: FovAxis::Smaller,
+            width: 512,
+            height: 512,
+        }
+    }
+}
+
+/// How PLY files are imported.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ImportConfig {
+    /// Neighbours for PCA normal estimation when a PLY has no normals.
+    #[serde(default = "default_normal_neighbors")]
+    pub normal_neighbors: usize,
+    /// Neighbours for radius estimation when a PLY has no radius.
+    #[serde(default = "default_radius_neighbors")]
+    pub radius_neighbors: usize,
+    /// Orient estimated normals towards this point (the scanner); default: propagate over the
+    /// neighbour graph, outward.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<[f32; 3]>,
+    /// Drop invalid points (NaN, zero normal, bad radius) instead of failing, and report them.
+    #[serde(default)]
+    pub drop_invalid: bool,
+}
+
+fn default_normal_neighbors() -> usize {
+    16
+}
+fn default_radius_neighbors() -> usize {
+    8
+}
+
+impl Default for ImportConfig {
+    fn default() -> Self {
+        Self {
+            normal_neighbors: default_normal_neighbors(),
+            radius_neighbors: default_radius_neighbors(),
+            sensor: None,
+            drop_invalid: false,
+        }
+    }
+}
+
+/// pc-octree parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OctreeConfig {
+    /// k: a node is split while it owns more splats than this (§8.5.1).
+    #[serde(default = "default_max_leaf_points")]
+    pub max_leaf_points: u32,
+    /// Deepest level (root = 0), at most 21; leaves there may exceed k or mix classes.
+    #[serde(default = "default_max_depth")]
+    pub max_depth: u32,
+    /// Sample points per splat disk for the splat-area estimate (partition of unity).
+    #[serde(default = "default_area_samples")]
+    pub area_samples: u32,
+    /// Artifact file name inside `output.dir`.
+    #[serde(default = "default_octree_file")]
+    pub file: PathBuf,
+}
+
+fn default_max_leaf_points() -> u32 {
+    16
+}
+fn default_max_depth() -> u32 {
+    21
+}
+fn default_area_samples() -> u32 {
+    8
+}
+fn default_octree_file() -> PathBuf {
+    PathBuf::from("octree.pcgi")
+}
+
+impl Default for OctreeConfig {
+    fn default() -> Self {
+        Self {
+            max_leaf_points: default_max_leaf_points(),
+            max_depth: default_max_depth(),
+            area_samples: default_area_samples(),
+            file: default_octree_file(),
+        }
+    }
+}
+
+/// A loaded configuration: the merged, overridden, validated config and where it came from.
+#[derive(Clone, Debug)]
+pub struct LoadedConfig {
+    pub config: PipelineConfig,
+    /// The top-level file.
+    pub path: PathBuf,
+    /// The folder relative paths in the top-level file resolve against.
+    pub base_dir: PathBuf,
+    /// The merged, overridden TOML text (for provenance).
+    pub text: String,
+}
+
+impl LoadedConfig {
+    /// The output folder, resolved.
+    pub fn out_dir(&self) -> PathBuf {
+        self.base_dir.join(&self.config.output.dir)
+    }
+    /// The octree artifact path, resolved.
+    pub fn octree_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.octree.file)
+    }
+}
+
+fn cfg_err(path: &Path, msg: impl Into<String>) -> SceneError {
+    SceneError::Config { path: path.to_path_buf(), msg: msg.into() }
+}
+
+/// Read `path`, merge its includes, apply `overrides` (`key.path=value`), validate.
+pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, SceneError> {
+    let mut stack = Vec::new();
+    let mut value = read_tree(path, &mut stack)?;
+    for o in overrides {
+        apply_override(&mut value, o).map_err(|m| cfg_err(path, format!("--set {o}: {m}")))?;
+    }
+    let text = toml::to_string(&value).map_err(|e| cfg_err(path, e.to_string()))?;
+    let mut config: PipelineConfig =
+        value.try_into().map_err(|e: toml::de::Error| cfg_err(path, e.message().to_string()))?;
+    config.include.clear();
+    validate(&config, path)?;
+    let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    Ok(LoadedConfig { config, path: path.to_path_buf(), base_dir, text })
+}
+
+/// Parse a config from text (relative paths resolve against `base_dir`), for tests and tools.
+pub fn parse_config(text: &str, base_dir: &Path) -> Result<LoadedConfig, SceneError> {
+    let pseudo = base_dir.join("<inline>");
+    let value: toml::Value = toml::from_str(text).map_err(|e| cfg_err(&pseudo, e.to_string()))?;
+    let config: PipelineConfig =
+        value.try_into().map_err(|e: toml::de::Error| cfg_err(&pseudo, e.message().to_string()))?;
+    validate(&config, &pseudo)?;
+    Ok(LoadedConfig { config, path: pseudo, base_dir: base_dir.to_path_buf(), text: text.to_string() })
+}
+
+fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, SceneError> {
+    let canon = path.canonicalize().unwrap_or_else(|_| path.to_path_buf());
+    if stack.contains(&canon) {
+        return Err(cfg_err(path, "include cycle"));
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| SceneError::Io { path: path.to_path_buf(), source })?;
+    let mut value: toml::Value =
+        toml::from_str(&text).map_err(|e| cfg_err(path, e.to_string()))?;
+    let dir = path.parent().unwrap_or(Path::new(""));
+    // Resolve model paths relative to the file that declares them, so an included file keeps
+    // pointing at its own PLYs. The top-level file keeps relative paths (resolved at load).
+    if !stack.is_empty() {
+        if let Some(models) = value.get_mut("models").and_then(|m| m.as_array_mut()) {
+            for m in models {
+                if let Some(f) = m.get_mut("file") {
+                    if let Some(s) = f.as_str() {
+                        let p = Path::new(s);
+                        if p.is_relative() {
+                            *f = toml::Value::String(dir.join(p).to_string_lossy().into_owned());
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let includes: Vec<PathBuf> = match value.get("include") {
+        None => Vec::new(),
+        Some(toml::Value::Array(a)) => a
+            .iter()
+            .map(|v| {
+                v.as_str().map(|s| dir.join(s)).ok_or_else(|| cfg_err(path, "`include` must be a list of paths"))
+            })
+            .collect::<Result<_, _>>()?,
+        Some(_) => return Err(cfg_err(path, "`include` must be a list of paths")),
+    };
+    if let Some(t) = value.as_table_mut() {
+        t.remove("include");
+    }
+    stack.push(canon);
+    let mut merged = toml::Value::Table(Default::default());
+    for inc in &includes {
+        let sub = read_tree(inc, stack)?;
+        merge(&mut merged, sub);
+    }
+    stack.pop();
+    merge(&mut merged, value);
+    Ok(merged)
+}
+
+/// Deep-merge `top` over `base`: tables merge key by key, arrays of tables (models, lights)
+/// concatenate, everything else is replaced.
+fn merge(base: &mut toml::Value, top: toml::Value) {
+    match (base, top) {
+        (toml::Value::Table(b), toml::Value::Table(t)) => {
+            for (k, v) in t {
+                match b.get_mut(&k) {
+                    Some(existing) => merge(existing, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (toml::Value::Array(b), toml::Value::Array(t)) if t.iter().all(|v| v.is_table()) && !t.is_empty() => {
+            b.extend(t);
+        }
+        (b, t) => *b = t,
+    }
+}
+
+/// Apply one `a.b.c=value` override. The value is parsed as TOML (`0.5`, `[1, 2, 3]`, `"x"`,
+/// `true`); anything that does not parse is taken as a string. Array elements are addressed by
+/// index (`models.0.material=glass`).
+pub fn apply_override(root: &mut toml::Value, spec: &str) -> Result<(), String> {
+    let (key, raw) = spec.split_once('=').ok_or("expected key=value")?;
+    let key = key.trim();
+    if key.is_empty() {
+        return Err("empty key".into());
+    }
+    let raw = raw.trim();
+    let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = root;
+    for (i, part) in parts.iter().enumerate() {
+        let last = i + 1 == parts.len();
+        cur = match cur {
+            toml::Value::Table(t) => {
+                if last {
+                    t.insert(part.to_string(), value);
+                    return Ok(());
+                }
+                t.entry(part.to_string()).or_insert_with(|| toml::Value::Table(Default::default()))
+            }
+            toml::Value::Array(a) => {
+                let idx: usize = part.parse().map_err(|_| format!("`{part}` is not an index into an array"))?;
+                let len = a.len();
+                let slot = a.get_mut(idx).ok_or_else(|| format!("index {idx} is out of range (array has {len})"))?;
+                if last {
+                    *slot = value;
+                    return Ok(());
+                }
+                slot
+            }
+            _ => return Err(format!("`{part}`: the key above it is not a table")),
+        };
+    }
+    Ok(())
+}
+
+fn finite3(v: [f32; 3]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
+    let err = |m: String| Err(cfg_err(path, m));
+    for (name, m) in &c.materials {
+        match m {
+            MaterialConfig::Diffuse { albedo: Albedo::Rgb(a) } | MaterialConfig::Emitter { albedo: Some(a), .. } => {
+                if !finite3(*a) || a.iter().any(|x| !(0.0..=1.0).contains(x)) {
+                    return err(format!("materials.{name}.albedo must lie in [0, 1], got {a:?}"));
+                }
+            }
+            MaterialConfig::Diffuse { albedo: Albedo::Source(s) } if s != "vertex" => {
+                return err(format!("materials.{name}.albedo must be [r, g, b] or \"vertex\", got \"{s}\""));
+            }
+            _ => {}
+        }
+        match m {
+            MaterialConfig::Emitter { radiance, .. } if !finite3(*radiance) || radiance.iter().any(|x| *x < 0.0) => {
+                return err(format!("materials.{name}.radiance must be finite and non-negative, got {radiance:?}"));
+            }
+            MaterialConfig::Mirror { reflectance: r, .. } | MaterialConfig::Dielectric { tint: Some(r), .. }
+                if !finite3(*r) || r.iter().any(|x| !(0.0..=1.0).contains(x)) =>
+            {
+                return err(format!("materials.{name}: reflectance/tint must lie in [0, 1], got {r:?}"));
+            }
+            MaterialConfig::Dielectric { ior, .. } if !(ior.is_finite() && *ior > 0.0) => {
+                return err(format!("materials.{name}.ior must be positive, got {ior}"));
+            }
+            _ => {}
+        }
+        if let MaterialConfig::Mirror { phong: Some(p), .. } | MaterialConfig::Dielectric { phong: Some(p), .. } = m {
+            if !(p.is_finite() && *p >= 0.0) {
+                return err(format!("materials.{name}.phong must be a non-negative exponent, got {p}"));
+            }
+        }
+    }
+    for (i, m) in c.models.iter().enumerate() {
+        if !c.materials.contains_key(&m.material) {
+            let known: Vec<&str> = c.materials.keys().map(String::as_str).collect();
+            return err(format!(
+                "models[{i}] ({}) uses material `{}`, which is not defined (defined: {})",
+                m.file.display(),
+                m.material,
+                known.join(", ")
+            ));
+        }
+        if let Some(s) = m.scale {
+            if !(s.is_finite() && s > 0.0) {
+                return err(format!("models[{i}].scale must be positive, got {s}"));
+            }
+        }
+        if m.translate.is_some_and(|t| !finite3(t)) || m.rotate.is_some_and(|t| !finite3(t)) {
+            return err(format!("models[{i}]: translate/rotate must be finite"));
+        }
+    }
+    for (i, l) in c.lights.iter().enumerate() {
+        if !finite3(l.position) || !finite3(l.intensity) || l.intensity.iter().any(|x| *x < 0.0) {
+            return err(format!("lights[{i}]: position must be finite and intensity non-negative"));
+        }
+    }
+    let cam = &c.camera;
+    if cam.width == 0 || cam.height == 0 {
+        return err(format!("camera: width and height must be positive, got {}x{}", cam.width, cam.height));
+    }
+    if !(cam.fov > 0.0 && cam.fov < 180.0) {
+        return err(format!("camera.fov must lie in (0, 180) degrees, got {}", cam.fov));
+    }
+    if !finite3(cam.origin) || !finite3(cam.target) || !finite3(cam.up) {
+        return err("camera: origin, target and up must be finite".into());
+    }
+    let d = [cam.target[0] - cam.origin[0], cam.target[1] - cam.origin[1], cam.target[2] - cam.origin[2]];
+    let cross = [d[1] * cam.up[2] - d[2] * cam.up[1], d[2] * cam.up[0] - d[0] * cam.up[2], d[0] * cam.up[1] - d[1] * cam.up[0]];
+    if cross.iter().map(|x| x * x).sum::<f32>() < 1e-12 {
+        return err("camera: target equals origin, or up is parallel to the view direction".into());
+    }
+    let o = &c.octree;
+    if o.max_leaf_points == 0 {
+        return err("octree.max_leaf_points must be at least 1".into());
+    }
+    if o.max_depth == 0 || o.max_depth > 21 {
+        return err(format!("octree.max_depth must lie in 1..=21, got {}", o.max_depth));
+    }
+    if o.area_samples == 0 || o.area_samples > 64 {
+        return err(format!("octree.area_samples must lie in 1..=64, got {}", o.area_samples));
+    }
+    if c.import.normal_neighbors < 3 || c.import.radius_neighbors < 1 {
+        return err("import: normal_neighbors must be at least 3 and radius_neighbors at least 1".into());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BASE: &str = r#"
+[materials.white]
+type = "diffuse"
+albedo = [0.5, 0.5, 0.5]
+[materials.glass]
+type = "dielectric"
+ior = 1.5
+[[models]]
+file = "a.ply"
+material = "white"
+"#;
+
+    #[test]
+    fn parses_and_defaults() {
+        let c = parse_config(BASE, Path::new("/x")).unwrap();
+        assert_eq!(c.config.octree.max_leaf_points, 16);
+        assert_eq!(c.config.camera.fov_axis, FovAxis::Smaller);
+        assert!(c.config.materials["glass"].is_specular());
+    }
+
+    #[test]
+    fn unknown_material_is_named() {
+        let t = BASE.replace("material = \"white\"", "material = \"chalk\"");
+        let e = parse_config(&t, Path::new("/x")).unwrap_err().to_string();
+        assert!(e.contains("chalk") && e.contains("white"), "{e}");
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected() {
+        let t = format!("{BASE}\n[octree]\nmax_leaf_point = 3\n");
+        let e = parse_config(&t, Path::new("/x")).unwrap_err().to_string();
+        assert!(e.contains("max_leaf_point"), "{e}");
+    }
+
+    #[test]
+    fn overrides_apply_to_tables_and_arrays() {
+        let mut v: toml::Value = toml::from_str(BASE).unwrap();
+        apply_override(&mut v, "octree.max_leaf_points=4").unwrap();
+        apply_override(&mut v, "models.0.material=glass").unwrap();
+        apply_override(&mut v, "camera.origin=[1, 2, 3]").unwrap();
+        assert_eq!(v["octree"]["max_leaf_points"].as_integer(), Some(4));
+        assert_eq!(v["models"][0]["material"].as_str(), Some("glass"));
+        assert!(apply_override(&mut v, "models.5.material=glass").unwrap_err().contains("out of range"));
+        assert!(apply_override(&mut v, "nokey").is_err());
+    }
+
+    #[test]
+    fn includes_merge_and_resolve_paths() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("scene")).unwrap();
+        std::fs::write(dir.path().join("scene/scene.toml"), BASE).unwrap();
+        std::fs::write(
+            dir.path().join("pipeline.toml"),
+            "include = [\"scene/scene.toml\"]\n[octree]\nmax_leaf_points = 8\n[materials.white]\nalbedo = [0.25, 0.25, 0.25]\n",
+        )
+        .unwrap();
+        let c = load_config(&dir.path().join("pipeline.toml"), &["octree.max_depth=10".into()]).unwrap();
+        assert_eq!(c.config.octree.max_leaf_points, 8);
+        assert_eq!(c.config.octree.max_depth, 10);
+        assert_eq!(c.config.models[0].file, dir.path().join("scene").join("a.ply"));
+        assert_eq!(c.config.materials["white"], MaterialConfig::Diffuse { albedo: Albedo::Rgb([0.25; 3]) });
+    }
+
+    #[test]
+    fn bad_values_are_explained() {
+        for (over, needle) in [
+            ("octree.max_depth=30", "max_depth"),
+            ("camera.width=0", "width"),
+            ("materials.glass.ior=-1", "ior"),
+            ("materials.white.albedo=[2, 0, 0]", "albedo"),
+            ("camera.up=[0, 0, -1]", "parallel"),
+        ] {
+            let mut v: toml::Value = toml::from_str(BASE).unwrap();
+            apply_override(&mut v, over).unwrap();
+            let text = toml::to_string(&v).unwrap();
+            let e = parse_config(&text, Path::new("/x")).unwrap_err().to_string();
+            assert!(e.contains(needle), "{over}: {e}");
+        }
+    }
+}
