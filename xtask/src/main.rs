@@ -1,1 +1,378 @@
-fn main() {}
+//! cargo xtask: drives the pcgi pipeline (stage binaries as separate processes), samples
+//! scenes, writes the reference-scene config, and runs the benchmarks into BENCHMARKS.md.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+
+const USAGE: &str = "\
+cargo xtask <command>
+
+commands:
+  run [--config FILE] [--set KEY=VALUE]...   run the pipeline's stages in order (release build)
+  sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
+                                             sample a built-in scene into PLY files + scene.toml
+  reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
+  bench [--sizes 1M,4M] [--runs N] [--write] octree build benchmark (writes BENCHMARKS.md with --write)
+";
+
+/// The stages in dependency order. Later issues add pc-vmap, pc-caustics, pc-fmm, pc-raytrace.
+const STAGES: &[&str] = &["pc-octree"];
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match dispatch(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("xtask: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn dispatch(args: &[String]) -> Result<()> {
+    match args.first().map(String::as_str) {
+        Some("run") => run(&args[1..]),
+        Some("sample") => sample(&args[1..]),
+        Some("reference-config") => reference_config(&args[1..]),
+        Some("bench") => bench(&args[1..]),
+        Some("-h" | "--help" | "help") | None => {
+            print!("{USAGE}");
+            Ok(())
+        }
+        Some(other) => bail!("unknown command `{other}`\n\n{USAGE}"),
+    }
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+/// Build the given binaries in release mode and return the folder they are in.
+fn build_release(bins: &[&str]) -> Result<PathBuf> {
+    let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cmd.current_dir(root())
+        .args(["build", "--release", "--quiet"]);
+    for b in bins {
+        cmd.args(["--bin", b]);
+    }
+    let status = cmd.status().context("running cargo build")?;
+    if !status.success() {
+        bail!("cargo build --release failed");
+    }
+    let target = std::env::var("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| root().join("target"));
+    Ok(target.join("release"))
+}
+
+fn run_checked(cmd: &mut Command, what: &str) -> Result<()> {
+    let status = cmd.status().with_context(|| format!("starting {what}"))?;
+    if !status.success() {
+        bail!("{what} failed ({status})");
+    }
+    Ok(())
+}
+
+fn run(args: &[String]) -> Result<()> {
+    let mut config = root().join("pipeline.toml");
+    let mut sets = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--config" => config = PathBuf::from(it.next().context("--config needs a file")?),
+            "--set" => sets.push(it.next().context("--set needs KEY=VALUE")?.clone()),
+            other => bail!("run: unknown option `{other}`"),
+        }
+    }
+    if !config.exists() {
+        bail!("{}: no such config file", config.display());
+    }
+    let bin = build_release(&[STAGES, &["pc-inspect"]].concat())?;
+    let started = Instant::now();
+    let mut report = Vec::new();
+    for stage in STAGES {
+        let t = Instant::now();
+        let mut cmd = Command::new(bin.join(stage));
+        cmd.arg("--config").arg(&config);
+        for s in &sets {
+            cmd.args(["--set", s]);
+        }
+        run_checked(&mut cmd, stage)?;
+        report.push(format!("{stage} ran in {:.2} s", t.elapsed().as_secs_f64()));
+    }
+    println!(
+        "xtask run: {} (total {:.2} s)",
+        report.join(", "),
+        started.elapsed().as_secs_f64()
+    );
+    println!("xtask run: the renderer (pc-raytrace) and the GI stages are not built yet; inspect the octree with `target/release/pc-inspect <output.dir>/octree.pcgi`");
+    Ok(())
+}
+
+fn sample(args: &[String]) -> Result<()> {
+    let bin = build_release(&["pc-sample"])?;
+    run_checked(Command::new(bin.join("pc-sample")).args(args), "pc-sample")
+}
+
+fn toml_vec(v: &serde_json::Value) -> Result<String> {
+    let a = v.as_array().context("expected an array of numbers")?;
+    let parts: Vec<String> = a
+        .iter()
+        .map(|x| x.as_f64().map(|f| format!("{f}")))
+        .collect::<Option<_>>()
+        .context("expected numbers")?;
+    Ok(format!("[{}]", parts.join(", ")))
+}
+
+/// Write a pipeline config for the reference Cornell box, reading its materials and camera from
+/// the reference folder (nothing is copied into the code).
+fn reference_config(args: &[String]) -> Result<()> {
+    let mut out = root().join("out/reference/cornell.toml");
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--out" => out = PathBuf::from(it.next().context("--out needs a file")?),
+            other => bail!("reference-config: unknown option `{other}`"),
+        }
+    }
+    let text = reference_toml(&root().join("../shared/reference/cornell"))?;
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&out, text).with_context(|| format!("writing {}", out.display()))?;
+    println!("xtask: wrote {}", out.display());
+    Ok(())
+}
+
+fn reference_toml(dir: &Path) -> Result<String> {
+    let dir = dir
+        .canonicalize()
+        .with_context(|| format!("{}: the reference data is missing", dir.display()))?;
+    let mpath = dir.join("points-100k/cornell.materials.json");
+    let spath = dir.join("cornell.scene.json");
+    let m: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&mpath).with_context(|| mpath.display().to_string())?,
+    )?;
+    let s: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&spath).with_context(|| spath.display().to_string())?,
+    )?;
+    let mut materials = String::new();
+    let mut models = String::new();
+    let files = m["files"]
+        .as_object()
+        .context("materials.json has no `files`")?;
+    for (file, desc) in files {
+        let name = desc["shape"]
+            .as_str()
+            .context("shape name")?
+            .replace('-', "_");
+        let refl = toml_vec(&desc["bsdf"]["reflectance"])?;
+        if desc["emitter"].is_object() {
+            let rad = toml_vec(&desc["emitter"]["radiance"])?;
+            materials.push_str(&format!(
+                "[materials.{name}]\ntype = \"emitter\"\nradiance = {rad}\nalbedo = {refl}\n\n"
+            ));
+        } else {
+            materials.push_str(&format!(
+                "[materials.{name}]\ntype = \"diffuse\"\nalbedo = {refl}\n\n"
+            ));
+        }
+        models.push_str(&format!(
+            "[[models]]\nfile = \"{}\"\nmaterial = \"{name}\"\n\n",
+            dir.join("points-100k").join(file).display()
+        ));
+    }
+    let sensor = &s["sensor"];
+    let camera = format!(
+        "[camera]\norigin = {}\ntarget = {}\nup = {}\nfov = {}\nfov_axis = \"{}\"\nwidth = {}\nheight = {}\n",
+        toml_vec(&sensor["origin"])?,
+        toml_vec(&sensor["target"])?,
+        toml_vec(&sensor["up"])?,
+        sensor["fov_deg"].as_f64().context("fov_deg")?,
+        sensor["fov_axis"].as_str().context("fov_axis")?,
+        sensor["film"]["width"],
+        sensor["film"]["height"],
+    );
+    Ok(format!(
+        "# Generated by `cargo xtask reference-config` from {}\n# (the reference Cornell box of Mitsuba 3; materials and camera read from its JSON).\n\n[output]\ndir = \"reference\"\n\n{materials}{models}{camera}",
+        dir.display()
+    ))
+}
+
+fn parse_count(s: &str) -> Result<usize> {
+    let s = s.trim();
+    let (num, mul) = match s.chars().last() {
+        Some('k' | 'K') => (&s[..s.len() - 1], 1_000.0),
+        Some('m' | 'M') => (&s[..s.len() - 1], 1_000_000.0),
+        _ => (s, 1.0),
+    };
+    Ok((num
+        .parse::<f64>()
+        .with_context(|| format!("`{s}` is not a count"))?
+        * mul) as usize)
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    let mem = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            m.lines()
+                .next()
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|k| k.parse::<u64>().ok())
+        })
+        .map(|kb| format!("{:.0} GiB", kb as f64 / 1048576.0))
+        .unwrap_or_default();
+    format!("{cpu}, {cores} cores, {mem}")
+}
+
+fn today() -> String {
+    Command::new("date")
+        .args(["-u", "+%Y-%m-%d"])
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .map(|s| s.trim().to_string())
+        .unwrap_or_default()
+}
+
+fn bench(args: &[String]) -> Result<()> {
+    let mut sizes = vec![1_000_000usize, 4_000_000];
+    let mut runs = 3usize;
+    let mut write = false;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--sizes" => {
+                sizes = it
+                    .next()
+                    .context("--sizes needs a list")?
+                    .split(',')
+                    .map(parse_count)
+                    .collect::<Result<_>>()?
+            }
+            "--runs" => runs = it.next().context("--runs needs a number")?.parse()?,
+            "--write" => write = true,
+            other => bail!("bench: unknown option `{other}`"),
+        }
+    }
+    let bin = build_release(&["pc-sample", "pc-octree"])?;
+    let work = root().join("target/bench");
+    let mut rows = Vec::new();
+    for &n in &sizes {
+        let scene = work.join(format!("cornell-{n}"));
+        if !scene.join("scene.toml").exists() {
+            run_checked(
+                Command::new(bin.join("pc-sample"))
+                    .args([
+                        "cornell",
+                        "--with-specular",
+                        "--points",
+                        &n.to_string(),
+                        "--out",
+                    ])
+                    .arg(&scene),
+                "pc-sample",
+            )?;
+        }
+        let config = scene.join("bench.toml");
+        std::fs::write(
+            &config,
+            "include = [\"scene.toml\"]\n[output]\ndir = \"out\"\n",
+        )?;
+        for threads in [1usize, 2] {
+            let mut best: Option<serde_json::Value> = None;
+            for _ in 0..runs {
+                let stats = scene.join("stats.json");
+                run_checked(
+                    Command::new(bin.join("pc-octree"))
+                        .env("RAYON_NUM_THREADS", threads.to_string())
+                        .arg("--quiet")
+                        .arg("--config")
+                        .arg(&config)
+                        .arg("--stats-json")
+                        .arg(&stats),
+                    "pc-octree",
+                )?;
+                let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats)?)?;
+                let better = best
+                    .as_ref()
+                    .is_none_or(|b| v["total_seconds"].as_f64() < b["total_seconds"].as_f64());
+                if better {
+                    best = Some(v);
+                }
+            }
+            let v = best.unwrap();
+            let splats = v["splats"].as_f64().unwrap_or(0.0);
+            let build = v["build_seconds"].as_f64().unwrap_or(f64::NAN);
+            let import = v["import_seconds"].as_f64().unwrap_or(f64::NAN);
+            let total = v["total_seconds"].as_f64().unwrap_or(f64::NAN);
+            let phases: Vec<String> = v["phases"]
+                .as_array()
+                .map(|a| {
+                    a.iter()
+                        .map(|p| {
+                            format!(
+                                "{} {:.2}",
+                                p["phase"].as_str().unwrap_or("?"),
+                                p["seconds"].as_f64().unwrap_or(0.0)
+                            )
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            rows.push(format!(
+                "| {:.2}M | {} | {:.2} s | {:.1} M/s | {:.2} s | {:.2} s | {:.1} M/s | {:.0} MiB | {} |",
+                splats / 1e6,
+                threads,
+                build,
+                splats / build / 1e6,
+                import,
+                total,
+                splats / total / 1e6,
+                v["peak_rss_bytes"].as_f64().unwrap_or(0.0) / 1048576.0,
+                phases.join(", ")
+            ));
+            println!("{}", rows.last().unwrap());
+        }
+    }
+    let table = format!(
+        "Machine: {}. Date: {}. Command: `cargo xtask bench --sizes {} --runs {runs}` (best of {runs}).\n\n\
+| splats | threads | build | build rate | PLY import | total (import+build+write) | end-to-end rate | peak memory | build phases (s) |\n\
+|---|---|---|---|---|---|---|---|---|\n{}\n",
+        machine(),
+        today(),
+        sizes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","),
+        rows.join("\n")
+    );
+    println!("\n{table}");
+    if write {
+        let path = root().join("BENCHMARKS.md");
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let (begin, end) = ("<!-- bench:octree:begin -->", "<!-- bench:octree:end -->");
+        let new = match (text.find(begin), text.find(end)) {
+            (Some(b), Some(e)) if b < e => format!("{}{begin}\n{table}{}", &text[..b], &text[e..]),
+            _ => format!("{text}\n## pc-octree build\n\n{begin}\n{table}{end}\n"),
+        };
+        std::fs::write(&path, new)?;
+        println!("xtask: updated {}", path.display());
+    }
+    Ok(())
+}

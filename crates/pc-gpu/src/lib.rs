@@ -36,7 +36,8 @@ impl GpuContext {
     /// Find an adapter (hardware first, then any software one) and open a device with the
     /// adapter's own limits, so large scenes fit.
     pub fn new() -> Result<GpuContext, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let mut last_err = String::from("no adapter");
         let mut adapter = None;
         for fallback in [false, true] {
@@ -62,14 +63,25 @@ impl GpuContext {
             required_limits: adapter.limits(),
             ..Default::default()
         };
-        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
-            .map_err(|e| GpuError::Device { adapter: info.name.clone(), msg: e.to_string() })?;
-        Ok(GpuContext { adapter, device, queue, info })
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&desc)).map_err(|e| GpuError::Device {
+                adapter: info.name.clone(),
+                msg: e.to_string(),
+            })?;
+        Ok(GpuContext {
+            adapter,
+            device,
+            queue,
+            info,
+        })
     }
 
     /// One line naming the adapter, for logs and benchmark tables.
     pub fn describe(&self) -> String {
-        format!("{} ({:?}, {:?})", self.info.name, self.info.device_type, self.info.backend)
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.device_type, self.info.backend
+        )
     }
 
     /// True for software rasterizers such as llvmpipe.
@@ -81,7 +93,11 @@ impl GpuContext {
         let limits = self.device.limits();
         let limit = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
         if need > limit {
-            return Err(GpuError::TooLarge { what: what.to_string(), need, limit });
+            return Err(GpuError::TooLarge {
+                what: what.to_string(),
+                need,
+                limit,
+            });
         }
         Ok(())
     }
@@ -89,17 +105,27 @@ impl GpuContext {
     /// A storage buffer holding `bytes` (at least 16 bytes, so empty arrays can still bind).
     pub fn storage(&self, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer, GpuError> {
         self.check_size(label, bytes.len() as u64)?;
-        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let usage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST;
         if bytes.len() < 16 {
             let mut padded = [0u8; 16];
             padded[..bytes.len()].copy_from_slice(bytes);
-            return Ok(self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: &padded,
-                usage,
-            }));
+            return Ok(self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: &padded,
+                    usage,
+                }));
         }
-        Ok(self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents: bytes, usage }))
+        Ok(self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytes,
+                usage,
+            }))
     }
 
     /// A zeroed read-write storage buffer of `size` bytes for kernel output.
@@ -108,18 +134,21 @@ impl GpuContext {
         Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: size.max(16).next_multiple_of(4),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         }))
     }
 
     /// A uniform buffer holding `bytes`.
     pub fn uniform(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
-        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: bytes,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        })
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytes,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            })
     }
 
     /// Copy the first `size` bytes of `buffer` back to the host (blocking).
@@ -134,7 +163,11 @@ impl GpuContext {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
         self.queue.submit([enc.finish()]);
         let (tx, rx) = mpsc::channel();
@@ -147,7 +180,9 @@ impl GpuContext {
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let view = staging.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
+        let view = staging
+            .get_mapped_range(..)
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
         let out = view[..size as usize].to_vec();
         drop(view);
         staging.unmap();
@@ -156,12 +191,23 @@ impl GpuContext {
 
     /// Build a compute kernel from WGSL source. `bindings` lists group 0's bindings in order.
     /// The source is validated with naga first so a broken shader is a clear error.
-    pub fn kernel(&self, label: &str, source: &str, entry: &str, bindings: &[Binding]) -> Result<Kernel, GpuError> {
-        validate_wgsl(source).map_err(|msg| GpuError::Shader { label: label.to_string(), msg })?;
-        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(label),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
+    pub fn kernel(
+        &self,
+        label: &str,
+        source: &str,
+        entry: &str,
+        bindings: &[Binding],
+    ) -> Result<Kernel, GpuError> {
+        validate_wgsl(source).map_err(|msg| GpuError::Shader {
+            label: label.to_string(),
+            msg,
+        })?;
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
         let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
             .iter()
             .enumerate()
@@ -190,21 +236,32 @@ impl GpuContext {
             .collect();
         let layout = self
             .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries });
-        let pipeline_layout = self.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some(label),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(label),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some(entry),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        Ok(Kernel { label: label.to_string(), pipeline, layout })
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &entries,
+            });
+        let pipeline_layout = self
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        Ok(Kernel {
+            label: label.to_string(),
+            pipeline,
+            layout,
+        })
     }
 }
 
@@ -225,20 +282,35 @@ pub struct Kernel {
 
 impl Kernel {
     /// Bind `buffers` (in binding order) and dispatch `groups` workgroups, then wait.
-    pub fn run(&self, ctx: &GpuContext, buffers: &[&wgpu::Buffer], groups: (u32, u32, u32)) -> Result<(), GpuError> {
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        buffers: &[&wgpu::Buffer],
+        groups: (u32, u32, u32),
+    ) -> Result<(), GpuError> {
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(&self.label),
             layout: &self.layout,
             entries: &entries,
         });
-        let mut enc = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(&self.label) });
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some(&self.label),
+            });
         {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(&self.label), timestamp_writes: None });
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(&self.label),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
@@ -275,9 +347,12 @@ pub fn compose(parts: &[&str]) -> String {
 /// Parse and validate WGSL with naga; the error is naga's report.
 pub fn validate_wgsl(source: &str) -> Result<naga::Module, String> {
     let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-        .validate(&module)
-        .map_err(|e| e.emit_to_string(source))?;
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .map_err(|e| e.emit_to_string(source))?;
     Ok(module)
 }
 
@@ -287,7 +362,10 @@ pub fn wgsl_struct_layout(module: &naga::Module, name: &str) -> Option<(u32, Vec
     module.types.iter().find_map(|(_, ty)| match &ty.inner {
         naga::TypeInner::Struct { members, span } if ty.name.as_deref() == Some(name) => Some((
             *span,
-            members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect(),
+            members
+                .iter()
+                .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+                .collect(),
         )),
         _ => None,
     })

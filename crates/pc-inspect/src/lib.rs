@@ -1,1 +1,335 @@
-//! placeholder
+//! pc-inspect's library: describe any artifact, verify it, export debug views as PLY.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use glam::Vec3;
+use pc_artifact::octree::{class, node, OctreeMeta};
+use pc_artifact::{Artifact, ArtifactKind};
+use pc_scene::ply_write::{write_ply, PlyFormat, PlyPoints};
+use pc_tree::OctreeView;
+
+/// The header, provenance (metadata as JSON), and the section table.
+pub fn describe(a: &Artifact) -> String {
+    let h = a.header();
+    let mut s = String::new();
+    let _ = writeln!(s, "file        {}", a.path().display());
+    let _ = writeln!(
+        s,
+        "kind        {} (format version {})",
+        h.kind, h.format_version
+    );
+    let _ = writeln!(s, "made by     {} {}", h.stage, h.stage_version);
+    let _ = writeln!(s, "key         {}", h.key);
+    let _ = writeln!(s, "created     {} (unix seconds)", h.created_unix);
+    let _ = writeln!(s, "size        {} bytes", h.file_len);
+    let _ = writeln!(
+        s,
+        "sections    {:<12} {:>12} {:>14} {:>6} {:>18}",
+        "name", "offset", "bytes", "elem", "checksum"
+    );
+    for sec in a.sections() {
+        let _ = writeln!(
+            s,
+            "            {:<12} {:>12} {:>14} {:>6} {:>18}",
+            sec.name,
+            sec.offset,
+            sec.len,
+            sec.elem_size,
+            format!("{:016x}", sec.checksum)
+        );
+    }
+    s
+}
+
+/// The metadata blob as pretty JSON (every kind stores MessagePack with named fields).
+pub fn metadata_json(a: &Artifact) -> anyhow::Result<String> {
+    let v: serde_json::Value = rmp_serde::from_slice(a.metadata_bytes()).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: metadata is not readable MessagePack: {e}",
+            a.path().display()
+        )
+    })?;
+    Ok(serde_json::to_string_pretty(&v)?)
+}
+
+/// Kind-specific statistics.
+pub fn statistics(a: &Artifact) -> anyhow::Result<String> {
+    match a.header().kind {
+        ArtifactKind::Octree => octree_statistics(a),
+        other => Ok(format!("(no statistics for {other} artifacts yet)\n")),
+    }
+}
+
+fn octree_statistics(a: &Artifact) -> anyhow::Result<String> {
+    let v = OctreeView::from_artifact(a)?;
+    let meta: OctreeMeta = a.metadata()?;
+    let mut s = String::new();
+    let f = &v.frame;
+    let _ = writeln!(s, "root cube   origin {:?}, size {}", f.origin, f.size);
+    let _ = writeln!(
+        s,
+        "splats      {} (k = {}, max depth {})",
+        v.splats.len(),
+        f.max_leaf_points,
+        f.max_depth
+    );
+    let (mut leaves, mut empty, mut internal, mut ref_only) = (0u64, 0u64, 0u64, 0u64);
+    let mut per_depth = vec![0u64; f.max_depth as usize + 1];
+    let mut own_hist = [0u64; 6];
+    let (mut refs_total, mut refs_max) = (0u64, 0usize);
+    // Walk with depth to histogram leaves.
+    let mut stack = vec![(0u32, 0u32)];
+    while let Some((slot, d)) = stack.pop() {
+        let w = v.nodes[slot as usize];
+        if node::is_empty(w) {
+            empty += 1;
+        } else if node::is_leaf(w) {
+            leaves += 1;
+            let last = per_depth.len() - 1;
+            per_depth[(d as usize).min(last)] += 1;
+            let (r, refs) = v.leaf(w);
+            let own = (r.end - r.start) as u64;
+            if own == 0 {
+                ref_only += 1;
+            }
+            let bucket = match own {
+                0 => 0,
+                1..=4 => 1,
+                5..=8 => 2,
+                9..=16 => 3,
+                17..=32 => 4,
+                _ => 5,
+            };
+            own_hist[bucket] += 1;
+            refs_total += refs.len() as u64;
+            refs_max = refs_max.max(refs.len());
+        } else {
+            internal += 1;
+            for k in 0..8 {
+                stack.push((node::ptr(w) + k, d + 1));
+            }
+        }
+    }
+    let _ = writeln!(
+        s,
+        "nodes       {} ({} internal, {} leaves of which {} reference-only, {} empty)",
+        v.nodes.len(),
+        internal,
+        leaves,
+        ref_only,
+        empty
+    );
+    let _ = writeln!(
+        s,
+        "depth       {} (leaves per depth: {})",
+        f.depth,
+        per_depth
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c > 0)
+            .map(|(d, c)| format!("{d}:{c}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let _ = writeln!(
+        s,
+        "own splats  per leaf: 0:{} 1-4:{} 5-8:{} 9-16:{} 17-32:{} >32:{}",
+        own_hist[0], own_hist[1], own_hist[2], own_hist[3], own_hist[4], own_hist[5]
+    );
+    let _ = writeln!(
+        s,
+        "references  {} extra (mean {:.2} per leaf, max {})",
+        refs_total,
+        refs_total as f64 / leaves.max(1) as f64,
+        refs_max
+    );
+    let area: f64 = v.splat_area.iter().map(|&x| x as f64).sum();
+    let disks: f64 = v
+        .splats
+        .iter()
+        .map(|x| std::f64::consts::PI * (x.radius as f64).powi(2))
+        .sum();
+    let _ = writeln!(
+        s,
+        "area        {area:.6} (sum of disk areas {disks:.6}, overlap {:.2}x)",
+        disks / area.max(1e-30)
+    );
+    let mut by_class = [0u64; 4];
+    let mats: &[pc_artifact::octree::MaterialRecord] = a.section("materials")?;
+    for sp in v.splats {
+        if let Some(m) = mats.get(sp.material as usize) {
+            by_class[(m.class as usize).min(3)] += 1;
+        }
+    }
+    let _ = writeln!(
+        s,
+        "classes     diffuse {} emitter {} mirror {} dielectric {}",
+        by_class[0], by_class[1], by_class[2], by_class[3]
+    );
+    let _ = writeln!(s, "materials   {}", meta.material_names.join(", "));
+    for inp in &meta.inputs {
+        let _ = writeln!(
+            s,
+            "input       {} ({} bytes, hash {})",
+            inp.path, inp.bytes, inp.hash
+        );
+    }
+    let total: f64 = meta.timings.iter().map(|t| t.1).sum();
+    let _ = writeln!(
+        s,
+        "build time  {:.3} s: {}",
+        total,
+        meta.timings
+            .iter()
+            .map(|(n, t)| format!("{n} {t:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(s)
+}
+
+/// Full verification: the container checks done by opening, plus the kind's structural checks.
+pub fn verify(path: &Path) -> anyhow::Result<String> {
+    let a = Artifact::open(path)?;
+    match a.header().kind {
+        ArtifactKind::Octree => {
+            let v = OctreeView::from_artifact(&a)?;
+            // Every splat is owned by the leaf that point location finds for its centre.
+            for (i, sp) in v.splats.iter().enumerate() {
+                let loc = v
+                    .locate(Vec3::from(sp.position))
+                    .ok_or_else(|| a.invalid(format!("splat {i} lies outside the root cube")))?;
+                if loc.slot != v.splat_leaf[i] {
+                    return Err(a
+                        .invalid(format!(
+                            "splat {i}: point location finds node {}, the table says {}",
+                            loc.slot, v.splat_leaf[i]
+                        ))
+                        .into());
+                }
+                let (r, _) = v.leaf(loc.node);
+                if !r.contains(&(i as u32)) {
+                    return Err(a
+                        .invalid(format!("splat {i} is not in its leaf's own range"))
+                        .into());
+                }
+            }
+            Ok(format!(
+                "{}: ok (checksums, structure, {} splats located)",
+                path.display(),
+                v.splats.len()
+            ))
+        }
+        _ => Ok(format!("{}: ok (checksums)", path.display())),
+    }
+}
+
+/// Debug views that can be exported.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum View {
+    /// The splat centres with normals and radii, colored by material class.
+    Splats,
+    /// Points along the 12 edges of every leaf box, colored by depth.
+    Leaves,
+    /// Splat centres colored by the area each splat stands for (blue small, red large).
+    Areas,
+}
+
+fn class_color(c: u32) -> Vec3 {
+    match c {
+        class::DIFFUSE => Vec3::new(0.8, 0.8, 0.8),
+        class::EMITTER => Vec3::new(1.0, 0.9, 0.2),
+        class::MIRROR => Vec3::new(0.2, 0.6, 1.0),
+        class::DIELECTRIC => Vec3::new(0.2, 1.0, 0.6),
+        _ => Vec3::new(1.0, 0.0, 1.0),
+    }
+}
+
+fn ramp(t: f32) -> Vec3 {
+    let t = t.clamp(0.0, 1.0);
+    Vec3::new(t, 1.0 - (2.0 * t - 1.0).abs(), 1.0 - t)
+}
+
+/// Write a PLY debug view of the artifact; returns the number of points written.
+pub fn export_ply(a: &Artifact, view: View, out: &Path) -> anyhow::Result<usize> {
+    anyhow::ensure!(
+        a.header().kind == ArtifactKind::Octree,
+        "{}: --export-ply supports octree artifacts so far",
+        a.path().display()
+    );
+    let v = OctreeView::from_artifact(a)?;
+    let mats: &[pc_artifact::octree::MaterialRecord] = a.section("materials")?;
+    let (mut pos, mut nrm, mut rad, mut col) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    match view {
+        View::Splats | View::Areas => {
+            let areas: Vec<f32> = v.splat_area.to_vec();
+            let mean = areas.iter().sum::<f32>() / areas.len().max(1) as f32;
+            for (i, sp) in v.splats.iter().enumerate() {
+                pos.push(Vec3::from(sp.position));
+                nrm.push(Vec3::from(sp.normal));
+                rad.push(sp.radius);
+                col.push(match view {
+                    View::Areas => ramp(areas[i] / (2.0 * mean)),
+                    _ => class_color(mats.get(sp.material as usize).map_or(u32::MAX, |m| m.class)),
+                });
+            }
+        }
+        View::Leaves => {
+            let mut stack = vec![(0u32, 0u32, [0u32; 3])];
+            while let Some((slot, d, c)) = stack.pop() {
+                let w = v.nodes[slot as usize];
+                if node::is_empty(w) {
+                    continue;
+                }
+                if !node::is_leaf(w) {
+                    for k in 0..8u32 {
+                        stack.push((
+                            node::ptr(w) + k,
+                            d + 1,
+                            [
+                                2 * c[0] + (k & 1),
+                                2 * c[1] + ((k >> 1) & 1),
+                                2 * c[2] + ((k >> 2) & 1),
+                            ],
+                        ));
+                    }
+                    continue;
+                }
+                let (lo, hi) = pc_tree::cell_box(&v.frame, d, c);
+                let color = ramp(d as f32 / v.frame.depth.max(1) as f32);
+                let steps = 8;
+                for e in 0..12 {
+                    let (axis, a1, a2) = (e / 4, (e % 4) & 1, (e % 4) >> 1);
+                    for t in 0..=steps {
+                        let f = t as f32 / steps as f32;
+                        let mut p = lo;
+                        let size = hi - lo;
+                        p[axis] += f * size[axis];
+                        p[(axis + 1) % 3] += a1 as f32 * size[(axis + 1) % 3];
+                        p[(axis + 2) % 3] += a2 as f32 * size[(axis + 2) % 3];
+                        pos.push(p);
+                        col.push(color);
+                    }
+                }
+            }
+        }
+    }
+    let pts = PlyPoints {
+        positions: &pos,
+        normals: (!nrm.is_empty()).then_some(&nrm[..]),
+        radii: (!rad.is_empty()).then_some(&rad[..]),
+        colors: Some(&col),
+    };
+    write_ply(
+        out,
+        &pts,
+        PlyFormat::BinaryLittleEndian,
+        &[format!(
+            "pc-inspect {view:?} view of {}",
+            a.path().display()
+        )],
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    Ok(pos.len())
+}

@@ -21,7 +21,11 @@ pub enum BuildError {
     #[error("splat {index}: {what} is not finite or not positive")]
     BadSplat { index: usize, what: &'static str },
     #[error("the octree needs {need} {what}, more than the 30-bit pointers of the node format allow ({max})")]
-    TooLarge { what: &'static str, need: u64, max: u64 },
+    TooLarge {
+        what: &'static str,
+        need: u64,
+        max: u64,
+    },
     #[error("invalid parameter: {0}")]
     Param(String),
 }
@@ -36,7 +40,11 @@ pub struct BuildParams {
 
 impl Default for BuildParams {
     fn default() -> Self {
-        BuildParams { max_leaf_points: 16, max_depth: morton::BITS, area_samples: 8 }
+        BuildParams {
+            max_leaf_points: 16,
+            max_depth: morton::BITS,
+            area_samples: 8,
+        }
     }
 }
 
@@ -117,7 +125,11 @@ fn purity_key(material: u32, material_class: &[u32]) -> u32 {
 }
 
 /// Build the octree. `phase` is called with the name of each phase as it starts.
-pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&str)) -> Result<Octree, BuildError> {
+pub fn build(
+    input: &BuildInput,
+    params: &BuildParams,
+    phase: &mut dyn FnMut(&str),
+) -> Result<Octree, BuildError> {
     let n = input.positions.len();
     if n == 0 {
         return Err(BuildError::Empty);
@@ -131,15 +143,34 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
         )));
     }
     if n as u64 > node::MAX_PTR as u64 {
-        return Err(BuildError::TooLarge { what: "splats", need: n as u64, max: node::MAX_PTR as u64 });
+        return Err(BuildError::TooLarge {
+            what: "splats",
+            need: n as u64,
+            max: node::MAX_PTR as u64,
+        });
     }
-    for (what, len) in [("normals", input.normals.len()), ("radii", input.radii.len()), ("albedo", input.albedo.len()), ("material", input.material.len())] {
+    for (what, len) in [
+        ("normals", input.normals.len()),
+        ("radii", input.radii.len()),
+        ("albedo", input.albedo.len()),
+        ("material", input.material.len()),
+    ] {
         if len != n {
-            return Err(BuildError::Param(format!("{what} has {len} entries for {n} positions")));
+            return Err(BuildError::Param(format!(
+                "{what} has {len} entries for {n} positions"
+            )));
         }
     }
-    if let Some(i) = input.material.iter().position(|&m| m as usize >= input.material_class.len()) {
-        return Err(BuildError::Param(format!("splat {i} names material {} of {}", input.material[i], input.material_class.len())));
+    if let Some(i) = input
+        .material
+        .iter()
+        .position(|&m| m as usize >= input.material_class.len())
+    {
+        return Err(BuildError::Param(format!(
+            "splat {i} names material {} of {}",
+            input.material[i],
+            input.material_class.len()
+        )));
     }
     let mut timings = Vec::new();
     let mut t0 = Instant::now();
@@ -153,7 +184,11 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
     if let Some(i) = (0..n).into_par_iter().find_first(|&i| {
         !input.positions[i].is_finite() || !(input.radii[i].is_finite() && input.radii[i] > 0.0)
     }) {
-        let what = if input.positions[i].is_finite() { "radius" } else { "position" };
+        let what = if input.positions[i].is_finite() {
+            "radius"
+        } else {
+            "position"
+        };
         return Err(BuildError::BadSplat { index: i, what });
     }
     let (lo, hi) = (0..n)
@@ -162,7 +197,10 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
             || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
             |(lo, hi), i| {
                 let r = Vec3::splat(input.radii[i]);
-                (lo.min(input.positions[i] - r), hi.max(input.positions[i] + r))
+                (
+                    lo.min(input.positions[i] - r),
+                    hi.max(input.positions[i] + r),
+                )
             },
         )
         .reduce(
@@ -172,7 +210,9 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
     let extent = (hi - lo).max_element();
     let center = (lo + hi) * 0.5;
     // A small margin keeps every normalised coordinate strictly inside [0, 1).
-    let size = (extent * 1.002).max(center.abs().max_element() * 1e-5).max(f32::MIN_POSITIVE * 1e6);
+    let size = (extent * 1.002)
+        .max(center.abs().max_element() * 1e-5)
+        .max(f32::MIN_POSITIVE * 1e6);
     let origin = center - Vec3::splat(size * 0.5);
     let inv_size = 1.0 / size;
     let mut frame = Frame {
@@ -192,7 +232,11 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
         .into_par_iter()
         .map(|i| {
             let q = (input.positions[i] - origin) * inv_size;
-            let code = morton::encode(morton::quantize(q.x), morton::quantize(q.y), morton::quantize(q.z));
+            let code = morton::encode(
+                morton::quantize(q.x),
+                morton::quantize(q.y),
+                morton::quantize(q.z),
+            );
             (code, i as u32)
         })
         .collect();
@@ -213,7 +257,12 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
     let mut spans: Vec<Span> = Vec::new(); // every non-empty node
     let mut leaves: Vec<Span> = Vec::new();
     let mut empties: Vec<(u32, u32)> = Vec::new(); // (slot, position in Morton order)
-    let mut level = vec![Span { slot: 0, lo: 0, hi: n as u32, depth: 0 }];
+    let mut level = vec![Span {
+        slot: 0,
+        lo: 0,
+        hi: n as u32,
+        depth: 0,
+    }];
     let mut leaves_at_max_depth = 0u64;
     while !level.is_empty() {
         let splits: Vec<Option<[u32; 9]>> = level
@@ -231,7 +280,9 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
                 let c = &codes[range];
                 let mut b = [s.lo; 9];
                 for (child, slot) in b.iter_mut().enumerate().skip(1) {
-                    *slot = s.lo + c.partition_point(|&x| morton::child_at(x, s.depth) < child as u32) as u32;
+                    *slot = s.lo
+                        + c.partition_point(|&x| morton::child_at(x, s.depth) < child as u32)
+                            as u32;
                 }
                 b[8] = s.hi;
                 Some(b)
@@ -243,10 +294,14 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
             match split {
                 None => {
                     let count = s.hi - s.lo;
-                    if s.depth >= params.max_depth && (count > k || {
-                        let p0 = purity[s.lo as usize];
-                        purity[s.lo as usize..s.hi as usize].iter().any(|&p| p != p0)
-                    }) {
+                    if s.depth >= params.max_depth
+                        && (count > k || {
+                            let p0 = purity[s.lo as usize];
+                            purity[s.lo as usize..s.hi as usize]
+                                .iter()
+                                .any(|&p| p != p0)
+                        })
+                    {
                         leaves_at_max_depth += 1;
                     }
                     leaves.push(*s);
@@ -254,7 +309,11 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
                 Some(b) => {
                     let base = nodes.len() as u64;
                     if base + 8 > node::MAX_PTR as u64 {
-                        return Err(BuildError::TooLarge { what: "nodes", need: base + 8, max: node::MAX_PTR as u64 });
+                        return Err(BuildError::TooLarge {
+                            what: "nodes",
+                            need: base + 8,
+                            max: node::MAX_PTR as u64,
+                        });
                     }
                     nodes[s.slot as usize] = node::internal(base as u32);
                     nodes.extend_from_slice(&[0; 8]);
@@ -264,7 +323,12 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
                             nodes[slot as usize] = node::EMPTY_NODE;
                             empties.push((slot, b[c]));
                         } else {
-                            next.push(Span { slot, lo: b[c], hi: b[c + 1], depth: s.depth + 1 });
+                            next.push(Span {
+                                slot,
+                                lo: b[c],
+                                hi: b[c + 1],
+                                depth: s.depth + 1,
+                            });
                         }
                     }
                 }
@@ -304,15 +368,31 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
     phase("leaf references");
     let mut refs: Vec<(u32, u32)> = (0..n as u32)
         .into_par_iter()
-        .flat_map_iter(|s| overlapped_cells(&frame, &nodes, &splats[s as usize], splat_leaf[s as usize]).map(move |slot| (slot, s)))
-        .collect();
+        .fold(Vec::new, |mut acc, s| {
+            overlapped_cells(
+                &frame,
+                &nodes,
+                &splats[s as usize],
+                splat_leaf[s as usize],
+                &mut |slot| acc.push((slot, s)),
+            );
+            acc
+        })
+        .reduce(Vec::new, |mut a, mut b| {
+            if a.len() < b.len() {
+                std::mem::swap(&mut a, &mut b);
+            }
+            a.extend_from_slice(&b);
+            a
+        });
     refs.par_sort_unstable();
     lap("leaf references", &mut timings, &mut t0);
 
     // ---- leaves in SFC order and the begin/end table ------------------------------------------
     phase("begin/end table");
     // Empty cells that a disk reaches into become leaves with references only.
-    let mut all_leaves: Vec<(u32, u32, u32)> = leaves.iter().map(|l| (l.lo, l.hi, l.slot)).collect();
+    let mut all_leaves: Vec<(u32, u32, u32)> =
+        leaves.iter().map(|l| (l.lo, l.hi, l.slot)).collect();
     let mut ref_leaves = 0u64;
     {
         let mut r = 0;
@@ -331,7 +411,11 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
     all_leaves.par_sort_unstable();
     let table_len = 2 * all_leaves.len() as u64 + refs.len() as u64 + 1;
     if table_len > node::MAX_PTR as u64 {
-        return Err(BuildError::TooLarge { what: "begin/end entries", need: table_len, max: node::MAX_PTR as u64 });
+        return Err(BuildError::TooLarge {
+            what: "begin/end entries",
+            need: table_len,
+            max: node::MAX_PTR as u64,
+        });
     }
     let mut begin_end = Vec::with_capacity(table_len as usize);
     for &(lo, _hi, slot) in &all_leaves {
@@ -356,10 +440,24 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
         .par_iter()
         .map(|s| {
             let range = s.lo as usize..s.hi as usize;
-            (s.slot, node_info(&splats[range.clone()], &splat_area[range], input.material_class, node::is_leaf(nodes[s.slot as usize])))
+            (
+                s.slot,
+                node_info(
+                    &splats[range.clone()],
+                    &splat_area[range],
+                    input.material_class,
+                    node::is_leaf(nodes[s.slot as usize]),
+                ),
+            )
         })
         .collect();
-    let mut node_info = vec![NodeInfo { class: class::NONE, ..Default::default() }; nodes.len()];
+    let mut node_info = vec![
+        NodeInfo {
+            class: class::NONE,
+            ..Default::default()
+        };
+        nodes.len()
+    ];
     for (slot, info) in infos {
         node_info[slot as usize] = info;
     }
@@ -382,7 +480,16 @@ pub fn build(input: &BuildInput, params: &BuildParams, phase: &mut dyn FnMut(&st
         leaves_at_max_depth,
         timings,
     };
-    Ok(Octree { frame, nodes, begin_end, splats, node_info, splat_area, splat_leaf, stats })
+    Ok(Octree {
+        frame,
+        nodes,
+        begin_end,
+        splats,
+        node_info,
+        splat_area,
+        splat_leaf,
+        stats,
+    })
 }
 
 /// Half extents of a disk's exact axis-aligned bounding box: r·sqrt(1 − n_axis²).
@@ -393,38 +500,78 @@ pub fn disk_half_extent(n: Vec3, r: f32) -> Vec3 {
 
 /// Leaves and empty cells, other than `owner`, that the splat's disk may overlap: the nested
 /// test of §8.5.13, box first (the disk's exact bounding box against the cell, pruning whole
-/// subtrees), then plane (the cell's 8 corners against the splat's plane; all on one side means
-/// the disk cannot touch the cell). Both tests are conservative, so there are no false
-/// negatives; cells are inflated by a tiny epsilon for robustness against rounding.
-pub fn overlapped_cells(frame: &Frame, nodes: &[u32], s: &Splat, owner: u32) -> impl Iterator<Item = u32> {
+/// subtrees), then plane (the cell against the splat's plane: a cell entirely on one side cannot
+/// touch the disk). Both tests are conservative, so there are no false negatives; cells are
+/// inflated by a tiny epsilon against rounding. Each hit is passed to `emit`.
+///
+/// The walk starts at the deepest node whose cell holds the whole bounding box (found by
+/// descending while the box stays inside one child), so the upper levels cost no box tests.
+pub fn overlapped_cells(
+    frame: &Frame,
+    nodes: &[u32],
+    s: &Splat,
+    owner: u32,
+    emit: &mut impl FnMut(u32),
+) {
     let c = Vec3::from(s.position);
     let n = Vec3::from(s.normal);
     let half = disk_half_extent(n, s.radius);
-    let (bmin, bmax) = (c - half, c + half);
     let eps = frame.size * 1e-6;
-    let mut out: Vec<u32> = Vec::new();
-    // (slot, cell min corner, cell size)
-    let mut stack: Vec<(u32, Vec3, f32)> = vec![(0, Vec3::from(frame.origin), frame.size)];
-    while let Some((slot, lo, size)) = stack.pop() {
+    let (bmin, bmax) = (c - half - Vec3::splat(eps), c + half + Vec3::splat(eps));
+    // Descend while the (inflated) box lies inside a single child.
+    let (mut slot, mut lo, mut size) = (0u32, Vec3::from(frame.origin), frame.size);
+    loop {
+        let w = nodes[slot as usize];
+        if w & (node::LEAF | node::EMPTY) != 0 {
+            break;
+        }
+        let mid = lo + Vec3::splat(size * 0.5);
+        let lo_side = bmin.cmpge(mid);
+        let hi_side = bmax.cmpge(mid);
+        if lo_side != hi_side {
+            break;
+        }
+        let bits = hi_side.bitmask();
+        let off = Vec3::new(
+            (bits & 1) as f32,
+            ((bits >> 1) & 1) as f32,
+            ((bits >> 2) & 1) as f32,
+        );
+        slot = node::ptr(w) + bits;
+        size *= 0.5;
+        lo += off * size;
+    }
+    // A fixed-size stack: at most 7 pending siblings per level, 21 levels.
+    let mut stack = [(0u32, Vec3::ZERO, 0.0f32); 8 * 22];
+    let mut top = 0usize;
+    stack[top] = (slot, lo, size);
+    top += 1;
+    while top > 0 {
+        top -= 1;
+        let (slot, lo, size) = stack[top];
         let w = nodes[slot as usize];
         if w & (node::LEAF | node::EMPTY) != 0 {
             if slot != owner && plane_crosses_cell(c, n, lo - Vec3::splat(eps), size + 2.0 * eps) {
-                out.push(slot);
+                emit(slot);
             }
             continue;
         }
         let half_size = size * 0.5;
         let first = node::ptr(w);
         for child in 0..8u32 {
-            let off = Vec3::new((child & 1) as f32, ((child >> 1) & 1) as f32, ((child >> 2) & 1) as f32);
+            let off = Vec3::new(
+                (child & 1) as f32,
+                ((child >> 1) & 1) as f32,
+                ((child >> 2) & 1) as f32,
+            );
             let clo = lo + off * half_size;
             let chi = clo + Vec3::splat(half_size);
-            if (bmin.cmple(chi + Vec3::splat(eps)) & bmax.cmpge(clo - Vec3::splat(eps))).all() {
-                stack.push((first + child, clo, half_size));
+            if (bmin.cmple(chi) & bmax.cmpge(clo)).all() {
+                stack[top] = (first + child, clo, half_size);
+                top += 1;
             }
         }
     }
-    out.into_iter()
 }
 
 /// True unless all 8 corners of the cell lie strictly on one side of the plane (c, n).
@@ -455,7 +602,13 @@ fn disk_pattern(m: u32) -> impl Iterator<Item = (f32, f32)> {
 /// when x is within its radius in its plane, within half a radius of its plane, and the two
 /// normals agree within 60° (so the two sides of a thin wall, or the faces meeting at an edge,
 /// do not share area).
-pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Splat], samples: u32) -> Vec<f32> {
+pub fn splat_areas(
+    frame: &Frame,
+    nodes: &[u32],
+    begin_end: &[u32],
+    splats: &[Splat],
+    samples: u32,
+) -> Vec<f32> {
     let pattern: Vec<(f32, f32)> = disk_pattern(samples.max(1)).collect();
     let origin = Vec3::from(frame.origin);
     splats
@@ -473,7 +626,9 @@ pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Sp
                 if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                     let loc = locate_normalized(nodes, q);
                     if node::is_leaf(loc.node) {
-                        if let Some((b0, e0, extra)) = pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(loc.node)) {
+                        if let Some((b0, e0, extra)) =
+                            pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(loc.node))
+                        {
                             let own = (b0..e0).map(|j| &splats[j as usize]);
                             let other = extra.iter().map(|&j| &splats[j as usize]);
                             cover = own.chain(other).filter(|o| covers(o, x, n)).count() as u32;
@@ -489,14 +644,19 @@ pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Sp
 
 #[inline]
 fn covers(o: &Splat, x: Vec3, n: Vec3) -> bool {
+    let d = x - Vec3::from(o.position);
+    let d2 = d.length_squared();
+    let r2 = o.radius * o.radius;
+    // |h| <= r/2 and in-plane distance <= r imply |d|² <= 1.25 r²: the cheap test first.
+    if d2 > 1.25 * r2 {
+        return false;
+    }
     let on = Vec3::from(o.normal);
     if on.dot(n) < 0.5 {
         return false;
     }
-    let d = x - Vec3::from(o.position);
     let h = d.dot(on);
-    let r2 = o.radius * o.radius;
-    h.abs() <= 0.5 * o.radius && d.length_squared() - h * h <= r2
+    h.abs() <= 0.5 * o.radius && d2 - h * h <= r2
 }
 
 /// Average disk (Fig. 13), normal, area, count and class of the splats of one node, and for
@@ -505,16 +665,40 @@ fn node_info(splats: &[Splat], areas: &[f32], material_class: &[u32], is_leaf: b
     let total: f32 = areas.iter().sum();
     let weight = |i: usize| if total > 0.0 { areas[i] } else { 1.0 };
     let wsum: f32 = (0..splats.len()).map(weight).sum();
-    let centroid = splats.iter().enumerate().map(|(i, s)| Vec3::from(s.position) * weight(i)).sum::<Vec3>() / wsum;
-    let nsum = splats.iter().enumerate().map(|(i, s)| Vec3::from(s.normal) * weight(i)).sum::<Vec3>();
-    let normal = if nsum.length() > 1e-3 * wsum { nsum.normalize() } else { Vec3::ZERO };
+    let centroid = splats
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Vec3::from(s.position) * weight(i))
+        .sum::<Vec3>()
+        / wsum;
+    let nsum = splats
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Vec3::from(s.normal) * weight(i))
+        .sum::<Vec3>();
+    let normal = if nsum.length() > 1e-3 * wsum {
+        nsum.normalize()
+    } else {
+        Vec3::ZERO
+    };
     let disk_radius = splats
         .iter()
         .map(|s| (Vec3::from(s.position) - centroid).length() + s.radius)
         .fold(0.0f32, f32::max);
     let c0 = material_class[splats[0].material as usize];
-    let cls = if splats.iter().all(|s| material_class[s.material as usize] == c0) { c0 } else { class::MIXED };
-    let tilt = if is_leaf && normal != Vec3::ZERO { normal_field(splats, centroid, normal) } else { [0.0; 2] };
+    let cls = if splats
+        .iter()
+        .all(|s| material_class[s.material as usize] == c0)
+    {
+        c0
+    } else {
+        class::MIXED
+    };
+    let tilt = if is_leaf && normal != Vec3::ZERO {
+        normal_field(splats, centroid, normal)
+    } else {
+        [0.0; 2]
+    };
     NodeInfo {
         centroid: centroid.into(),
         disk_radius,

@@ -24,6 +24,9 @@ struct Args {
     /// No progress bars.
     #[arg(long, short)]
     quiet: bool,
+    /// Also write the timings, counts and peak memory as JSON (for `cargo xtask bench`).
+    #[arg(long, value_name = "FILE")]
+    stats_json: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -41,8 +44,15 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
     let out = args.output.clone().unwrap_or_else(|| cfg.octree_path());
     let started = Instant::now();
-    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(cfg.config.models.len() as u64) };
-    bar.set_style(ProgressStyle::with_template("{spinner} {prefix:>10} [{bar:30}] {pos}/{len} {msg}")?.progress_chars("=> "));
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(cfg.config.models.len() as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {prefix:>10} [{bar:30}] {pos}/{len} {msg}")?
+            .progress_chars("=> "),
+    );
     bar.set_prefix("import");
     bar.enable_steady_tick(Duration::from_millis(100));
     let mut on_import = |done: usize, _total: usize| bar.set_position(done as u64);
@@ -55,7 +65,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let s = &summary.octree.stats;
     let secs = started.elapsed().as_secs_f64();
-    let dropped = if summary.dropped > 0 { format!(", dropped {} invalid points", summary.dropped) } else { String::new() };
+    let dropped = if summary.dropped > 0 {
+        format!(", dropped {} invalid points", summary.dropped)
+    } else {
+        String::new()
+    };
     println!(
         "pc-octree: wrote {} ({} splats, {} nodes, {} leaves, depth {}, {} extra refs{}) in {:.2} s (import {:.2} s, build {:.2} s, {:.1} M splats/s)",
         summary.path.display(),
@@ -70,5 +84,26 @@ fn run(args: &Args) -> anyhow::Result<()> {
         summary.build_seconds,
         s.splats as f64 / summary.build_seconds.max(1e-9) / 1e6
     );
+    if let Some(path) = &args.stats_json {
+        let phases: Vec<String> = s
+            .timings
+            .iter()
+            .map(|(n, t)| format!("{{\"phase\": \"{n}\", \"seconds\": {t:.6}}}"))
+            .collect();
+        let json = format!(
+            "{{\"splats\": {}, \"nodes\": {}, \"leaves\": {}, \"extra_refs\": {}, \"depth\": {}, \"import_seconds\": {:.6}, \"build_seconds\": {:.6}, \"write_seconds\": {:.6}, \"total_seconds\": {:.6}, \"peak_rss_bytes\": {}, \"threads\": {}, \"phases\": [{}]}}\n",
+            s.splats, s.nodes, s.leaves, s.extra_refs, s.depth, summary.import_seconds, summary.build_seconds, summary.write_seconds, secs,
+            peak_rss_bytes().unwrap_or(0), rayon::current_num_threads(), phases.join(", ")
+        );
+        std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?;
+    }
     Ok(())
+}
+
+/// Peak resident memory of this process (Linux: VmHWM in /proc/self/status).
+fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }

@@ -62,7 +62,11 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, anyhow::Error> {
     let mut h = KeyHasher::new();
     h.update_str(STAGE);
     h.update_str(STAGE_VERSION);
-    h.update_serialize(&(c.octree.max_leaf_points, c.octree.max_depth, c.octree.area_samples));
+    h.update_serialize(&(
+        c.octree.max_leaf_points,
+        c.octree.max_depth,
+        c.octree.area_samples,
+    ));
     h.update_serialize(&c.import);
     for m in &c.models {
         let mat = &c.materials[&m.material];
@@ -72,9 +76,17 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, anyhow::Error> {
             MaterialConfig::Mirror { .. } => "mirror",
             MaterialConfig::Dielectric { .. } => "dielectric",
         };
-        h.update_serialize(&(&m.material, cls, mat.wants_vertex_colors(), m.translate, m.rotate, m.scale));
+        h.update_serialize(&(
+            &m.material,
+            cls,
+            mat.wants_vertex_colors(),
+            m.translate,
+            m.rotate,
+            m.scale,
+        ));
         let path = model_path(cfg, m);
-        h.update_file(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        h.update_file(&path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     }
     // Material indices are positions in the sorted name list: the set of names matters too.
     h.update_serialize(&c.materials.keys().collect::<Vec<_>>());
@@ -93,12 +105,19 @@ pub struct Summary {
 }
 
 /// Import the scene of `cfg`.
-pub fn import(cfg: &LoadedConfig, progress: &mut dyn FnMut(usize, usize)) -> Result<LoadedScene, anyhow::Error> {
+pub fn import(
+    cfg: &LoadedConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<LoadedScene, anyhow::Error> {
     Ok(load_scene(cfg, progress)?)
 }
 
 /// Build the octree of a loaded scene with the config's parameters.
-pub fn build_scene(cfg: &LoadedConfig, scene: &LoadedScene, phase: &mut dyn FnMut(&str)) -> Result<Octree, anyhow::Error> {
+pub fn build_scene(
+    cfg: &LoadedConfig,
+    scene: &LoadedScene,
+    phase: &mut dyn FnMut(&str),
+) -> Result<Octree, anyhow::Error> {
     let records = material_table(&scene.materials);
     let classes: Vec<u32> = records.iter().map(|m| m.class).collect();
     let s = &scene.splats;
@@ -111,12 +130,22 @@ pub fn build_scene(cfg: &LoadedConfig, scene: &LoadedScene, phase: &mut dyn FnMu
         material_class: &classes,
     };
     let o = &cfg.config.octree;
-    let params = BuildParams { max_leaf_points: o.max_leaf_points, max_depth: o.max_depth, area_samples: o.area_samples };
+    let params = BuildParams {
+        max_leaf_points: o.max_leaf_points,
+        max_depth: o.max_depth,
+        area_samples: o.area_samples,
+    };
     Ok(build(&input, &params, phase)?)
 }
 
 /// Write an octree artifact atomically.
-pub fn write(path: &Path, key: Key, octree: &Octree, scene: &LoadedScene, cfg: &LoadedConfig) -> Result<(), anyhow::Error> {
+pub fn write(
+    path: &Path,
+    key: Key,
+    octree: &Octree,
+    scene: &LoadedScene,
+    cfg: &LoadedConfig,
+) -> Result<(), anyhow::Error> {
     let records = material_table(&scene.materials);
     let st = &octree.stats;
     let inputs = cfg
@@ -128,7 +157,11 @@ pub fn write(path: &Path, key: Key, octree: &Octree, scene: &LoadedScene, cfg: &
             let bytes = std::fs::metadata(&p).map(|md| md.len()).unwrap_or(0);
             let mut h = KeyHasher::new();
             let _ = h.update_file(&p);
-            InputFile { path: p.display().to_string(), bytes, hash: h.finish().to_string() }
+            InputFile {
+                path: p.display().to_string(),
+                bytes,
+                hash: h.finish().to_string(),
+            }
         })
         .collect();
     let meta = OctreeMeta {
@@ -180,5 +213,12 @@ pub fn run(
     phase("write");
     write(out, key, &octree, &scene, cfg)?;
     let write_seconds = t.elapsed().as_secs_f64();
-    Ok(Summary { path: out.to_path_buf(), octree, import_seconds, build_seconds, write_seconds, dropped: scene.dropped() })
+    Ok(Summary {
+        path: out.to_path_buf(),
+        octree,
+        import_seconds,
+        build_seconds,
+        write_seconds,
+        dropped: scene.dropped(),
+    })
 }

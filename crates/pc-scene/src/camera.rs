@@ -39,8 +39,20 @@ impl Camera {
             FovAxis::Smaller => w <= h,
             FovAxis::Larger => w >= h,
         };
-        let tan_half = if along_x { (t, t * h / w) } else { (t * w / h, t) };
-        Camera { origin, forward, right, up, tan_half, width: c.width, height: c.height }
+        let tan_half = if along_x {
+            (t, t * h / w)
+        } else {
+            (t * w / h, t)
+        };
+        Camera {
+            origin,
+            forward,
+            right,
+            up,
+            tan_half,
+            width: c.width,
+            height: c.height,
+        }
     }
 
     /// Unit direction through film position (sx, sy) in [0,1]² (sx right, sy down).
@@ -54,7 +66,10 @@ impl Camera {
     /// Unit direction through the point (u, v) in [0,1)² of pixel (i, j).
     #[inline]
     pub fn pixel_direction(&self, i: u32, j: u32, u: f32, v: f32) -> Vec3 {
-        self.direction((i as f32 + u) / self.width as f32, (j as f32 + v) / self.height as f32)
+        self.direction(
+            (i as f32 + u) / self.width as f32,
+            (j as f32 + v) / self.height as f32,
+        )
     }
 }
 
@@ -65,13 +80,21 @@ mod tests {
     /// The reference scene's camera reproduces the rays Mitsuba generated (sensor.test_rays).
     #[test]
     fn matches_mitsuba_test_rays() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/reference/cornell/cornell.scene.json");
-        let text = std::fs::read_to_string(path)
-            .unwrap_or_else(|e| panic!("{path}: {e} (the reference data lives in ../shared beside the repository)"));
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../shared/reference/cornell/cornell.scene.json"
+        );
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| {
+            panic!("{path}: {e} (the reference data lives in ../shared beside the repository)")
+        });
         let json: serde_json::Value = serde_json::from_str(&text).unwrap();
         let s = &json["sensor"];
         let v3 = |v: &serde_json::Value| -> [f32; 3] {
-            [v[0].as_f64().unwrap() as f32, v[1].as_f64().unwrap() as f32, v[2].as_f64().unwrap() as f32]
+            [
+                v[0].as_f64().unwrap() as f32,
+                v[1].as_f64().unwrap() as f32,
+                v[2].as_f64().unwrap() as f32,
+            ]
         };
         let axis = match s["fov_axis"].as_str().unwrap() {
             "x" => FovAxis::X,
@@ -95,7 +118,10 @@ mod tests {
             let f = &r["film_pos"];
             let d = cam.direction(f[0].as_f64().unwrap() as f32, f[1].as_f64().unwrap() as f32);
             let want = Vec3::from(v3(&r["direction"]));
-            assert!((d - want).length() < 2e-6, "film {f}: got {d}, Mitsuba {want}");
+            assert!(
+                (d - want).length() < 2e-6,
+                "film {f}: got {d}, Mitsuba {want}"
+            );
             // Mitsuba starts rays at the near clip plane along the same line through the origin.
             let o = Vec3::from(v3(&r["origin"]));
             let along = (o - cam.origin).cross(d).length();
@@ -105,7 +131,12 @@ mod tests {
 
     #[test]
     fn non_square_fov_axes() {
-        let mut c = CameraConfig { width: 200, height: 100, fov: 90.0, ..Default::default() };
+        let mut c = CameraConfig {
+            width: 200,
+            height: 100,
+            fov: 90.0,
+            ..Default::default()
+        };
         c.fov_axis = FovAxis::X;
         let cam = Camera::new(&c);
         assert!((cam.tan_half.0 - 1.0).abs() < 1e-6 && (cam.tan_half.1 - 0.5).abs() < 1e-6);

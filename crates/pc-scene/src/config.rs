@@ -49,7 +49,9 @@ fn default_out_dir() -> PathBuf {
 
 impl Default for OutputConfig {
     fn default() -> Self {
-        Self { dir: default_out_dir() }
+        Self {
+            dir: default_out_dir(),
+        }
     }
 }
 
@@ -109,11 +111,19 @@ pub enum MaterialConfig {
 
 impl MaterialConfig {
     pub fn is_specular(&self) -> bool {
-        matches!(self, MaterialConfig::Mirror { .. } | MaterialConfig::Dielectric { .. })
+        matches!(
+            self,
+            MaterialConfig::Mirror { .. } | MaterialConfig::Dielectric { .. }
+        )
     }
     /// True when the albedo comes from the PLY's colors.
     pub fn wants_vertex_colors(&self) -> bool {
-        matches!(self, MaterialConfig::Diffuse { albedo: Albedo::Source(_) })
+        matches!(
+            self,
+            MaterialConfig::Diffuse {
+                albedo: Albedo::Source(_)
+            }
+        )
     }
 }
 
@@ -274,7 +284,10 @@ impl LoadedConfig {
 }
 
 fn cfg_err(path: &Path, msg: impl Into<String>) -> SceneError {
-    SceneError::Config { path: path.to_path_buf(), msg: msg.into() }
+    SceneError::Config {
+        path: path.to_path_buf(),
+        msg: msg.into(),
+    }
 }
 
 /// Read `path`, merge its includes, apply `overrides` (`key.path=value`), validate.
@@ -285,22 +298,34 @@ pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, Sc
         apply_override(&mut value, o).map_err(|m| cfg_err(path, format!("--set {o}: {m}")))?;
     }
     let text = toml::to_string(&value).map_err(|e| cfg_err(path, e.to_string()))?;
-    let mut config: PipelineConfig =
-        value.try_into().map_err(|e: toml::de::Error| cfg_err(path, e.message().to_string()))?;
+    let mut config: PipelineConfig = value
+        .try_into()
+        .map_err(|e: toml::de::Error| cfg_err(path, e.message().to_string()))?;
     config.include.clear();
     validate(&config, path)?;
     let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    Ok(LoadedConfig { config, path: path.to_path_buf(), base_dir, text })
+    Ok(LoadedConfig {
+        config,
+        path: path.to_path_buf(),
+        base_dir,
+        text,
+    })
 }
 
 /// Parse a config from text (relative paths resolve against `base_dir`), for tests and tools.
 pub fn parse_config(text: &str, base_dir: &Path) -> Result<LoadedConfig, SceneError> {
     let pseudo = base_dir.join("<inline>");
     let value: toml::Value = toml::from_str(text).map_err(|e| cfg_err(&pseudo, e.to_string()))?;
-    let config: PipelineConfig =
-        value.try_into().map_err(|e: toml::de::Error| cfg_err(&pseudo, e.message().to_string()))?;
+    let config: PipelineConfig = value
+        .try_into()
+        .map_err(|e: toml::de::Error| cfg_err(&pseudo, e.message().to_string()))?;
     validate(&config, &pseudo)?;
-    Ok(LoadedConfig { config, path: pseudo, base_dir: base_dir.to_path_buf(), text: text.to_string() })
+    Ok(LoadedConfig {
+        config,
+        path: pseudo,
+        base_dir: base_dir.to_path_buf(),
+        text: text.to_string(),
+    })
 }
 
 fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, SceneError> {
@@ -308,10 +333,11 @@ fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, Scene
     if stack.contains(&canon) {
         return Err(cfg_err(path, "include cycle"));
     }
-    let text = std::fs::read_to_string(path)
-        .map_err(|source| SceneError::Io { path: path.to_path_buf(), source })?;
-    let mut value: toml::Value =
-        toml::from_str(&text).map_err(|e| cfg_err(path, e.to_string()))?;
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut value: toml::Value = toml::from_str(&text).map_err(|e| cfg_err(path, e.to_string()))?;
     let dir = path.parent().unwrap_or(Path::new(""));
     // Resolve model paths relative to the file that declares them, so an included file keeps
     // pointing at its own PLYs. The top-level file keeps relative paths (resolved at load).
@@ -334,7 +360,9 @@ fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, Scene
         Some(toml::Value::Array(a)) => a
             .iter()
             .map(|v| {
-                v.as_str().map(|s| dir.join(s)).ok_or_else(|| cfg_err(path, "`include` must be a list of paths"))
+                v.as_str()
+                    .map(|s| dir.join(s))
+                    .ok_or_else(|| cfg_err(path, "`include` must be a list of paths"))
             })
             .collect::<Result<_, _>>()?,
         Some(_) => return Err(cfg_err(path, "`include` must be a list of paths")),
@@ -367,7 +395,9 @@ fn merge(base: &mut toml::Value, top: toml::Value) {
                 }
             }
         }
-        (toml::Value::Array(b), toml::Value::Array(t)) if t.iter().all(|v| v.is_table()) && !t.is_empty() => {
+        (toml::Value::Array(b), toml::Value::Array(t))
+            if t.iter().all(|v| v.is_table()) && !t.is_empty() =>
+        {
             b.extend(t);
         }
         (b, t) => *b = t,
@@ -398,12 +428,17 @@ pub fn apply_override(root: &mut toml::Value, spec: &str) -> Result<(), String> 
                     t.insert(part.to_string(), value);
                     return Ok(());
                 }
-                t.entry(part.to_string()).or_insert_with(|| toml::Value::Table(Default::default()))
+                t.entry(part.to_string())
+                    .or_insert_with(|| toml::Value::Table(Default::default()))
             }
             toml::Value::Array(a) => {
-                let idx: usize = part.parse().map_err(|_| format!("`{part}` is not an index into an array"))?;
+                let idx: usize = part
+                    .parse()
+                    .map_err(|_| format!("`{part}` is not an index into an array"))?;
                 let len = a.len();
-                let slot = a.get_mut(idx).ok_or_else(|| format!("index {idx} is out of range (array has {len})"))?;
+                let slot = a
+                    .get_mut(idx)
+                    .ok_or_else(|| format!("index {idx} is out of range (array has {len})"))?;
                 if last {
                     *slot = value;
                     return Ok(());
@@ -424,33 +459,55 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
     let err = |m: String| Err(cfg_err(path, m));
     for (name, m) in &c.materials {
         match m {
-            MaterialConfig::Diffuse { albedo: Albedo::Rgb(a) } | MaterialConfig::Emitter { albedo: Some(a), .. } => {
+            MaterialConfig::Diffuse {
+                albedo: Albedo::Rgb(a),
+            }
+            | MaterialConfig::Emitter {
+                albedo: Some(a), ..
+            } => {
                 if !finite3(*a) || a.iter().any(|x| !(0.0..=1.0).contains(x)) {
-                    return err(format!("materials.{name}.albedo must lie in [0, 1], got {a:?}"));
+                    return err(format!(
+                        "materials.{name}.albedo must lie in [0, 1], got {a:?}"
+                    ));
                 }
             }
-            MaterialConfig::Diffuse { albedo: Albedo::Source(s) } if s != "vertex" => {
-                return err(format!("materials.{name}.albedo must be [r, g, b] or \"vertex\", got \"{s}\""));
+            MaterialConfig::Diffuse {
+                albedo: Albedo::Source(s),
+            } if s != "vertex" => {
+                return err(format!(
+                    "materials.{name}.albedo must be [r, g, b] or \"vertex\", got \"{s}\""
+                ));
             }
             _ => {}
         }
         match m {
-            MaterialConfig::Emitter { radiance, .. } if !finite3(*radiance) || radiance.iter().any(|x| *x < 0.0) => {
-                return err(format!("materials.{name}.radiance must be finite and non-negative, got {radiance:?}"));
+            MaterialConfig::Emitter { radiance, .. }
+                if !finite3(*radiance) || radiance.iter().any(|x| *x < 0.0) =>
+            {
+                return err(format!(
+                    "materials.{name}.radiance must be finite and non-negative, got {radiance:?}"
+                ));
             }
-            MaterialConfig::Mirror { reflectance: r, .. } | MaterialConfig::Dielectric { tint: Some(r), .. }
+            MaterialConfig::Mirror { reflectance: r, .. }
+            | MaterialConfig::Dielectric { tint: Some(r), .. }
                 if !finite3(*r) || r.iter().any(|x| !(0.0..=1.0).contains(x)) =>
             {
-                return err(format!("materials.{name}: reflectance/tint must lie in [0, 1], got {r:?}"));
+                return err(format!(
+                    "materials.{name}: reflectance/tint must lie in [0, 1], got {r:?}"
+                ));
             }
             MaterialConfig::Dielectric { ior, .. } if !(ior.is_finite() && *ior > 0.0) => {
                 return err(format!("materials.{name}.ior must be positive, got {ior}"));
             }
             _ => {}
         }
-        if let MaterialConfig::Mirror { phong: Some(p), .. } | MaterialConfig::Dielectric { phong: Some(p), .. } = m {
+        if let MaterialConfig::Mirror { phong: Some(p), .. }
+        | MaterialConfig::Dielectric { phong: Some(p), .. } = m
+        {
             if !(p.is_finite() && *p >= 0.0) {
-                return err(format!("materials.{name}.phong must be a non-negative exponent, got {p}"));
+                return err(format!(
+                    "materials.{name}.phong must be a non-negative exponent, got {p}"
+                ));
             }
         }
     }
@@ -475,21 +532,37 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
     }
     for (i, l) in c.lights.iter().enumerate() {
         if !finite3(l.position) || !finite3(l.intensity) || l.intensity.iter().any(|x| *x < 0.0) {
-            return err(format!("lights[{i}]: position must be finite and intensity non-negative"));
+            return err(format!(
+                "lights[{i}]: position must be finite and intensity non-negative"
+            ));
         }
     }
     let cam = &c.camera;
     if cam.width == 0 || cam.height == 0 {
-        return err(format!("camera: width and height must be positive, got {}x{}", cam.width, cam.height));
+        return err(format!(
+            "camera: width and height must be positive, got {}x{}",
+            cam.width, cam.height
+        ));
     }
     if !(cam.fov > 0.0 && cam.fov < 180.0) {
-        return err(format!("camera.fov must lie in (0, 180) degrees, got {}", cam.fov));
+        return err(format!(
+            "camera.fov must lie in (0, 180) degrees, got {}",
+            cam.fov
+        ));
     }
     if !finite3(cam.origin) || !finite3(cam.target) || !finite3(cam.up) {
         return err("camera: origin, target and up must be finite".into());
     }
-    let d = [cam.target[0] - cam.origin[0], cam.target[1] - cam.origin[1], cam.target[2] - cam.origin[2]];
-    let cross = [d[1] * cam.up[2] - d[2] * cam.up[1], d[2] * cam.up[0] - d[0] * cam.up[2], d[0] * cam.up[1] - d[1] * cam.up[0]];
+    let d = [
+        cam.target[0] - cam.origin[0],
+        cam.target[1] - cam.origin[1],
+        cam.target[2] - cam.origin[2],
+    ];
+    let cross = [
+        d[1] * cam.up[2] - d[2] * cam.up[1],
+        d[2] * cam.up[0] - d[0] * cam.up[2],
+        d[0] * cam.up[1] - d[1] * cam.up[0],
+    ];
     if cross.iter().map(|x| x * x).sum::<f32>() < 1e-12 {
         return err("camera: target equals origin, or up is parallel to the view direction".into());
     }
@@ -498,13 +571,21 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
         return err("octree.max_leaf_points must be at least 1".into());
     }
     if o.max_depth == 0 || o.max_depth > 21 {
-        return err(format!("octree.max_depth must lie in 1..=21, got {}", o.max_depth));
+        return err(format!(
+            "octree.max_depth must lie in 1..=21, got {}",
+            o.max_depth
+        ));
     }
     if o.area_samples == 0 || o.area_samples > 64 {
-        return err(format!("octree.area_samples must lie in 1..=64, got {}", o.area_samples));
+        return err(format!(
+            "octree.area_samples must lie in 1..=64, got {}",
+            o.area_samples
+        ));
     }
     if c.import.normal_neighbors < 3 || c.import.radius_neighbors < 1 {
-        return err("import: normal_neighbors must be at least 3 and radius_neighbors at least 1".into());
+        return err(
+            "import: normal_neighbors must be at least 3 and radius_neighbors at least 1".into(),
+        );
     }
     Ok(())
 }
@@ -555,7 +636,9 @@ material = "white"
         apply_override(&mut v, "camera.origin=[1, 2, 3]").unwrap();
         assert_eq!(v["octree"]["max_leaf_points"].as_integer(), Some(4));
         assert_eq!(v["models"][0]["material"].as_str(), Some("glass"));
-        assert!(apply_override(&mut v, "models.5.material=glass").unwrap_err().contains("out of range"));
+        assert!(apply_override(&mut v, "models.5.material=glass")
+            .unwrap_err()
+            .contains("out of range"));
         assert!(apply_override(&mut v, "nokey").is_err());
     }
 
@@ -569,11 +652,23 @@ material = "white"
             "include = [\"scene/scene.toml\"]\n[octree]\nmax_leaf_points = 8\n[materials.white]\nalbedo = [0.25, 0.25, 0.25]\n",
         )
         .unwrap();
-        let c = load_config(&dir.path().join("pipeline.toml"), &["octree.max_depth=10".into()]).unwrap();
+        let c = load_config(
+            &dir.path().join("pipeline.toml"),
+            &["octree.max_depth=10".into()],
+        )
+        .unwrap();
         assert_eq!(c.config.octree.max_leaf_points, 8);
         assert_eq!(c.config.octree.max_depth, 10);
-        assert_eq!(c.config.models[0].file, dir.path().join("scene").join("a.ply"));
-        assert_eq!(c.config.materials["white"], MaterialConfig::Diffuse { albedo: Albedo::Rgb([0.25; 3]) });
+        assert_eq!(
+            c.config.models[0].file,
+            dir.path().join("scene").join("a.ply")
+        );
+        assert_eq!(
+            c.config.materials["white"],
+            MaterialConfig::Diffuse {
+                albedo: Albedo::Rgb([0.25; 3])
+            }
+        );
     }
 
     #[test]
@@ -588,7 +683,9 @@ material = "white"
             let mut v: toml::Value = toml::from_str(BASE).unwrap();
             apply_override(&mut v, over).unwrap();
             let text = toml::to_string(&v).unwrap();
-            let e = parse_config(&text, Path::new("/x")).unwrap_err().to_string();
+            let e = parse_config(&text, Path::new("/x"))
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(needle), "{over}: {e}");
         }
     }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use glam::{Mat3, Vec3};
 
 use crate::config::{LoadedConfig, MaterialConfig, ModelConfig, PointLightConfig};
-use crate::estimate::{estimate_normals, estimate_radii, Orientation};
+use crate::estimate::{try_estimate_normals, try_estimate_radii, Orientation};
 use crate::ply::{read_ply, PlyOptions};
 use crate::SceneError;
 
@@ -78,14 +78,26 @@ pub fn model_transform(m: &ModelConfig) -> (f32, Mat3, Vec3) {
 }
 
 /// Load every model of the config. `progress(done, total)` is called after each model.
-pub fn load_scene(cfg: &LoadedConfig, progress: &mut dyn FnMut(usize, usize)) -> Result<LoadedScene, SceneError> {
+pub fn load_scene(
+    cfg: &LoadedConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<LoadedScene, SceneError> {
     let c = &cfg.config;
     if c.models.is_empty() {
-        return Err(SceneError::Config { path: cfg.path.clone(), msg: "the scene has no models ([[models]])".into() });
+        return Err(SceneError::Config {
+            path: cfg.path.clone(),
+            msg: "the scene has no models ([[models]])".into(),
+        });
     }
-    let materials: Vec<(String, MaterialConfig)> = c.materials.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+    let materials: Vec<(String, MaterialConfig)> = c
+        .materials
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
     let index_of = |name: &str| materials.iter().position(|(n, _)| n == name);
-    let opts = PlyOptions { drop_invalid: c.import.drop_invalid };
+    let opts = PlyOptions {
+        drop_invalid: c.import.drop_invalid,
+    };
     let mut out = SceneSplats::default();
     let mut reports = Vec::with_capacity(c.models.len());
     for (mi, m) in c.models.iter().enumerate() {
@@ -103,29 +115,28 @@ pub fn load_scene(cfg: &LoadedConfig, progress: &mut dyn FnMut(usize, usize)) ->
         let normals = match pts.normals {
             Some(nrm) => nrm,
             None => {
-                if n < c.import.normal_neighbors.min(4).max(3) {
-                    return Err(SceneError::Estimate {
-                        path: path.clone(),
-                        msg: format!("{n} points are too few to estimate normals"),
-                    });
-                }
                 let orient = match c.import.sensor {
                     Some(s) => Orientation::Sensor(Vec3::from(s)),
                     None => Orientation::Propagate,
                 };
-                estimate_normals(&pts.positions, c.import.normal_neighbors, orient)
+                try_estimate_normals(&path, &pts.positions, c.import.normal_neighbors, orient)?
             }
         };
         let radii = match pts.radii {
             Some(r) => r,
-            None => estimate_radii(&pts.positions, c.import.radius_neighbors),
+            None => try_estimate_radii(&path, &pts.positions, c.import.radius_neighbors)?,
         };
         // Per-point colors multiply the material's color; without them the factor is 1, so
         // a material's albedo can change without rebuilding the octree.
         let colors = if material.wants_vertex_colors() {
             match pts.colors {
                 Some(c) => Some(c),
-                None => return Err(SceneError::MissingProperty { path: path.clone(), property: "red" }),
+                None => {
+                    return Err(SceneError::MissingProperty {
+                        path: path.clone(),
+                        property: "red",
+                    })
+                }
             }
         } else {
             None
@@ -136,7 +147,11 @@ pub fn load_scene(cfg: &LoadedConfig, progress: &mut dyn FnMut(usize, usize)) ->
             out.positions.push(rot * (pts.positions[i] * s) + t);
             out.normals.push((rot * normals[i]).normalize());
             out.radii.push(radii[i] * s);
-            out.albedo.push(colors.as_ref().map_or(Vec3::ONE, |c| c[i].clamp(Vec3::ZERO, Vec3::ONE)));
+            out.albedo.push(
+                colors
+                    .as_ref()
+                    .map_or(Vec3::ONE, |c| c[i].clamp(Vec3::ZERO, Vec3::ONE)),
+            );
             out.material.push(mat_index as u32);
         }
         reports.push(ModelReport {
@@ -152,10 +167,18 @@ pub fn load_scene(cfg: &LoadedConfig, progress: &mut dyn FnMut(usize, usize)) ->
     if out.positions.len() > u32::MAX as usize / 2 {
         return Err(SceneError::Config {
             path: cfg.path.clone(),
-            msg: format!("{} splats: more than this build supports", out.positions.len()),
+            msg: format!(
+                "{} splats: more than this build supports",
+                out.positions.len()
+            ),
         });
     }
-    Ok(LoadedScene { splats: out, materials, lights: c.lights.clone(), models: reports })
+    Ok(LoadedScene {
+        splats: out,
+        materials,
+        lights: c.lights.clone(),
+        models: reports,
+    })
 }
 
 #[cfg(test)]

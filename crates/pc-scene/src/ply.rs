@@ -120,16 +120,15 @@ pub fn parse_ply(bytes: &[u8], path: &Path, opts: &PlyOptions) -> Result<PointSe
         drop_invalid: opts.drop_invalid,
         count: vertex.count,
     };
-    let accs = match header.encoding {
-        Encoding::Ascii => decode_ascii(body, body_line, &elements[..vi], vertex, &ctx)?,
+    match header.encoding {
+        Encoding::Ascii => decode_ascii(body, body_line, &elements[..vi], vertex, &ctx),
         Encoding::BinaryLittleEndian => {
-            decode_binary::<false>(body, header_len, &elements[..vi], vertex, &ctx)?
+            decode_binary::<false>(body, header_len, &elements[..vi], vertex, &ctx)
         }
         Encoding::BinaryBigEndian => {
-            decode_binary::<true>(body, header_len, &elements[..vi], vertex, &ctx)?
+            decode_binary::<true>(body, header_len, &elements[..vi], vertex, &ctx)
         }
-    };
-    merge(accs, &ctx)
+    }
 }
 
 /// ply-rs-bw's messages span several lines; keep errors on one.
@@ -414,176 +413,239 @@ fn srgb_u8_table() -> &'static [f32; 256] {
     TABLE.get_or_init(|| std::array::from_fn(|i| srgb_to_linear(i as f64 / 255.0) as f32))
 }
 
-/// Decoded, validated points of one chunk of vertices.
-struct Acc {
+/// The output arrays, one slot per declared vertex (absent attributes are empty); chunks of
+/// vertices are decoded into disjoint parts of them, and compacted afterwards if points were
+/// dropped.
+struct Outputs {
     pos: Vec<Vec3>,
     nrm: Vec<Vec3>,
     rad: Vec<f32>,
     col: Vec<Vec3>,
-    drops: [usize; REASONS.len()],
-    /// The first invalid point of the chunk (when not dropping); decoding stops there.
-    first: Option<(usize, Invalid)>,
-    /// Vertices consumed (ASCII chunks report it for their successors' indices).
-    read: usize,
 }
 
-impl Acc {
-    fn new(cap: usize, map: &VertexMap) -> Acc {
-        let opt = |b: bool| if b { cap } else { 0 };
-        Acc {
-            pos: Vec::with_capacity(cap),
-            nrm: Vec::with_capacity(opt(map.normals)),
-            rad: Vec::with_capacity(opt(map.radius)),
-            col: Vec::with_capacity(opt(map.colors)),
-            drops: [0; REASONS.len()],
-            first: None,
-            read: 0,
+/// A zeroed `Vec<Vec3>` from `calloc` (no initialization pass; pages come in on first write).
+fn zeroed_vec3(n: usize) -> Vec<Vec3> {
+    bytemuck::allocation::cast_vec(vec![0f32; 3 * n])
+}
+
+impl Outputs {
+    fn new(n: usize, map: &VertexMap) -> Outputs {
+        let opt = |b: bool| if b { n } else { 0 };
+        Outputs {
+            pos: zeroed_vec3(n),
+            nrm: zeroed_vec3(opt(map.normals)),
+            rad: vec![0f32; opt(map.radius)],
+            col: zeroed_vec3(opt(map.colors)),
         }
     }
 
-    /// Validate and store vertex `index`; false when decoding must stop (first error).
+    /// One sink per chunk of `sizes` consecutive vertices.
+    fn sinks(&mut self, sizes: impl Iterator<Item = usize>) -> Vec<Sink<'_>> {
+        fn take<'a, T>(rest: &mut &'a mut [T], n: usize) -> &'a mut [T] {
+            let n = n.min(rest.len()); // 0 for an absent attribute
+            let (head, tail) = std::mem::take(rest).split_at_mut(n);
+            *rest = tail;
+            head
+        }
+        let (mut pos, mut nrm, mut rad, mut col) = (
+            &mut self.pos[..],
+            &mut self.nrm[..],
+            &mut self.rad[..],
+            &mut self.col[..],
+        );
+        sizes
+            .map(|n| Sink {
+                pos: take(&mut pos, n),
+                nrm: take(&mut nrm, n),
+                rad: take(&mut rad, n),
+                col: take(&mut col, n),
+                done: Done::default(),
+            })
+            .collect()
+    }
+}
+
+/// What decoding one chunk found.
+#[derive(Clone, Copy, Debug, Default)]
+struct Done {
+    /// Valid points written (at the start of the chunk's part of the outputs).
+    kept: usize,
+    /// Vertices consumed.
+    read: usize,
+    drops: [usize; REASONS.len()],
+    /// The first invalid point of the chunk (when not dropping); decoding stops there.
+    first: Option<(usize, Invalid)>,
+}
+
+/// Decoded, validated points of one chunk of vertices go here.
+struct Sink<'a> {
+    pos: &'a mut [Vec3],
+    nrm: &'a mut [Vec3],
+    rad: &'a mut [f32],
+    col: &'a mut [Vec3],
+    done: Done,
+}
+
+impl Sink<'_> {
+    /// Validate and store the chunk's vertex `local`; false when decoding must stop.
     #[inline]
-    fn accept(&mut self, ctx: &Ctx, index: usize, v: &[f64; SLOTS]) -> bool {
-        self.read += 1;
-        match self.check(ctx.map, v) {
-            Ok(()) => true,
+    fn accept(&mut self, ctx: &Ctx, local: usize, v: &[f64; SLOTS]) -> bool {
+        self.done.read += 1;
+        match check(ctx.map, v) {
+            Ok((p, n, r, c)) => {
+                let w = self.done.kept;
+                self.pos[w] = p;
+                if ctx.map.normals {
+                    self.nrm[w] = n;
+                }
+                if ctx.map.radius {
+                    self.rad[w] = r;
+                }
+                if ctx.map.colors {
+                    self.col[w] = c;
+                }
+                self.done.kept += 1;
+                true
+            }
             Err(inv) if ctx.drop_invalid => {
-                self.drops[inv.reason()] += 1;
+                self.done.drops[inv.reason()] += 1;
                 true
             }
             Err(inv) => {
-                self.first = Some((index, inv));
+                self.done.first = Some((local, inv));
                 false
             }
         }
     }
+}
 
-    #[inline]
-    fn check(&mut self, map: &VertexMap, v: &[f64; SLOTS]) -> Result<(), Invalid> {
-        let p = Vec3::new(v[POS] as f32, v[POS + 1] as f32, v[POS + 2] as f32);
-        if !p.is_finite() {
-            let slot = (POS..POS + 3)
-                .find(|&s| !(v[s] as f32).is_finite())
-                .unwrap();
+/// Validate one decoded vertex: (position, unit normal, radius, linear color).
+#[inline]
+fn check(map: &VertexMap, v: &[f64; SLOTS]) -> Result<(Vec3, Vec3, f32, Vec3), Invalid> {
+    let p = Vec3::new(v[POS] as f32, v[POS + 1] as f32, v[POS + 2] as f32);
+    if !p.is_finite() {
+        let slot = (POS..POS + 3)
+            .find(|&s| !(v[s] as f32).is_finite())
+            .unwrap();
+        return Err(Invalid::NonFinite {
+            slot,
+            value: v[slot],
+        });
+    }
+    let mut n = Vec3::ZERO;
+    if map.normals {
+        let (x, y, z) = (v[NRM], v[NRM + 1], v[NRM + 2]);
+        if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+            let slot = (NRM..NRM + 3).find(|&s| !v[s].is_finite()).unwrap();
             return Err(Invalid::NonFinite {
                 slot,
                 value: v[slot],
             });
         }
-        let mut n = Vec3::ZERO;
-        if map.normals {
-            let (x, y, z) = (v[NRM], v[NRM + 1], v[NRM + 2]);
-            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-                let slot = (NRM..NRM + 3).find(|&s| !v[s].is_finite()).unwrap();
+        // Scale first so that huge or tiny doubles neither overflow nor underflow.
+        let m = x.abs().max(y.abs()).max(z.abs());
+        if m == 0.0 {
+            return Err(Invalid::ZeroNormal);
+        }
+        let (sx, sy, sz) = (x / m, y / m, z / m);
+        let l = (sx * sx + sy * sy + sz * sz).sqrt();
+        if m * l < 1e-12 {
+            return Err(Invalid::ZeroNormal);
+        }
+        n = Vec3::new((sx / l) as f32, (sy / l) as f32, (sz / l) as f32);
+    }
+    let mut r = 0.0f32;
+    if map.radius {
+        r = v[RAD] as f32;
+        if !(r.is_finite() && r > 0.0) {
+            return Err(Invalid::BadRadius(v[RAD]));
+        }
+    }
+    let mut c = Vec3::ZERO;
+    if map.colors {
+        for k in 0..3 {
+            let x = v[COL + k];
+            if !x.is_finite() {
                 return Err(Invalid::NonFinite {
-                    slot,
-                    value: v[slot],
+                    slot: COL + k,
+                    value: x,
                 });
             }
-            // Scale first so that huge or tiny doubles neither overflow nor underflow.
-            let m = x.abs().max(y.abs()).max(z.abs());
-            if m == 0.0 {
-                return Err(Invalid::ZeroNormal);
-            }
-            let (sx, sy, sz) = (x / m, y / m, z / m);
-            let l = (sx * sx + sy * sy + sz * sz).sqrt();
-            if m * l < 1e-12 {
-                return Err(Invalid::ZeroNormal);
-            }
-            n = Vec3::new((sx / l) as f32, (sy / l) as f32, (sz / l) as f32);
-        }
-        let mut r = 0.0f32;
-        if map.radius {
-            r = v[RAD] as f32;
-            if !(r.is_finite() && r > 0.0) {
-                return Err(Invalid::BadRadius(v[RAD]));
+            c[k] = match map.color_conv[k] {
+                ColorConv::U8 => srgb_u8_table()[x.clamp(0.0, 255.0) as usize],
+                ColorConv::Int(s) => srgb_to_linear((x * s).clamp(0.0, 1.0)) as f32,
+                ColorConv::Float => (x as f32).max(0.0),
+            };
+            if !c[k].is_finite() {
+                return Err(Invalid::NonFinite {
+                    slot: COL + k,
+                    value: x,
+                });
             }
         }
-        let mut c = Vec3::ZERO;
-        if map.colors {
-            for k in 0..3 {
-                let x = v[COL + k];
-                if !x.is_finite() {
-                    return Err(Invalid::NonFinite {
-                        slot: COL + k,
-                        value: x,
-                    });
-                }
-                c[k] = match map.color_conv[k] {
-                    ColorConv::U8 => srgb_u8_table()[x.clamp(0.0, 255.0) as usize],
-                    ColorConv::Int(s) => srgb_to_linear((x * s).clamp(0.0, 1.0)) as f32,
-                    ColorConv::Float => (x as f32).max(0.0),
-                };
-                if !c[k].is_finite() {
-                    return Err(Invalid::NonFinite {
-                        slot: COL + k,
-                        value: x,
-                    });
-                }
-            }
-        }
-        self.pos.push(p);
-        if map.normals {
-            self.nrm.push(n);
-        }
-        if map.radius {
-            self.rad.push(r);
-        }
-        if map.colors {
-            self.col.push(c);
-        }
-        Ok(())
     }
+    Ok((p, n, r, c))
 }
 
-/// Concatenate chunk results (in vertex order); report the lowest-index error.
-fn merge(accs: Vec<Acc>, ctx: &Ctx) -> Result<PointSet, SceneError> {
+/// Report the lowest-index error, or compact the chunks' valid points into one `PointSet`.
+/// `done` lists the chunks in vertex order, each with the size of its part of `out`.
+fn finish(mut out: Outputs, done: &[(usize, Done)], ctx: &Ctx) -> Result<PointSet, SceneError> {
     let mut base = 0usize;
-    for a in &accs {
-        if let Some((local, inv)) = a.first {
+    for (_, d) in done {
+        if let Some((local, inv)) = d.first {
             return Err(inv.into_error(ctx, base + local));
         }
-        base += a.read;
+        base += d.read;
     }
-    let total: usize = accs.iter().map(|a| a.pos.len()).sum();
-    if total == 0 {
+    // Move each chunk's kept points down to close the gaps left by dropped ones.
+    let mut w = 0usize;
+    let mut start = 0usize;
+    let mut drops = [0usize; REASONS.len()];
+    for (size, d) in done {
+        if w != start && d.kept > 0 {
+            let src = start..start + d.kept;
+            out.pos.copy_within(src.clone(), w);
+            if ctx.map.normals {
+                out.nrm.copy_within(src.clone(), w);
+            }
+            if ctx.map.radius {
+                out.rad.copy_within(src.clone(), w);
+            }
+            if ctx.map.colors {
+                out.col.copy_within(src, w);
+            }
+        }
+        w += d.kept;
+        start += size;
+        for (a, b) in drops.iter_mut().zip(d.drops) {
+            *a += b;
+        }
+    }
+    if w == 0 {
         return Err(SceneError::Empty {
             path: ctx.path.to_path_buf(),
         });
     }
+    out.pos.truncate(w);
     let map = ctx.map;
-    let mut out = PointSet {
-        positions: Vec::with_capacity(total),
-        normals: map.normals.then(|| Vec::with_capacity(total)),
-        radii: map.radius.then(|| Vec::with_capacity(total)),
-        colors: map.colors.then(|| Vec::with_capacity(total)),
-        dropped: 0,
-        drop_reasons: Vec::new(),
+    let keep = |mut v: Vec<Vec3>, b: bool| {
+        v.truncate(w);
+        b.then_some(v)
     };
-    let mut drops = [0usize; REASONS.len()];
-    for a in accs {
-        out.positions.extend_from_slice(&a.pos);
-        if let Some(n) = &mut out.normals {
-            n.extend_from_slice(&a.nrm);
-        }
-        if let Some(r) = &mut out.radii {
-            r.extend_from_slice(&a.rad);
-        }
-        if let Some(c) = &mut out.colors {
-            c.extend_from_slice(&a.col);
-        }
-        for (d, x) in drops.iter_mut().zip(a.drops) {
-            *d += x;
-        }
-    }
-    out.dropped = drops.iter().sum();
-    out.drop_reasons = REASONS
-        .iter()
-        .zip(drops)
-        .filter(|(_, n)| *n > 0)
-        .map(|(r, n)| (r.to_string(), n))
-        .collect();
-    Ok(out)
+    out.rad.truncate(w);
+    Ok(PointSet {
+        positions: out.pos,
+        normals: keep(out.nrm, map.normals),
+        radii: map.radius.then_some(out.rad),
+        colors: keep(out.col, map.colors),
+        dropped: drops.iter().sum(),
+        drop_reasons: REASONS
+            .iter()
+            .zip(drops)
+            .filter(|(_, n)| *n > 0)
+            .map(|(r, n)| (r.to_string(), n))
+            .collect(),
+    })
 }
 
 /// Vertices per parallel chunk.
@@ -678,7 +740,7 @@ fn decode_binary<const BE: bool>(
     before: &[ElemLayout],
     vertex: &ElemLayout,
     ctx: &Ctx,
-) -> Result<Vec<Acc>, SceneError> {
+) -> Result<PointSet, SceneError> {
     let truncated = |read: usize| SceneError::Truncated {
         path: ctx.path.to_path_buf(),
         expected_vertices: ctx.count,
@@ -738,41 +800,55 @@ fn decode_binary<const BE: bool>(
                     o += t.size();
                 }
             }
-            let chunks = n.div_ceil(CHUNK);
-            Ok((0..chunks)
-                .into_par_iter()
-                .map(|c| {
-                    let start = c * CHUNK;
-                    let end = (start + CHUNK).min(n);
-                    let mut acc = Acc::new(end - start, map);
-                    let mut v = [0f64; SLOTS];
-                    for (local, r) in vbody[start * rec..end * rec].chunks_exact(rec).enumerate() {
-                        for &(o, t, s) in &fields {
-                            v[s] = read_scalar::<BE>(r, o, t);
-                        }
-                        if !acc.accept(ctx, local, &v) {
-                            break;
-                        }
+            let sizes = (0..n.div_ceil(CHUNK)).map(|c| CHUNK.min(n - c * CHUNK));
+            let mut out = Outputs::new(n, map);
+            let mut sinks = out.sinks(sizes.clone());
+            sinks.par_iter_mut().enumerate().for_each(|(c, sink)| {
+                let start = c * CHUNK;
+                let end = start + sink.pos.len();
+                let mut v = [0f64; SLOTS];
+                for (local, r) in vbody[start * rec..end * rec].chunks_exact(rec).enumerate() {
+                    for &(o, t, s) in &fields {
+                        v[s] = read_scalar::<BE>(r, o, t);
                     }
-                    acc
-                })
-                .collect())
+                    if !sink.accept(ctx, local, &v) {
+                        break;
+                    }
+                }
+            });
+            let done: Vec<_> = sizes.zip(sinks.iter().map(|s| s.done)).collect();
+            drop(sinks);
+            finish(out, &done, ctx)
         }
         None => {
-            // Variable-size records: sequential.
-            let mut acc = Acc::new(n.min(body.len() / 3), map);
+            // Variable-size records: check the length first (so that a huge count in a short
+            // file allocates nothing), then decode sequentially.
             let mut v = [0f64; SLOTS];
+            let vstart = off;
             for i in 0..n {
-                match walk_record::<BE>(body, off, &vertex.props, Some(&map.slot_of), &mut v) {
+                match walk_record::<BE>(body, off, &vertex.props, None, &mut v) {
                     Walk::End(o) => off = o,
                     Walk::Truncated => return Err(truncated(i)),
                     Walk::BadCount(o, c) => return Err(bad_count(o, c, vertex, i)),
                 }
-                if !acc.accept(ctx, i, &v) {
+            }
+            let mut out = Outputs::new(n, map);
+            let mut sinks = out.sinks(std::iter::once(n));
+            let sink = &mut sinks[0];
+            off = vstart;
+            for i in 0..n {
+                if let Walk::End(o) =
+                    walk_record::<BE>(body, off, &vertex.props, Some(&map.slot_of), &mut v)
+                {
+                    off = o;
+                }
+                if !sink.accept(ctx, i, &v) {
                     break;
                 }
             }
-            Ok(vec![acc])
+            let done = [(n, sink.done)];
+            drop(sinks);
+            finish(out, &done, ctx)
         }
     }
 }
@@ -807,7 +883,7 @@ fn decode_ascii(
     before: &[ElemLayout],
     vertex: &ElemLayout,
     ctx: &Ctx,
-) -> Result<Vec<Acc>, SceneError> {
+) -> Result<PointSet, SceneError> {
     let truncated = |read: usize| SceneError::Truncated {
         path: ctx.path.to_path_buf(),
         expected_vertices: ctx.count,
@@ -846,7 +922,7 @@ fn decode_ascii(
         }
         let (l, next) = line_at(body, pos);
         if !is_blank(l) {
-            if found % CHUNK == 0 {
+            if chunks.last().is_none_or(|c| c.vertices == CHUNK) {
                 chunks.push(AsciiChunk {
                     offset: pos,
                     line,
@@ -860,22 +936,28 @@ fn decode_ascii(
         pos = next;
         line += 1;
     }
-    let results: Vec<Result<Acc, SceneError>> = chunks
+    let mut out = Outputs::new(n, ctx.map);
+    let mut sinks = out.sinks(chunks.iter().map(|c| c.vertices));
+    let results: Vec<Result<(), SceneError>> = chunks
         .par_iter()
-        .map(|ch| parse_ascii_chunk(body, ch, vertex, ctx))
+        .zip(sinks.par_iter_mut())
+        .map(|(ch, sink)| parse_ascii_chunk(body, ch, vertex, ctx, sink))
         .collect();
     // The lowest-index problem wins: a syntax error in an earlier chunk before a later
     // invalid value, and within a chunk decoding stops at the first problem.
-    let mut accs = Vec::with_capacity(results.len());
-    for r in results {
-        let a = r?;
-        let stop = a.first.is_some();
-        accs.push(a);
-        if stop {
+    for (r, sink) in results.into_iter().zip(&sinks) {
+        r?;
+        if sink.done.first.is_some() {
             break;
         }
     }
-    Ok(accs)
+    let done: Vec<_> = chunks
+        .iter()
+        .map(|c| c.vertices)
+        .zip(sinks.iter().map(|s| s.done))
+        .collect();
+    drop(sinks);
+    finish(out, &done, ctx)
 }
 
 fn parse_ascii_chunk(
@@ -883,9 +965,8 @@ fn parse_ascii_chunk(
     ch: &AsciiChunk,
     vertex: &ElemLayout,
     ctx: &Ctx,
-) -> Result<Acc, SceneError> {
-    let map = ctx.map;
-    let mut acc = Acc::new(ch.vertices, map);
+    sink: &mut Sink,
+) -> Result<(), SceneError> {
     let mut v = [0f64; SLOTS];
     let mut pos = ch.offset;
     let mut line = ch.line;
@@ -896,7 +977,7 @@ fn parse_ascii_chunk(
             let index = ch.first_vertex + local;
             let last_line_cut = next == body.len() && body.last() != Some(&b'\n');
             parse_ascii_vertex(l, line, index, last_line_cut, vertex, ctx, &mut v)?;
-            if !acc.accept(ctx, local, &v) {
+            if !sink.accept(ctx, local, &v) {
                 break;
             }
             local += 1;
@@ -904,7 +985,7 @@ fn parse_ascii_chunk(
         pos = next;
         line += 1;
     }
-    Ok(acc)
+    Ok(())
 }
 
 fn parse_ascii_vertex(

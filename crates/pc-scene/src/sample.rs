@@ -752,7 +752,9 @@ pub fn plan_grids(specs: &[ShapeSpec], points: usize) -> GridPlan {
             break;
         }
         let step: i64 = diff.signum();
-        let mut best: Option<(f32, usize, usize, (usize, usize), i64)> = None;
+        // (badness, shape, patch, new dims, count change)
+        type Move = (f32, usize, usize, (usize, usize), i64);
+        let mut best: Option<Move> = None;
         for (si, ps) in patches.iter().enumerate() {
             for (pi, p) in ps.iter().enumerate() {
                 let (nu, nv) = dims[si][pi];
@@ -1135,9 +1137,8 @@ pub fn write_scene_with_format(
     let tmp = tmp_path(&toml_path);
     std::fs::write(&tmp, scene.to_toml())
         .and_then(|()| std::fs::rename(&tmp, &toml_path))
-        .map_err(|e| {
+        .inspect_err(|_| {
             let _ = std::fs::remove_file(&tmp);
-            e
         })
         .with_context(|| format!("cannot write {}", toml_path.display()))?;
     Ok(toml_path)
@@ -1484,6 +1485,33 @@ mod tests {
         for e in std::fs::read_dir(dir.path()).unwrap() {
             let name = e.unwrap().file_name().into_string().unwrap();
             assert!(!name.ends_with(".tmp"), "{name}");
+        }
+    }
+
+    /// The written scene loads through the pipeline's own config parser and PLY reader.
+    #[test]
+    fn written_scenes_load_through_the_pipeline() {
+        for (kind, spec) in [
+            (SceneKind::Cornell, true),
+            (SceneKind::Sphere, false),
+            (SceneKind::GlassBox, false),
+        ] {
+            let dir = tempfile::tempdir().unwrap();
+            let scene = build_scene(kind, &SampleParams::with_points(2_000), spec);
+            let toml_path = write_scene(&scene, dir.path()).unwrap();
+            let cfg = crate::config::load_config(&toml_path, &[]).unwrap();
+            assert_eq!(cfg.config.models.len(), scene.shapes.len());
+            assert_eq!(cfg.config.materials.len(), scene.materials.len());
+            let loaded = crate::load::load_scene(&cfg, &mut |_, _| {}).unwrap();
+            assert_eq!(loaded.splats.len(), scene.total_points());
+            assert_eq!(loaded.dropped(), 0);
+            assert!(loaded
+                .models
+                .iter()
+                .all(|m| !m.estimated_normals && !m.estimated_radii));
+            let first = &scene.shapes[0];
+            assert_eq!(loaded.splats.positions[..first.len()], first.positions[..]);
+            assert_eq!(loaded.splats.radii[..first.len()], first.radii[..]);
         }
     }
 

@@ -64,12 +64,17 @@ impl<'a> OctreeView<'a> {
             return Err(format!("node pool has {n_nodes} nodes; expected 1 + 8·m"));
         }
         if self.node_info.len() != n_nodes {
-            return Err(format!("node_info has {} records for {n_nodes} nodes", self.node_info.len()));
+            return Err(format!(
+                "node_info has {} records for {n_nodes} nodes",
+                self.node_info.len()
+            ));
         }
         if self.splat_area.len() as u64 != n_splats || self.splat_leaf.len() as u64 != n_splats {
             return Err("splat_area / splat_leaf lengths differ from the data pool".into());
         }
-        if !(self.frame.size > 0.0 && self.frame.size.is_finite()) || self.frame.splat_count as u64 != n_splats {
+        if !(self.frame.size > 0.0 && self.frame.size.is_finite())
+            || self.frame.splat_count as u64 != n_splats
+        {
             return Err("frame record disagrees with the sections".into());
         }
         if self.frame.max_depth > 21 {
@@ -88,11 +93,17 @@ impl<'a> OctreeView<'a> {
             } else {
                 let c = node::ptr(w) as usize;
                 if c == 0 || c + 8 > n_nodes || (c - 1) % 8 != 0 || c <= i {
-                    return Err(format!("node {i} points at children {c}, outside the pool or not a group"));
+                    return Err(format!(
+                        "node {i} points at children {c}, outside the pool or not a group"
+                    ));
                 }
             }
         }
-        if self.splat_leaf.iter().any(|&s| s as usize >= n_nodes || !node::is_leaf(self.nodes[s as usize])) {
+        if self
+            .splat_leaf
+            .iter()
+            .any(|&s| s as usize >= n_nodes || !node::is_leaf(self.nodes[s as usize]))
+        {
             return Err("splat_leaf names a node that is not a leaf".into());
         }
         Ok(())
@@ -130,7 +141,11 @@ pub fn locate_normalized(nodes: &[u32], mut q: Vec3) -> Located {
     loop {
         let w = nodes[slot as usize];
         if w & (node::LEAF | node::EMPTY) != 0 {
-            return Located { slot, node: w, depth };
+            return Located {
+                slot,
+                node: w,
+                depth,
+            };
         }
         let t = q * 2.0;
         let c = t.floor();
@@ -144,6 +159,7 @@ pub fn locate_normalized(nodes: &[u32], mut q: Vec3) -> Located {
 /// Axis-aligned box of the cell at `depth` with integer coordinates `cell` in the root frame.
 pub fn cell_box(frame: &Frame, depth: u32, cell: [u32; 3]) -> (Vec3, Vec3) {
     let size = frame.size / (1u64 << depth) as f32;
-    let lo = Vec3::from(frame.origin) + Vec3::new(cell[0] as f32, cell[1] as f32, cell[2] as f32) * size;
+    let lo =
+        Vec3::from(frame.origin) + Vec3::new(cell[0] as f32, cell[1] as f32, cell[2] as f32) * size;
     (lo, lo + Vec3::splat(size))
 }

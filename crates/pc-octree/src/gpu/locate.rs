@@ -6,7 +6,10 @@ use pc_tree::{Located, OctreeView};
 
 /// The kernel's source: shared octree code first, then the kernel.
 pub fn source() -> String {
-    compose(&[super::COMMON_OCTREE_WGSL, include_str!("../../../../shaders/octree/locate.wgsl")])
+    compose(&[
+        super::COMMON_OCTREE_WGSL,
+        include_str!("../../../../shaders/octree/locate.wgsl"),
+    ])
 }
 
 /// A compiled point-location kernel.
@@ -16,12 +19,24 @@ pub struct LocateKernel {
 
 impl LocateKernel {
     pub fn new(ctx: &GpuContext) -> Result<LocateKernel, GpuError> {
-        let bindings = [Binding::Uniform, Binding::ReadOnly, Binding::ReadOnly, Binding::ReadWrite];
-        Ok(LocateKernel { kernel: ctx.kernel("octree/locate", &source(), "main", &bindings)? })
+        let bindings = [
+            Binding::Uniform,
+            Binding::ReadOnly,
+            Binding::ReadOnly,
+            Binding::ReadWrite,
+        ];
+        Ok(LocateKernel {
+            kernel: ctx.kernel("octree/locate", &source(), "main", &bindings)?,
+        })
     }
 
     /// Locate every point; `None` where a point lies outside the root cube.
-    pub fn run(&self, ctx: &GpuContext, tree: &OctreeView, points: &[Vec3]) -> Result<Vec<Option<Located>>, GpuError> {
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        tree: &OctreeView,
+        points: &[Vec3],
+    ) -> Result<Vec<Option<Located>>, GpuError> {
         if points.is_empty() {
             return Ok(Vec::new());
         }
@@ -31,12 +46,22 @@ impl LocateKernel {
         let q = ctx.storage("queries", bytemuck::cast_slice(&queries))?;
         let size = (points.len() * 16) as u64;
         let out = ctx.output("results", size)?;
-        self.kernel.run(ctx, &[&frame, &nodes, &q, &out], grid(points.len() as u32, 64))?;
+        self.kernel.run(
+            ctx,
+            &[&frame, &nodes, &q, &out],
+            grid(points.len() as u32, 64),
+        )?;
         let bytes = ctx.read(&out, size)?;
         let words: &[[u32; 4]] = bytemuck::cast_slice(&bytes);
         Ok(words
             .iter()
-            .map(|w| (w[0] != u32::MAX).then_some(Located { slot: w[0], node: w[1], depth: w[2] }))
+            .map(|w| {
+                (w[0] != u32::MAX).then_some(Located {
+                    slot: w[0],
+                    node: w[1],
+                    depth: w[2],
+                })
+            })
             .collect())
     }
 }

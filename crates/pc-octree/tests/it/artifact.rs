@@ -20,8 +20,19 @@ fn write_scene(dir: &Path) -> PathBuf {
             r: idx.iter().map(|&i| s.r[i]).collect(),
             m: vec![],
         };
-        let pts = PlyPoints { positions: &sub.p, normals: Some(&sub.n), radii: Some(&sub.r), colors: None };
-        write_ply(&dir.join(format!("{name}.ply")), &pts, PlyFormat::BinaryLittleEndian, &[]).unwrap();
+        let pts = PlyPoints {
+            positions: &sub.p,
+            normals: Some(&sub.n),
+            radii: Some(&sub.r),
+            colors: None,
+        };
+        write_ply(
+            &dir.join(format!("{name}.ply")),
+            &pts,
+            PlyFormat::BinaryLittleEndian,
+            &[],
+        )
+        .unwrap();
     }
     let toml = r#"
 [output]
@@ -53,7 +64,10 @@ area_samples = 4
     path
 }
 
-fn run_stage(config: &Path, overrides: &[&str]) -> (stage::Summary, pc_scene::config::LoadedConfig) {
+fn run_stage(
+    config: &Path,
+    overrides: &[&str],
+) -> (stage::Summary, pc_scene::config::LoadedConfig) {
     let set: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
     let cfg = pc_scene::config::load_config(config, &set).unwrap();
     let out = cfg.octree_path();
@@ -84,7 +98,11 @@ fn stage_writes_an_artifact_that_maps_back_identically() {
     assert_eq!(mats.len(), 3);
     assert!((mats[1].ior - 1.5).abs() < 1e-6);
     // No temporary file is left behind.
-    let leftovers: Vec<_> = std::fs::read_dir(cfg.out_dir()).unwrap().filter_map(|e| e.ok()).filter(|e| e.path().extension().is_some_and(|x| x == "tmp")).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(cfg.out_dir())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "tmp"))
+        .collect();
     assert!(leftovers.is_empty());
 }
 
@@ -136,9 +154,19 @@ fn corrupted_octree_artifacts_give_clear_errors() {
         }
     }
     // Truncate at many lengths.
-    for len in [0, 1, 100, 256, good.len() / 3, good.len() / 2, good.len() - 1] {
+    for len in [
+        0,
+        1,
+        100,
+        256,
+        good.len() / 3,
+        good.len() / 2,
+        good.len() - 1,
+    ] {
         std::fs::write(&bad, &good[..len]).unwrap();
-        let e = Artifact::open(&bad).err().unwrap_or_else(|| panic!("truncated to {len} accepted"));
+        let e = Artifact::open(&bad)
+            .err()
+            .unwrap_or_else(|| panic!("truncated to {len} accepted"));
         assert!(e.to_string().contains("bad.pcgi"), "{e}");
     }
     // Right container, wrong kind.

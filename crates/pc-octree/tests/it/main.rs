@@ -41,7 +41,10 @@ impl Soa {
 
 /// Jittered grid on the rectangle c + a·u + b·v, a, b ∈ [-1, 1], spacing h, radius h.
 pub fn plane(s: &mut Soa, c: Vec3, u: Vec3, v: Vec3, h: f32, m: u32, rng: &mut Pcg64) {
-    let (nu, nv) = ((2.0 * u.length() / h).round() as i32, (2.0 * v.length() / h).round() as i32);
+    let (nu, nv) = (
+        (2.0 * u.length() / h).round() as i32,
+        (2.0 * v.length() / h).round() as i32,
+    );
     let n = u.cross(v).normalize();
     for i in 0..nu {
         for j in 0..nv {
@@ -69,9 +72,33 @@ pub fn sphere(s: &mut Soa, c: Vec3, radius: f32, count: usize, m: u32) {
 pub fn mixed_scene(h: f32) -> (Soa, Vec<u32>) {
     let mut rng = Pcg64::seed_from_u64(7);
     let mut s = Soa::default();
-    plane(&mut s, Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, 0, &mut rng);
-    plane(&mut s, Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng);
-    plane(&mut s, Vec3::new(-1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, h, 0, &mut rng);
+    plane(
+        &mut s,
+        Vec3::new(0.0, -1.0, 0.0),
+        Vec3::X,
+        -Vec3::Z,
+        h,
+        0,
+        &mut rng,
+    );
+    plane(
+        &mut s,
+        Vec3::new(0.0, 0.0, -1.0),
+        Vec3::X,
+        Vec3::Y,
+        h,
+        0,
+        &mut rng,
+    );
+    plane(
+        &mut s,
+        Vec3::new(-1.0, 0.0, 0.0),
+        Vec3::Y,
+        Vec3::Z,
+        h,
+        0,
+        &mut rng,
+    );
     sphere(&mut s, Vec3::new(-0.4, -0.6, -0.3), 0.4, 1500, 1);
     sphere(&mut s, Vec3::new(0.45, -0.7, 0.2), 0.3, 900, 2);
     (s, vec![class::DIFFUSE, class::MIRROR, class::DIELECTRIC])
@@ -88,7 +115,11 @@ pub fn cells(o: &Octree) -> Vec<(u32, u32, [u32; 3])> {
             continue;
         }
         for k in 0..8u32 {
-            let cc = [2 * c[0] + (k & 1), 2 * c[1] + ((k >> 1) & 1), 2 * c[2] + ((k >> 2) & 1)];
+            let cc = [
+                2 * c[0] + (k & 1),
+                2 * c[1] + ((k >> 1) & 1),
+                2 * c[2] + ((k >> 2) & 1),
+            ];
             stack.push((node::ptr(w) + k, depth + 1, cc));
         }
     }
@@ -125,7 +156,10 @@ fn every_splat_is_owned_by_exactly_one_leaf() {
             }
         }
     }
-    assert!(owned.iter().all(|&c| c == 1), "some splat owned by 0 or 2+ leaves");
+    assert!(
+        owned.iter().all(|&c| c == 1),
+        "some splat owned by 0 or 2+ leaves"
+    );
     // The data pool is a permutation of the input.
     let mut src: Vec<u32> = o.splats.iter().map(|s| s.source).collect();
     src.sort_unstable();
@@ -136,7 +170,15 @@ fn every_splat_is_owned_by_exactly_one_leaf() {
 fn leaves_respect_k_and_purity_and_own_their_cell() {
     let (s, classes) = mixed_scene(0.05);
     for k in [1u32, 4, 16, 64] {
-        let o = s.build(&classes, BuildParams { max_leaf_points: k, ..Default::default() }).unwrap();
+        let o = s
+            .build(
+                &classes,
+                BuildParams {
+                    max_leaf_points: k,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
         assert_eq!(o.stats.leaves_at_max_depth, 0);
         for (slot, depth, c) in cells(&o) {
             if !node::is_leaf(o.nodes[slot as usize]) {
@@ -145,10 +187,19 @@ fn leaves_respect_k_and_purity_and_own_their_cell() {
             let (b, e, _) = own_range(&o, slot);
             assert!(e - b <= k, "leaf with {} > k = {k} splats", e - b);
             let sp = &o.splats[b as usize..e as usize];
-            let spec: Vec<bool> = sp.iter().map(|x| class::is_specular(classes[x.material as usize])).collect();
-            assert!(spec.iter().all(|&x| x == spec[0]) || sp.is_empty(), "leaf mixes diffuse and specular");
+            let spec: Vec<bool> = sp
+                .iter()
+                .map(|x| class::is_specular(classes[x.material as usize]))
+                .collect();
+            assert!(
+                spec.iter().all(|&x| x == spec[0]) || sp.is_empty(),
+                "leaf mixes diffuse and specular"
+            );
             for x in sp {
-                assert!(cell_contains(&o.frame, depth, c, Vec3::from(x.position)), "splat outside its leaf's cell");
+                assert!(
+                    cell_contains(&o.frame, depth, c, Vec3::from(x.position)),
+                    "splat outside its leaf's cell"
+                );
             }
         }
     }
@@ -164,7 +215,12 @@ fn node_pool_groups_are_contiguous_in_sfc_order() {
         if node::is_leaf(o.nodes[slot as usize]) {
             let (b, e, _) = own_range(&o, slot);
             for i in b..e {
-                assert!(cell_contains(&o.frame, depth, c, Vec3::from(o.splats[i as usize].position)));
+                assert!(cell_contains(
+                    &o.frame,
+                    depth,
+                    c,
+                    Vec3::from(o.splats[i as usize].position)
+                ));
             }
         }
     }
@@ -191,7 +247,16 @@ fn duplicated_points_terminate_at_max_depth() {
         s.push(Vec3::new(0.3, 0.3, 0.3), Vec3::Y, 0.01, 0);
     }
     s.push(Vec3::ZERO, Vec3::Y, 0.01, 0);
-    let o = s.build(&[class::DIFFUSE], BuildParams { max_leaf_points: 4, max_depth: 12, area_samples: 4 }).unwrap();
+    let o = s
+        .build(
+            &[class::DIFFUSE],
+            BuildParams {
+                max_leaf_points: 4,
+                max_depth: 12,
+                area_samples: 4,
+            },
+        )
+        .unwrap();
     assert_eq!(o.stats.depth, 12);
     assert_eq!(o.stats.leaves_at_max_depth, 1);
     o.view().check().unwrap();
@@ -200,23 +265,47 @@ fn duplicated_points_terminate_at_max_depth() {
 #[test]
 fn bad_input_is_an_error_not_a_panic() {
     let s = Soa::default();
-    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::Empty)));
+    assert!(matches!(
+        s.build(&[class::DIFFUSE], BuildParams::default()),
+        Err(BuildError::Empty)
+    ));
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.1, 0);
     s.push(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::Y, 0.1, 0);
     match s.build(&[class::DIFFUSE], BuildParams::default()) {
-        Err(BuildError::BadSplat { index: 1, what: "position" }) => {}
+        Err(BuildError::BadSplat {
+            index: 1,
+            what: "position",
+        }) => {}
         other => panic!("{other:?}"),
     }
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.0, 0);
-    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::BadSplat { index: 0, what: "radius" })));
+    assert!(matches!(
+        s.build(&[class::DIFFUSE], BuildParams::default()),
+        Err(BuildError::BadSplat {
+            index: 0,
+            what: "radius"
+        })
+    ));
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.1, 3);
-    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams::default()), Err(BuildError::Param(_))));
+    assert!(matches!(
+        s.build(&[class::DIFFUSE], BuildParams::default()),
+        Err(BuildError::Param(_))
+    ));
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.1, 0);
-    assert!(matches!(s.build(&[class::DIFFUSE], BuildParams { max_depth: 22, ..Default::default() }), Err(BuildError::Param(_))));
+    assert!(matches!(
+        s.build(
+            &[class::DIFFUSE],
+            BuildParams {
+                max_depth: 22,
+                ..Default::default()
+            }
+        ),
+        Err(BuildError::Param(_))
+    ));
 }
 
 /// Points densely sampled on a disk (for the brute-force overlap check).
@@ -236,14 +325,25 @@ fn disk_samples(x: &Splat, count: usize) -> Vec<Vec3> {
 #[test]
 fn every_leaf_a_disk_overlaps_references_it() {
     let (s, classes) = mixed_scene(0.1);
-    let o = s.build(&classes, BuildParams { max_leaf_points: 4, ..Default::default() }).unwrap();
+    let o = s
+        .build(
+            &classes,
+            BuildParams {
+                max_leaf_points: 4,
+                ..Default::default()
+            },
+        )
+        .unwrap();
     let all = cells(&o);
     let mut missing = 0;
     let mut checked = 0;
     for (i, x) in o.splats.iter().enumerate() {
         for p in disk_samples(x, 200) {
             // Brute force: the cell containing p, by testing every leaf and empty cell.
-            let Some(&(slot, _, _)) = all.iter().find(|(_, d, c)| cell_contains(&o.frame, *d, *c, p)) else {
+            let Some(&(slot, _, _)) = all
+                .iter()
+                .find(|(_, d, c)| cell_contains(&o.frame, *d, *c, p))
+            else {
                 continue;
             };
             checked += 1;
@@ -256,14 +356,25 @@ fn every_leaf_a_disk_overlaps_references_it() {
         }
     }
     assert!(checked > 100_000);
-    assert_eq!(missing, 0, "disk samples in leaves that do not reference the splat");
+    assert_eq!(
+        missing, 0,
+        "disk samples in leaves that do not reference the splat"
+    );
     assert!(o.stats.extra_refs > 0);
 }
 
 #[test]
 fn point_location_agrees_with_brute_force() {
     let (s, classes) = mixed_scene(0.05);
-    let o = s.build(&classes, BuildParams { max_leaf_points: 8, ..Default::default() }).unwrap();
+    let o = s
+        .build(
+            &classes,
+            BuildParams {
+                max_leaf_points: 8,
+                ..Default::default()
+            },
+        )
+        .unwrap();
     let all = cells(&o);
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(3);
@@ -271,7 +382,10 @@ fn point_location_agrees_with_brute_force() {
     for _ in 0..3000 {
         let p = lo + Vec3::new(rng.random(), rng.random(), rng.random()) * o.frame.size;
         let got = view.locate(p).expect("inside the root cube");
-        let want: Vec<_> = all.iter().filter(|(_, d, c)| cell_contains(&o.frame, *d, *c, p)).collect();
+        let want: Vec<_> = all
+            .iter()
+            .filter(|(_, d, c)| cell_contains(&o.frame, *d, *c, p))
+            .collect();
         assert_eq!(want.len(), 1);
         assert_eq!(got.slot, want[0].0);
         assert_eq!(got.depth, want[0].1);
@@ -282,14 +396,27 @@ fn point_location_agrees_with_brute_force() {
 
 #[test]
 fn gpu_point_location_matches_cpu() {
-    let Some(ctx) = pc_gpu::test_context() else { return };
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
     let (s, classes) = mixed_scene(0.05);
-    let o = s.build(&classes, BuildParams { max_leaf_points: 8, ..Default::default() }).unwrap();
+    let o = s
+        .build(
+            &classes,
+            BuildParams {
+                max_leaf_points: 8,
+                ..Default::default()
+            },
+        )
+        .unwrap();
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(11);
     let lo = Vec3::from(o.frame.origin);
     let mut pts: Vec<Vec3> = (0..20_000)
-        .map(|_| lo + Vec3::new(rng.random(), rng.random(), rng.random()) * o.frame.size * 1.1 - Vec3::splat(0.05 * o.frame.size))
+        .map(|_| {
+            lo + Vec3::new(rng.random(), rng.random(), rng.random()) * o.frame.size * 1.1
+                - Vec3::splat(0.05 * o.frame.size)
+        })
         .collect();
     // Splat centres and points exactly on cell boundaries too.
     pts.extend(o.splats.iter().map(|x| Vec3::from(x.position)));
@@ -331,7 +458,10 @@ fn wgsl_records_match_rust_layouts() {
     let (size, members) = pc_gpu::wgsl_struct_layout(&module, "Frame").unwrap();
     assert_eq!(size as usize, std::mem::size_of::<Frame>());
     assert_eq!(members[1].1 as usize, std::mem::offset_of!(Frame, size));
-    assert_eq!(members.last().unwrap().1 as usize, std::mem::offset_of!(Frame, ref_count));
+    assert_eq!(
+        members.last().unwrap().1 as usize,
+        std::mem::offset_of!(Frame, ref_count)
+    );
 }
 
 #[test]
@@ -342,10 +472,17 @@ fn every_shader_in_the_tree_validates() {
     for dir in std::fs::read_dir(root).unwrap() {
         let dir = dir.unwrap().path();
         if dir.file_name().unwrap() == "common" {
-            pc_gpu::validate_wgsl(&common).map(|_| ()).or_else(|e| {
-                // Common files reference the kernel's bindings; they validate inside kernels.
-                if e.contains("octree_frame") || e.contains("octree_nodes") { Ok(()) } else { Err(e) }
-            }).unwrap();
+            pc_gpu::validate_wgsl(&common)
+                .map(|_| ())
+                .or_else(|e| {
+                    // Common files reference the kernel's bindings; they validate inside kernels.
+                    if e.contains("octree_frame") || e.contains("octree_nodes") {
+                        Ok(())
+                    } else {
+                        Err(e)
+                    }
+                })
+                .unwrap();
             continue;
         }
         for f in std::fs::read_dir(&dir).unwrap() {
@@ -367,12 +504,27 @@ fn splat_areas_sum_to_the_surface_area() {
     for count in [2000usize, 8000] {
         let mut s = Soa::default();
         sphere(&mut s, Vec3::ZERO, 1.0, count, 0);
-        let o = s.build(&[class::DIFFUSE], BuildParams { area_samples: 16, ..Default::default() }).unwrap();
+        let o = s
+            .build(
+                &[class::DIFFUSE],
+                BuildParams {
+                    area_samples: 16,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
         let total: f32 = o.splat_area.iter().sum();
         let want = 4.0 * std::f32::consts::PI;
-        assert!((total / want - 1.0).abs() < 0.02, "{count} splats: area {total} vs {want}");
+        assert!(
+            (total / want - 1.0).abs() < 0.02,
+            "{count} splats: area {total} vs {want}"
+        );
         // Disks overlap about three times: πr² is far from the area each splat stands for.
-        let disks: f32 = o.splats.iter().map(|x| std::f32::consts::PI * x.radius * x.radius).sum();
+        let disks: f32 = o
+            .splats
+            .iter()
+            .map(|x| std::f32::consts::PI * x.radius * x.radius)
+            .sum();
         assert!(disks > 2.0 * want);
         // Node areas add up.
         assert!((o.node_info[0].area - total).abs() < 1e-3 * total);
@@ -383,7 +535,15 @@ fn splat_areas_sum_to_the_surface_area() {
 fn normal_fields_follow_the_curvature() {
     let mut s = Soa::default();
     sphere(&mut s, Vec3::ZERO, 2.0, 20_000, 0);
-    let o = s.build(&[class::MIRROR], BuildParams { max_leaf_points: 32, ..Default::default() }).unwrap();
+    let o = s
+        .build(
+            &[class::MIRROR],
+            BuildParams {
+                max_leaf_points: 32,
+                ..Default::default()
+            },
+        )
+        .unwrap();
     let (mut err_field, mut err_flat, mut count) = (0.0f64, 0.0f64, 0);
     let mut tilts = Vec::new();
     for (i, x) in o.splats.iter().enumerate() {
@@ -401,10 +561,16 @@ fn normal_fields_follow_the_curvature() {
     }
     assert!(count > 10_000);
     let (err_field, err_flat) = (err_field / count as f64, err_flat / count as f64);
-    assert!(err_field < 0.25 * err_flat, "field {err_field} rad vs flat {err_flat} rad");
+    assert!(
+        err_field < 0.25 * err_flat,
+        "field {err_field} rad vs flat {err_flat} rad"
+    );
     tilts.sort_by(f32::total_cmp);
     let median = tilts[tilts.len() / 2];
-    assert!((median - 0.5).abs() < 0.05, "tilt median {median}, 1/R = 0.5");
+    assert!(
+        (median - 0.5).abs() < 0.05,
+        "tilt median {median}, 1/R = 0.5"
+    );
 }
 
 #[test]

@@ -74,7 +74,7 @@ fn parse_count(s: &str) -> std::result::Result<usize, String> {
         .parse()
         .map_err(|_| format!("not a point count: {s:?}"))?;
     let v = x * mult;
-    if !(v.is_finite() && v >= 0.0 && v <= 1e12) || v.fract() != 0.0 {
+    if !(0.0..=1e12).contains(&v) || v.fract() != 0.0 {
         return Err(format!("not a whole point count: {s:?}"));
     }
     Ok(v as usize)

@@ -96,7 +96,7 @@ fn separate_components_are_each_outward() {
     let a = Vec3::new(-3.0, 0.0, 0.0);
     let b = Vec3::new(3.0, 1.0, 0.5);
     let mut pts = fibonacci_sphere(3000, a, 1.0);
-    let pb = random_sphere(3000, b, 0.5);
+    let pb = random_sphere(5000, b, 0.5);
     pts.extend(&pb);
     let n = estimate_normals(&pts, 16, Orientation::Propagate);
     let aa = max_angle(&pts[..3000], &n[..3000], a, 1.0);
@@ -277,4 +277,33 @@ fn too_few_points_is_an_error() {
     assert_eq!(estimate_normals(&pts, 16, Orientation::Propagate).len(), 3);
     assert_eq!(estimate_radii(&pts, 16), estimate_radii(&pts, 2));
     assert_eq!(estimate_radii(&[Vec3::ZERO], 8), vec![1.0]);
+}
+
+/// Estimation throughput; run with
+/// `cargo test --release -p pc-scene --test it -- --ignored --nocapture estimate_speed`.
+#[test]
+#[ignore]
+fn estimate_speed() {
+    let n = 1_000_000;
+    let pts = random_sphere(n, Vec3::ZERO, 1.0);
+    let time = |name: &str, f: &dyn Fn()| {
+        let t = std::time::Instant::now();
+        f();
+        let dt = t.elapsed().as_secs_f64();
+        println!(
+            "{name}: {dt:.2} s for {n} points ({:.2} M points/s)",
+            n as f64 / dt / 1e6
+        );
+    };
+    time("normals k=16 sensor", &|| {
+        estimate_normals(&pts, 16, Orientation::Sensor(Vec3::ZERO));
+    });
+    time("normals k=16 propagate", &|| {
+        let nrm = estimate_normals(&pts, 16, Orientation::Propagate);
+        let a = max_angle(&pts, &nrm, Vec3::ZERO, 1.0);
+        println!("  max angle {a:.2}°");
+    });
+    time("radii k=8", &|| {
+        estimate_radii(&pts, 8);
+    });
 }

@@ -852,6 +852,36 @@ fn truncated_binary() {
 }
 
 #[test]
+fn negative_list_length_names_byte_offset() {
+    let faces = || {
+        elem(
+            "face",
+            vec![P::L("vertex_indices", T::I8, T::I32)],
+            vec![vec![3.0, 0.0, 1.0, 2.0], vec![-1.0]],
+        )
+    };
+    for fmt in [Fmt::Le, Fmt::Be] {
+        let bytes = ply(
+            fmt,
+            &[faces(), elem("vertex", xyz(T::F32), vec![vec![0.0; 3]])],
+        );
+        let header_len = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
+        let e = read(&bytes).unwrap_err();
+        assert!(matches!(e, SceneError::Ply { .. }), "{e}");
+        // The second face's count follows the first face (1 + 3 × 4 bytes).
+        let want = format!(
+            "byte offset {}: element `face` 1: list length -1",
+            header_len + 13
+        );
+        assert!(e.to_string().contains(&want), "{e} / {want}");
+    }
+}
+
+#[test]
 fn huge_declared_count_does_not_allocate() {
     let text = "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000000000000\nproperty float x\n\
                 property float y\nproperty float z\nend_header\n";
@@ -955,12 +985,15 @@ fn decode_speed() {
                 .num_threads(threads)
                 .build()
                 .unwrap();
-            let t = std::time::Instant::now();
-            let pts = pool
-                .install(|| parse_ply(&bytes, Path::new("m.ply"), &PlyOptions::default()))
-                .unwrap();
-            let dt = t.elapsed().as_secs_f64();
-            assert_eq!(pts.len(), n);
+            let mut dt = f64::INFINITY;
+            for _ in 0..3 {
+                let t = std::time::Instant::now();
+                let pts = pool
+                    .install(|| parse_ply(&bytes, Path::new("m.ply"), &PlyOptions::default()))
+                    .unwrap();
+                dt = dt.min(t.elapsed().as_secs_f64());
+                assert_eq!(pts.len(), n);
+            }
             println!(
                 "{fmt:?} threads={}: {:.1} M points/s ({:.0} MB/s)",
                 pool.current_num_threads(),
