@@ -11,6 +11,9 @@ use glam::Vec3;
 use pc_artifact::octree::{node, sections, BeginEnd, Frame, NodeInfo, Splat};
 use pc_artifact::{Artifact, ArtifactError};
 
+pub mod ray;
+pub use ray::{intersect_splat, Hit, Ray, TraversalStats};
+
 /// The node a point falls in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Located {

@@ -8,6 +8,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
 mod artifact;
+mod ray;
 
 /// A test scene in structure-of-arrays form.
 #[derive(Default, Clone)]

@@ -1,0 +1,144 @@
+//! Ray traversal (pc-tree) against brute force: the nearest hit over every splat.
+
+use glam::Vec3;
+use pc_artifact::octree::class;
+use pc_octree::BuildParams;
+use pc_tree::{intersect_splat, Ray, TraversalStats};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+use crate::{mixed_scene, sphere, Soa};
+
+fn brute(o: &pc_octree::Octree, ray: &Ray) -> Option<(f32, u32)> {
+    let mut best: Option<(f32, u32)> = None;
+    for (i, s) in o.splats.iter().enumerate() {
+        if let Some(t) = intersect_splat(ray.origin, ray.dir, s) {
+            if t >= ray.t_min && t <= ray.t_max && best.is_none_or(|b| t < b.0) {
+                best = Some((t, i as u32));
+            }
+        }
+    }
+    best
+}
+
+fn random_dir(rng: &mut Pcg64) -> Vec3 {
+    loop {
+        let v = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
+            return v.normalize();
+        }
+    }
+}
+
+fn check_scene(o: &pc_octree::Octree, rays: &[Ray]) {
+    let view = o.view();
+    let mut stats = TraversalStats::default();
+    let mut hits = 0;
+    for (k, ray) in rays.iter().enumerate() {
+        let got = view.intersect(ray, &mut stats);
+        let want = brute(o, ray);
+        match (got, want) {
+            (None, None) => {}
+            (Some(g), Some(w)) => {
+                hits += 1;
+                assert!(
+                    (g.t - w.0).abs() <= 1e-5 * w.0.abs().max(1.0),
+                    "ray {k}: t {} vs brute force {}",
+                    g.t,
+                    w.0
+                );
+            }
+            (g, w) => panic!("ray {k} {ray:?}: octree {g:?}, brute force {w:?}"),
+        }
+        assert_eq!(
+            view.occluded(ray, &mut stats),
+            want.is_some(),
+            "ray {k}: occlusion"
+        );
+    }
+    assert!(hits > rays.len() / 4, "only {hits} hits");
+    // Fewer splat tests than brute force by far.
+    assert!(stats.splat_tests < (rays.len() * o.splats.len()) as u64 / 10);
+}
+
+#[test]
+fn nearest_hits_agree_with_brute_force_from_inside_and_outside() {
+    let (s, classes) = mixed_scene(0.06);
+    for k in [1u32, 8, 32] {
+        let o = s
+            .build(
+                &classes,
+                BuildParams {
+                    max_leaf_points: k,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        let mut rng = Pcg64::seed_from_u64(k as u64);
+        let mut rays = Vec::new();
+        for _ in 0..1500 {
+            // From inside the room, random directions.
+            let origin = Vec3::new(
+                rng.random_range(-0.9..0.9),
+                rng.random_range(-0.9..0.9),
+                rng.random_range(-0.9..0.9),
+            );
+            rays.push(Ray::new(origin, random_dir(&mut rng)));
+            // From outside, aimed at the room.
+            let far = random_dir(&mut rng) * 5.0;
+            let target = Vec3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            rays.push(Ray::new(far, (target - far).normalize()));
+        }
+        // Axis-aligned rays (zero direction components, including -0.0) and limited intervals.
+        for &d in &[
+            Vec3::X,
+            -Vec3::X,
+            Vec3::Y,
+            -Vec3::Y,
+            Vec3::Z,
+            Vec3::new(-0.0, -1.0, 0.0),
+        ] {
+            rays.push(Ray::new(Vec3::new(0.1, 0.2, 0.3), d));
+        }
+        for r in rays.iter_mut().step_by(7) {
+            r.t_min = 0.05;
+            r.t_max = 1.5;
+        }
+        check_scene(&o, &rays);
+    }
+}
+
+#[test]
+fn tiny_cells_at_max_depth_are_not_skipped() {
+    // A dense cluster forces deep, tiny cells; the exact step must not jump over them.
+    let mut s = Soa::default();
+    sphere(&mut s, Vec3::ZERO, 1e-3, 500, 0);
+    sphere(&mut s, Vec3::new(0.5, 0.0, 0.0), 0.3, 500, 0);
+    let o = s
+        .build(
+            &[class::DIFFUSE],
+            BuildParams {
+                max_leaf_points: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    assert!(o.stats.depth >= 12, "depth {}", o.stats.depth);
+    let mut rng = Pcg64::seed_from_u64(5);
+    let rays: Vec<Ray> = (0..3000)
+        .map(|_| {
+            let origin = random_dir(&mut rng) * 2.0;
+            let target = random_dir(&mut rng) * rng.random_range(0.0..1.2e-3);
+            Ray::new(origin, (target - origin).normalize())
+        })
+        .collect();
+    check_scene(&o, &rays);
+}
