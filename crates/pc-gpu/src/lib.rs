@@ -20,6 +20,8 @@ pub enum GpuError {
     TooLarge { what: String, need: u64, limit: u64 },
     #[error("GPU readback failed: {0}")]
     Readback(String),
+    #[error("GPU dispatch of `{label}` failed: {msg}")]
+    Dispatch { label: String, msg: String },
     #[error("WGSL kernel `{label}` failed validation: {msg}")]
     Shader { label: String, msg: String },
 }
@@ -102,14 +104,15 @@ impl GpuContext {
         Ok(())
     }
 
-    /// A storage buffer holding `bytes` (at least 16 bytes, so empty arrays can still bind).
+    /// A storage buffer holding `bytes`, zero-padded to at least 256 bytes so that an empty or
+    /// short array still binds as a runtime-sized array of any record up to 256 bytes.
     pub fn storage(&self, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer, GpuError> {
         self.check_size(label, bytes.len() as u64)?;
         let usage = wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_SRC
             | wgpu::BufferUsages::COPY_DST;
-        if bytes.len() < 16 {
-            let mut padded = [0u8; 16];
+        if bytes.len() < 256 {
+            let mut padded = [0u8; 256];
             padded[..bytes.len()].copy_from_slice(bytes);
             return Ok(self
                 .device
@@ -202,6 +205,7 @@ impl GpuContext {
             label: label.to_string(),
             msg,
         })?;
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -257,6 +261,12 @@ impl GpuContext {
                 compilation_options: Default::default(),
                 cache: None,
             });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Shader {
+                label: label.to_string(),
+                msg: e.to_string(),
+            });
+        }
         Ok(Kernel {
             label: label.to_string(),
             pipeline,
@@ -288,6 +298,8 @@ impl Kernel {
         buffers: &[&wgpu::Buffer],
         groups: (u32, u32, u32),
     ) -> Result<(), GpuError> {
+        // Validation errors come back as errors instead of wgpu's default panic.
+        let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
@@ -316,6 +328,12 @@ impl Kernel {
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
         }
         ctx.queue.submit([enc.finish()]);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Dispatch {
+                label: self.label.clone(),
+                msg: format!("{e:#}"),
+            });
+        }
         ctx.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Readback(e.to_string()))?;

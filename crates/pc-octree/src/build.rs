@@ -713,7 +713,8 @@ fn node_info(splats: &[Splat], areas: &[f32], material_class: &[u32], is_leaf: b
 /// Least-squares tilt factors (ν, ω) of the linear normal field n(x) = n̄ + ν ((x − c)·û) û +
 /// ω ((x − c)·v̂) v̂ over a leaf's average disk (§8.5.5 with u_j = r û, v_j = r v̂, the disk
 /// radius cancels). Each axis is an independent one-unknown least-squares problem:
-/// ν = Σ d_u (n_l·û) / Σ d_u², d_u = (p_l − c)·û. For a sphere of radius R, ν = ω = 1/R.
+/// ν = Σ d_u (n_l·û) / (Σ d_u² + λ), d_u = (p_l − c)·û, with a small ridge term λ (below).
+/// For a sphere of radius R, ν = ω ≈ 1/R.
 pub fn normal_field(splats: &[Splat], c: Vec3, n: Vec3) -> [f32; 2] {
     let (u, v) = tangent_frame(n.into());
     let (u, v) = (Vec3::from(u), Vec3::from(v));
@@ -727,15 +728,22 @@ pub fn normal_field(splats: &[Splat], c: Vec3, n: Vec3) -> [f32; 2] {
         om_num += dv * nl.dot(v) as f64;
         om_den += dv * dv;
     }
-    let solve = |num: f64, den: f64| if den > 1e-20 { (num / den) as f32 } else { 0.0 };
+    // Ridge regularisation towards a flat field: a leaf whose points spread along one direction
+    // only (a row of splats) leaves the other factor undetermined, and a plain quotient of two
+    // tiny sums would tilt the normal arbitrarily. λ is 2 % of the splats' mean squared
+    // radius per splat: negligible once the points spread over a few radii.
+    let mean_r2 = splats
+        .iter()
+        .map(|s| (s.radius as f64).powi(2))
+        .sum::<f64>()
+        / splats.len().max(1) as f64;
+    let lambda = 0.02 * mean_r2 * splats.len() as f64;
+    let solve = |num: f64, den: f64| {
+        if den + lambda > 1e-30 {
+            (num / (den + lambda)) as f32
+        } else {
+            0.0
+        }
+    };
     [solve(nu_num, nu_den), solve(om_num, om_den)]
-}
-
-/// The normal of a leaf's normal field at `x` (unit length).
-pub fn field_normal(info: &NodeInfo, x: Vec3) -> Vec3 {
-    let n = Vec3::from(info.normal);
-    let (u, v) = tangent_frame(info.normal);
-    let (u, v) = (Vec3::from(u), Vec3::from(v));
-    let d = x - Vec3::from(info.centroid);
-    (n + u * (info.tilt[0] * d.dot(u)) + v * (info.tilt[1] * d.dot(v))).normalize_or(n)
 }

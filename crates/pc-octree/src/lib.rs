@@ -11,4 +11,5 @@ pub mod gpu;
 pub mod morton;
 pub mod stage;
 
-pub use build::{build, field_normal, BuildError, BuildInput, BuildParams, BuildStats, Octree};
+pub use build::{build, BuildError, BuildInput, BuildParams, BuildStats, Octree};
+pub use pc_tree::field_normal;

@@ -3,56 +3,16 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use pc_artifact::octree::{class, sections, InputFile, MaterialRecord, OctreeMeta};
+use pc_artifact::octree::{sections, InputFile, OctreeMeta};
 use pc_artifact::{ArtifactKind, ArtifactWriter, Key, KeyHasher};
-use pc_scene::config::{Albedo, LoadedConfig, MaterialConfig};
-use pc_scene::load::{load_scene, model_path, LoadedScene};
+use pc_scene::config::{LoadedConfig, MaterialConfig};
+use pc_scene::load::{load_scene, material_table, model_path, LoadedScene};
 
 use crate::build::{build, BuildInput, BuildParams, Octree};
 
 /// The producing stage's name and version, written into every artifact header.
 pub const STAGE: &str = "pc-octree";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
-
-/// Material table for the artifact, and the class of each material.
-pub fn material_table(materials: &[(String, MaterialConfig)]) -> Vec<MaterialRecord> {
-    materials
-        .iter()
-        .map(|(_, m)| match m {
-            MaterialConfig::Diffuse { albedo } => MaterialRecord {
-                color: match albedo {
-                    Albedo::Rgb(c) => *c,
-                    Albedo::Source(_) => [1.0; 3],
-                },
-                class: class::DIFFUSE,
-                ior: 1.0,
-                per_point_color: matches!(albedo, Albedo::Source(_)) as u32,
-                ..Default::default()
-            },
-            MaterialConfig::Emitter { radiance, albedo } => MaterialRecord {
-                color: albedo.unwrap_or([0.0; 3]),
-                class: class::EMITTER,
-                radiance: *radiance,
-                ior: 1.0,
-                ..Default::default()
-            },
-            MaterialConfig::Mirror { reflectance, phong } => MaterialRecord {
-                color: *reflectance,
-                class: class::MIRROR,
-                ior: 1.0,
-                phong: phong.unwrap_or(0.0),
-                ..Default::default()
-            },
-            MaterialConfig::Dielectric { ior, tint, phong } => MaterialRecord {
-                color: tint.unwrap_or([1.0; 3]),
-                class: class::DIELECTRIC,
-                ior: *ior,
-                phong: phong.unwrap_or(0.0),
-                ..Default::default()
-            },
-        })
-        .collect()
-}
 
 /// The octree artifact's key: this stage's version, the octree and import parameters, each
 /// model's transform, material name and class, and the content of each PLY. Material colors,

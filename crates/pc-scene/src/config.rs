@@ -32,6 +32,8 @@ pub struct PipelineConfig {
     pub import: ImportConfig,
     #[serde(default)]
     pub octree: OctreeConfig,
+    #[serde(default)]
+    pub raytrace: RaytraceConfig,
 }
 
 /// Where artifacts and images go.
@@ -260,6 +262,76 @@ impl Default for OctreeConfig {
     }
 }
 
+/// What a diffuse hit shows.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ShadingMode {
+    /// The radiance stored at the splats: emission (and, once pc-fmm has run, radiosity).
+    #[default]
+    Stored,
+    /// Preview: emission plus albedo times direct light from point lights and emitters, with
+    /// shadow rays.
+    Direct,
+}
+
+/// Which device renders.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    Cpu,
+    Gpu,
+    /// The GPU when an adapter exists, else the CPU.
+    #[default]
+    Auto,
+}
+
+/// pc-raytrace parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct RaytraceConfig {
+    /// Samples per pixel (stratified on a √n × √n grid when n is a square).
+    pub spp: u32,
+    /// Specular bounces after the camera ray (§8.5.8's b).
+    pub max_bounces: u32,
+    pub mode: ShadingMode,
+    pub backend: Backend,
+    /// Self-hit distance Δ (§8.5.6) in units of the radius of the splat a ray leaves.
+    pub self_hit: f32,
+    /// Splats within this many radii of a hit's plane blend with it (§8.5.8).
+    pub blend_thickness: f32,
+    /// Emitter samples per diffuse hit in `direct` mode.
+    pub light_samples: u32,
+    /// Radiance of rays that leave the scene, linear RGB.
+    pub background: [f32; 3],
+    /// Exposure multiplier for the PNG preview (the EXR is linear and unscaled).
+    pub exposure: f32,
+    /// Write depth, normal, albedo and splat-id layers into the EXR.
+    pub aovs: bool,
+    /// Seed of the sample pattern.
+    pub seed: u32,
+    /// Image file name inside `output.dir` (an `.exr`; a `.png` preview is written beside it).
+    pub image: PathBuf,
+}
+
+impl Default for RaytraceConfig {
+    fn default() -> Self {
+        RaytraceConfig {
+            spp: 16,
+            max_bounces: 8,
+            mode: ShadingMode::Stored,
+            backend: Backend::Auto,
+            self_hit: 0.5,
+            blend_thickness: 0.5,
+            light_samples: 1,
+            background: [0.0; 3],
+            exposure: 1.0,
+            aovs: false,
+            seed: 0,
+            image: PathBuf::from("image.exr"),
+        }
+    }
+}
+
 /// A loaded configuration: the merged, overridden, validated config and where it came from.
 #[derive(Clone, Debug)]
 pub struct LoadedConfig {
@@ -280,6 +352,10 @@ impl LoadedConfig {
     /// The octree artifact path, resolved.
     pub fn octree_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.octree.file)
+    }
+    /// The rendered image path, resolved.
+    pub fn image_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.raytrace.image)
     }
 }
 
@@ -339,6 +415,9 @@ fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, Scene
     })?;
     let mut value: toml::Value = toml::from_str(&text).map_err(|e| cfg_err(path, e.to_string()))?;
     let dir = path.parent().unwrap_or(Path::new(""));
+    // Included files' model paths become absolute (resolved against the included file's
+    // folder), so they do not depend on where the top-level file is.
+    let abs_dir = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     // Resolve model paths relative to the file that declares them, so an included file keeps
     // pointing at its own PLYs. The top-level file keeps relative paths (resolved at load).
     if !stack.is_empty() {
@@ -348,7 +427,8 @@ fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, Scene
                     if let Some(s) = f.as_str() {
                         let p = Path::new(s);
                         if p.is_relative() {
-                            *f = toml::Value::String(dir.join(p).to_string_lossy().into_owned());
+                            *f =
+                                toml::Value::String(abs_dir.join(p).to_string_lossy().into_owned());
                         }
                     }
                 }
@@ -580,6 +660,38 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
         return err(format!(
             "octree.area_samples must lie in 1..=64, got {}",
             o.area_samples
+        ));
+    }
+    let r = &c.raytrace;
+    if r.spp == 0 || r.spp > 65536 {
+        return err(format!("raytrace.spp must lie in 1..=65536, got {}", r.spp));
+    }
+    if r.max_bounces > 64 {
+        return err(format!(
+            "raytrace.max_bounces must be at most 64, got {}",
+            r.max_bounces
+        ));
+    }
+    if !(r.self_hit.is_finite() && r.self_hit >= 0.0)
+        || !(r.blend_thickness.is_finite() && r.blend_thickness >= 0.0)
+    {
+        return err(
+            "raytrace.self_hit and raytrace.blend_thickness must be finite and non-negative".into(),
+        );
+    }
+    if !(r.exposure.is_finite() && r.exposure > 0.0)
+        || !finite3(r.background)
+        || r.background.iter().any(|x| *x < 0.0)
+    {
+        return err(
+            "raytrace.exposure must be positive and raytrace.background finite and non-negative"
+                .into(),
+        );
+    }
+    if r.light_samples == 0 || r.light_samples > 1024 {
+        return err(format!(
+            "raytrace.light_samples must lie in 1..=1024, got {}",
+            r.light_samples
         ));
     }
     if c.import.normal_neighbors < 3 || c.import.radius_neighbors < 1 {

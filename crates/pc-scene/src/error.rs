@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 /// Everything that can go wrong while reading a scene: config, PLY files, estimation.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    /// The file could not be opened or read.
-    #[error("{}: {source}", path.display())]
+    /// The file could not be opened or read (the OS error is the source, printed by `{:#}`).
+    #[error("{}: cannot read the file", path.display())]
     Io {
         path: PathBuf,
         #[source]

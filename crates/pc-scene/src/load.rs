@@ -4,8 +4,9 @@
 use std::path::PathBuf;
 
 use glam::{Mat3, Vec3};
+use pc_artifact::octree::{class, MaterialRecord};
 
-use crate::config::{LoadedConfig, MaterialConfig, ModelConfig, PointLightConfig};
+use crate::config::{Albedo, LoadedConfig, MaterialConfig, ModelConfig, PointLightConfig};
 use crate::estimate::{try_estimate_normals, try_estimate_radii, Orientation};
 use crate::ply::{read_ply, PlyOptions};
 use crate::SceneError;
@@ -179,6 +180,47 @@ pub fn load_scene(
         lights: c.lights.clone(),
         models: reports,
     })
+}
+
+/// The artifact material table of a config's materials (in `LoadedScene::materials` order):
+/// what the renderer and the solvers read. Per-point colors multiply `color`.
+pub fn material_table(materials: &[(String, MaterialConfig)]) -> Vec<MaterialRecord> {
+    materials
+        .iter()
+        .map(|(_, m)| match m {
+            MaterialConfig::Diffuse { albedo } => MaterialRecord {
+                color: match albedo {
+                    Albedo::Rgb(c) => *c,
+                    Albedo::Source(_) => [1.0; 3],
+                },
+                class: class::DIFFUSE,
+                ior: 1.0,
+                per_point_color: matches!(albedo, Albedo::Source(_)) as u32,
+                ..Default::default()
+            },
+            MaterialConfig::Emitter { radiance, albedo } => MaterialRecord {
+                color: albedo.unwrap_or([0.0; 3]),
+                class: class::EMITTER,
+                radiance: *radiance,
+                ior: 1.0,
+                ..Default::default()
+            },
+            MaterialConfig::Mirror { reflectance, phong } => MaterialRecord {
+                color: *reflectance,
+                class: class::MIRROR,
+                ior: 1.0,
+                phong: phong.unwrap_or(0.0),
+                ..Default::default()
+            },
+            MaterialConfig::Dielectric { ior, tint, phong } => MaterialRecord {
+                color: tint.unwrap_or([1.0; 3]),
+                class: class::DIELECTRIC,
+                ior: *ior,
+                phong: phong.unwrap_or(0.0),
+                ..Default::default()
+            },
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@
 //! q = t − c` is exact in binary floating point.
 
 use glam::Vec3;
-use pc_artifact::octree::{node, sections, BeginEnd, Frame, NodeInfo, Splat};
+use pc_artifact::octree::{node, sections, tangent_frame, BeginEnd, Frame, NodeInfo, Splat};
 use pc_artifact::{Artifact, ArtifactError};
 
 pub mod ray;
@@ -165,4 +165,14 @@ pub fn cell_box(frame: &Frame, depth: u32, cell: [u32; 3]) -> (Vec3, Vec3) {
     let lo =
         Vec3::from(frame.origin) + Vec3::new(cell[0] as f32, cell[1] as f32, cell[2] as f32) * size;
     (lo, lo + Vec3::splat(size))
+}
+
+/// The normal of a leaf's linear normal field (§8.5.5) at `x`, unit length. See
+/// docs/octree.md: n(x) = normalize(n̄ + ν ((x − c)·û) û + ω ((x − c)·v̂) v̂).
+pub fn field_normal(info: &NodeInfo, x: Vec3) -> Vec3 {
+    let n = Vec3::from(info.normal);
+    let (u, v) = tangent_frame(info.normal);
+    let (u, v) = (Vec3::from(u), Vec3::from(v));
+    let d = x - Vec3::from(info.centroid);
+    (n + u * (info.tilt[0] * d.dot(u)) + v * (info.tilt[1] * d.dot(v))).normalize_or(n)
 }

@@ -1,0 +1,417 @@
+//! The CPU renderer (rayon over 16×16 tiles): the reference twin of shaders/raytrace/render.wgsl.
+//!
+//! One path per pixel sample: the camera ray, then specular bounces (mirror reflection;
+//! dielectric reflection or refraction chosen by Fresnel, total internal reflection) up to
+//! `max_bounces`, ending at the first diffuse or emitting splat, whose blended stored radiance
+//! (and in `direct` mode its direct lighting, with shadow rays) is the sample's value. See
+//! docs/raytrace.md.
+
+use std::f32::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::Vec3;
+use pc_artifact::octree::{class, tangent_frame};
+use pc_tree::{field_normal, Ray, TraversalStats};
+use rayon::prelude::*;
+
+use crate::image::{Aovs, Image};
+use crate::sample::{dim, pixel_offset, rand};
+use crate::scene::RenderScene;
+
+/// One traced sample: its radiance and what the first hit looked like.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SampleResult {
+    pub rgb: Vec3,
+    /// Distance to the first hit (0 when the camera ray leaves the scene).
+    pub depth: f32,
+    /// Shading normal at the first hit.
+    pub normal: Vec3,
+    /// Albedo / reflectance / tint at the first hit.
+    pub albedo: Vec3,
+    /// Source index of the first splat hit, `u32::MAX` for none.
+    pub splat: u32,
+}
+
+/// Ray counts, for benchmarks.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RayCounts {
+    pub camera: u64,
+    pub bounce: u64,
+    pub shadow: u64,
+    pub traversal: TraversalStats,
+}
+
+/// Mirror reflection of `d` about `n`.
+#[inline]
+pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
+    d - 2.0 * d.dot(n) * n
+}
+
+/// Refraction of unit `d` through a surface with unit normal `n` facing the incoming side
+/// (`d·n < 0`), relative index `eta = n1 / n2` (§8.5.6). `None` on total internal reflection.
+#[inline]
+pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    let cos_i = -d.dot(n);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    Some(eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n)
+}
+
+/// Unpolarised Fresnel reflectance of a dielectric interface; 1 under total internal reflection.
+#[inline]
+pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// The normal at point `x` of specular splat `splat`: the normal field of the leaf that owns the
+/// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field or the
+/// field disagrees with the splat's side.
+#[inline]
+pub fn shading_normal(view: &pc_tree::OctreeView, splat: u32, x: Vec3) -> Vec3 {
+    let ns = Vec3::from(view.splats[splat as usize].normal);
+    let info = &view.node_info[view.splat_leaf[splat as usize] as usize];
+    let n = if info.normal != [0.0; 3] {
+        field_normal(info, x)
+    } else {
+        ns
+    };
+    if n.dot(ns) <= 0.0 {
+        ns
+    } else {
+        n
+    }
+}
+
+/// Trace one pixel sample.
+pub fn trace_sample(
+    sc: &RenderScene,
+    px: u32,
+    py: u32,
+    k: u32,
+    counts: &mut RayCounts,
+) -> SampleResult {
+    let p = &sc.params;
+    let view = &sc.view;
+    let pixel = py * p.width + px;
+    let (ox, oy) = pixel_offset(p.seed, pixel, k, p.spp);
+    let dir = sc.camera_dir(
+        (px as f32 + ox) / p.width as f32,
+        (py as f32 + oy) / p.height as f32,
+    );
+    let mut ray = Ray::new(Vec3::from(p.cam_origin), dir);
+    let mut throughput = Vec3::ONE;
+    let mut out = SampleResult {
+        splat: u32::MAX,
+        ..Default::default()
+    };
+    let mut blend = Vec::new();
+    counts.camera += 1;
+    for bounce in 0..=p.max_bounces {
+        if bounce > 0 {
+            counts.bounce += 1;
+        }
+        let Some(hit) = view.intersect(&ray, &mut counts.traversal) else {
+            out.rgb += throughput * Vec3::from(p.background);
+            break;
+        };
+        let s = &view.splats[hit.splat as usize];
+        let m = &sc.materials[s.material as usize];
+        let x = ray.origin + ray.dir * hit.t;
+        let delta = p.self_hit * s.radius;
+        let ns = Vec3::from(s.normal);
+        if class::is_specular(m.class) {
+            let n = shading_normal(view, hit.splat, x);
+            let color = Vec3::from(m.color) * Vec3::from(s.albedo);
+            if bounce == 0 {
+                out.depth = hit.t;
+                out.normal = n;
+                out.albedo = color;
+                out.splat = s.source;
+            }
+            let nf = if ray.dir.dot(n) < 0.0 { n } else { -n };
+            if m.phong > 0.0 {
+                out.rgb += throughput * color * phong(sc, x, nf, -ray.dir, m.phong, delta, counts);
+            }
+            let new_dir = if m.class == class::MIRROR {
+                throughput *= color;
+                reflect(ray.dir, nf)
+            } else {
+                let entering = ray.dir.dot(ns) < 0.0;
+                let eta = if entering { 1.0 / m.ior } else { m.ior };
+                let cos_i = (-ray.dir.dot(nf)).clamp(0.0, 1.0);
+                let f = fresnel(cos_i, eta);
+                let u = rand(p.seed, pixel, k, dim(bounce, 0));
+                match refract(ray.dir, nf, eta) {
+                    Some(t) if u >= f => {
+                        throughput *= color;
+                        t.normalize()
+                    }
+                    _ => reflect(ray.dir, nf),
+                }
+            };
+            ray = Ray {
+                origin: x,
+                dir: new_dir,
+                t_min: delta,
+                t_max: f32::INFINITY,
+            };
+            continue;
+        }
+        // Diffuse or emitting splat: one-sided, black from behind.
+        if ray.dir.dot(ns) >= 0.0 {
+            if bounce == 0 {
+                out.depth = hit.t;
+                out.normal = ns;
+                out.splat = s.source;
+            }
+            break;
+        }
+        // Blend every splat of this surface that covers the hit point (§8.5.8).
+        view.covering(hit.leaf, x, ns, p.blend_thickness, &mut blend);
+        if blend.is_empty() {
+            blend.push((hit.splat, 1.0));
+        }
+        let (mut wsum, mut albedo, mut emit, mut nsum) =
+            (0.0f32, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        for &(j, w) in &blend {
+            let sj = &view.splats[j as usize];
+            let mj = &sc.materials[sj.material as usize];
+            wsum += w;
+            albedo += w * Vec3::from(mj.color) * Vec3::from(sj.albedo);
+            if mj.class == class::EMITTER {
+                emit += w * Vec3::from(mj.radiance);
+            }
+            nsum += w * Vec3::from(sj.normal);
+        }
+        if wsum <= 0.0 {
+            // Only possible exactly at the hit disk's rim: fall back to the hit splat.
+            wsum = 1.0;
+            albedo = Vec3::from(m.color) * Vec3::from(s.albedo);
+            emit = if m.class == class::EMITTER {
+                Vec3::from(m.radiance)
+            } else {
+                Vec3::ZERO
+            };
+            nsum = ns;
+        }
+        albedo /= wsum;
+        emit /= wsum;
+        let n = nsum.normalize_or(ns);
+        if bounce == 0 {
+            out.depth = hit.t;
+            out.normal = n;
+            out.albedo = albedo;
+            out.splat = s.source;
+        }
+        out.rgb += throughput * emit;
+        if p.mode == 1 {
+            out.rgb += throughput * albedo / PI * direct(sc, x, n, delta, pixel, k, bounce, counts);
+        }
+        break;
+    }
+    out
+}
+
+/// Irradiance at `x` (normal `n`) from the point lights and the emitting splats, with shadow
+/// rays. Emitters are sampled in proportion to power; a point uniform on the chosen disk stands
+/// for the splat's area (`splat_area`), so the estimator is unbiased for the union of the disks.
+#[allow(clippy::too_many_arguments)]
+pub fn direct(
+    sc: &RenderScene,
+    x: Vec3,
+    n: Vec3,
+    delta: f32,
+    pixel: u32,
+    k: u32,
+    bounce: u32,
+    counts: &mut RayCounts,
+) -> Vec3 {
+    let p = &sc.params;
+    let view = &sc.view;
+    let mut e = Vec3::ZERO;
+    for l in &sc.lights {
+        let to = Vec3::from(l.position) - x;
+        let d2 = to.length_squared();
+        let d = d2.sqrt();
+        let dir = to / d;
+        let cos = n.dot(dir);
+        if cos > 0.0 {
+            counts.shadow += 1;
+            let shadow = Ray {
+                origin: x,
+                dir,
+                t_min: delta,
+                t_max: d * (1.0 - 1e-4),
+            };
+            if !view.occluded(&shadow, &mut counts.traversal) {
+                e += Vec3::from(l.intensity) * cos / d2;
+            }
+        }
+    }
+    if p.emitter_count > 0 {
+        let inv_n = 1.0 / p.light_samples as f32;
+        for i in 0..p.light_samples {
+            let u0 = rand(p.seed, pixel, k, dim(bounce, 1 + 3 * i));
+            let u1 = rand(p.seed, pixel, k, dim(bounce, 2 + 3 * i));
+            let u2 = rand(p.seed, pixel, k, dim(bounce, 3 + 3 * i));
+            let ke = sc.emitters.pick(u0);
+            let j = sc.emitters.splats[ke] as usize;
+            let sj = &view.splats[j];
+            let (tu, tv) = tangent_frame(sj.normal);
+            let r = u1.sqrt() * sj.radius;
+            let phi = 2.0 * PI * u2;
+            let y = Vec3::from(sj.position)
+                + (Vec3::from(tu) * phi.cos() + Vec3::from(tv) * phi.sin()) * r;
+            let to = y - x;
+            let d2 = to.length_squared();
+            let d = d2.sqrt();
+            let dir = to / d;
+            let cos_x = n.dot(dir);
+            let cos_y = -Vec3::from(sj.normal).dot(dir);
+            if cos_x > 0.0 && cos_y > 0.0 {
+                counts.shadow += 1;
+                let shadow = Ray {
+                    origin: x,
+                    dir,
+                    t_min: delta,
+                    t_max: d - p.self_hit * sj.radius,
+                };
+                if !view.occluded(&shadow, &mut counts.traversal) {
+                    let pdf_area = sc.emitters.pdf(ke) / view.splat_area[j];
+                    let radiance = Vec3::from(sc.materials[sj.material as usize].radiance);
+                    e += radiance * (cos_x * cos_y / (d2 * pdf_area)) * inv_n;
+                }
+            }
+        }
+    }
+    e
+}
+
+/// Normalised Phong highlight (exponent `exp`) of the point lights seen from `x`, towards `wo`.
+fn phong(
+    sc: &RenderScene,
+    x: Vec3,
+    n: Vec3,
+    wo: Vec3,
+    exp: f32,
+    delta: f32,
+    counts: &mut RayCounts,
+) -> Vec3 {
+    let mut out = Vec3::ZERO;
+    for l in &sc.lights {
+        let to = Vec3::from(l.position) - x;
+        let d2 = to.length_squared();
+        let d = d2.sqrt();
+        let dir = to / d;
+        let cos = n.dot(dir);
+        if cos <= 0.0 {
+            continue;
+        }
+        let spec = reflect(-dir, n).dot(wo).max(0.0).powf(exp) * (exp + 2.0) / (2.0 * PI);
+        if spec <= 0.0 {
+            continue;
+        }
+        counts.shadow += 1;
+        let shadow = Ray {
+            origin: x,
+            dir,
+            t_min: delta,
+            t_max: d * (1.0 - 1e-4),
+        };
+        if !sc.view.occluded(&shadow, &mut counts.traversal) {
+            out += Vec3::from(l.intensity) * spec * cos / d2;
+        }
+    }
+    out
+}
+
+/// Render the whole image on the CPU. `tile_done` is called after each 16×16 tile.
+pub fn render(
+    sc: &RenderScene,
+    with_aovs: bool,
+    tile_done: &(dyn Fn() + Sync),
+) -> (Image, RayCounts) {
+    let (w, h) = (sc.params.width, sc.params.height);
+    const TILE: u32 = 16;
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx, ty)))
+        .collect();
+    let totals = [
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+        AtomicU64::new(0),
+    ];
+    let results: Vec<Vec<(u32, SampleResult)>> = tiles
+        .par_iter()
+        .map(|&(tx, ty)| {
+            let mut counts = RayCounts::default();
+            let mut px = Vec::with_capacity((TILE * TILE) as usize);
+            for y in ty * TILE..((ty + 1) * TILE).min(h) {
+                for x in tx * TILE..((tx + 1) * TILE).min(w) {
+                    let mut acc = Vec3::ZERO;
+                    let mut first = SampleResult::default();
+                    for k in 0..sc.params.spp {
+                        let r = trace_sample(sc, x, y, k, &mut counts);
+                        acc += r.rgb;
+                        if k == 0 {
+                            first = r;
+                        }
+                    }
+                    first.rgb = acc / sc.params.spp as f32;
+                    px.push((y * w + x, first));
+                }
+            }
+            for (t, v) in totals.iter().zip([
+                counts.camera,
+                counts.bounce,
+                counts.shadow,
+                counts.traversal.cells,
+                counts.traversal.splat_tests,
+            ]) {
+                t.fetch_add(v, Ordering::Relaxed);
+            }
+            tile_done();
+            px
+        })
+        .collect();
+    let mut img = Image::new(w, h);
+    let mut aovs = with_aovs.then(|| Aovs {
+        depth: vec![0.0; (w * h) as usize],
+        normal: vec![[0.0; 3]; (w * h) as usize],
+        albedo: vec![[0.0; 3]; (w * h) as usize],
+        splat: vec![u32::MAX; (w * h) as usize],
+    });
+    for tile in results {
+        for (i, r) in tile {
+            img.rgb[i as usize] = r.rgb.into();
+            if let Some(a) = aovs.as_mut() {
+                a.depth[i as usize] = r.depth;
+                a.normal[i as usize] = r.normal.into();
+                a.albedo[i as usize] = r.albedo.into();
+                a.splat[i as usize] = r.splat;
+            }
+        }
+    }
+    img.aovs = aovs;
+    let counts = RayCounts {
+        camera: totals[0].load(Ordering::Relaxed),
+        bounce: totals[1].load(Ordering::Relaxed),
+        shadow: totals[2].load(Ordering::Relaxed),
+        traversal: TraversalStats {
+            cells: totals[3].load(Ordering::Relaxed),
+            splat_tests: totals[4].load(Ordering::Relaxed),
+        },
+    };
+    (img, counts)
+}

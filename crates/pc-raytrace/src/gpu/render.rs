@@ -1,0 +1,134 @@
+//! The GPU renderer: `shaders/raytrace/render.wgsl`, twin of `crate::cpu::render`.
+//!
+//! The octree artifact's sections go into storage buffers as they are; the image is rendered in
+//! bands of rows so that one dispatch stays short (drivers reset devices whose dispatches run
+//! for seconds).
+
+use bytemuck::{Pod, Zeroable};
+use pc_gpu::{compose, Binding, GpuContext, GpuError, Kernel};
+
+use crate::image::{Aovs, Image};
+use crate::scene::{Params, RenderScene};
+
+/// The kernel's source: shared octree code, then the kernel.
+pub fn source() -> String {
+    compose(&[
+        super::COMMON_OCTREE_WGSL,
+        include_str!("../../../../shaders/raytrace/render.wgsl"),
+    ])
+}
+
+/// One output pixel (WGSL `PixelOut`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct PixelOut {
+    pub rgb: [f32; 3],
+    pub depth: f32,
+    pub normal: [f32; 3],
+    pub splat: u32,
+    pub albedo: [f32; 3],
+    pub _pad: u32,
+}
+
+/// Scene buffers uploaded once, and the compiled kernel.
+pub struct GpuRenderer {
+    kernel: Kernel,
+    buffers: Vec<wgpu::Buffer>,
+}
+
+/// Samples per dispatch; bands of rows are sized to stay under this.
+const SAMPLES_PER_DISPATCH: u64 = 1 << 21;
+
+impl GpuRenderer {
+    pub fn new(ctx: &GpuContext, sc: &RenderScene) -> Result<GpuRenderer, GpuError> {
+        let mut b = vec![Binding::Uniform];
+        b.extend([Binding::ReadOnly; 9]);
+        b.push(Binding::Uniform);
+        b.push(Binding::ReadWrite);
+        let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
+        if limit < 10 {
+            return Err(GpuError::Device {
+                adapter: ctx.describe(),
+                msg: format!(
+                    "the renderer needs 10 storage buffers per stage, the adapter allows {limit}"
+                ),
+            });
+        }
+        let kernel = ctx.kernel("raytrace/render", &source(), "main", &b)?;
+        let v = &sc.view;
+        let emitters: Vec<[u32; 2]> = sc
+            .emitters
+            .splats
+            .iter()
+            .zip(&sc.emitters.cdf)
+            .map(|(&i, &c)| [i, c.to_bits()])
+            .collect();
+        let buffers = vec![
+            ctx.uniform("frame", bytemuck::bytes_of(&v.frame)),
+            ctx.storage("nodes", bytemuck::cast_slice(v.nodes))?,
+            ctx.storage("begin_end", bytemuck::cast_slice(v.begin_end))?,
+            ctx.storage("splats", bytemuck::cast_slice(v.splats))?,
+            ctx.storage("node_info", bytemuck::cast_slice(v.node_info))?,
+            ctx.storage("splat_area", bytemuck::cast_slice(v.splat_area))?,
+            ctx.storage("splat_leaf", bytemuck::cast_slice(v.splat_leaf))?,
+            ctx.storage("materials", bytemuck::cast_slice(&sc.materials))?,
+            ctx.storage("lights", bytemuck::cast_slice(&sc.lights))?,
+            ctx.storage("emitters", bytemuck::cast_slice(&emitters))?,
+        ];
+        Ok(GpuRenderer { kernel, buffers })
+    }
+
+    /// Render the image (bands of rows, each a dispatch of 8×8 pixel blocks).
+    pub fn render(
+        &self,
+        ctx: &GpuContext,
+        sc: &RenderScene,
+        with_aovs: bool,
+    ) -> Result<Image, GpuError> {
+        let (w, h) = (sc.params.width, sc.params.height);
+        let per_row = w as u64 * sc.params.spp as u64;
+        let band = (SAMPLES_PER_DISPATCH / per_row.max(1)).clamp(1, h as u64) as u32;
+        let out_size = (w as u64) * (band as u64) * std::mem::size_of::<PixelOut>() as u64;
+        let out = ctx.output("pixels", out_size)?;
+        let mut img = Image::new(w, h);
+        let mut aovs = with_aovs.then(|| Aovs {
+            depth: vec![0.0; (w * h) as usize],
+            normal: vec![[0.0; 3]; (w * h) as usize],
+            albedo: vec![[0.0; 3]; (w * h) as usize],
+            splat: vec![u32::MAX; (w * h) as usize],
+        });
+        let mut row = 0;
+        while row < h {
+            let rows = band.min(h - row);
+            let params = Params {
+                row_offset: row,
+                rows,
+                ..sc.params
+            };
+            let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
+            let mut bind: Vec<&wgpu::Buffer> = self.buffers.iter().collect();
+            bind.push(&uniform);
+            bind.push(&out);
+            self.kernel
+                .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
+            let bytes = ctx.read(
+                &out,
+                (w * rows) as u64 * std::mem::size_of::<PixelOut>() as u64,
+            )?;
+            let px: &[PixelOut] = bytemuck::cast_slice(&bytes);
+            for (i, p) in px.iter().enumerate() {
+                let idx = (row * w) as usize + i;
+                img.rgb[idx] = p.rgb;
+                if let Some(a) = aovs.as_mut() {
+                    a.depth[idx] = p.depth;
+                    a.normal[idx] = p.normal;
+                    a.albedo[idx] = p.albedo;
+                    a.splat[idx] = p.splat;
+                }
+            }
+            row += rows;
+        }
+        img.aovs = aovs;
+        Ok(img)
+    }
+}

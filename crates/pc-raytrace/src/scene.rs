@@ -1,0 +1,184 @@
+//! What a render needs besides the octree: current materials, point lights, the emitter
+//! sampling table, the camera and the parameters, as plain records the GPU can take as they are.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use pc_artifact::octree::{class, MaterialRecord};
+use pc_scene::camera::Camera;
+use pc_scene::config::{RaytraceConfig, ShadingMode};
+use pc_tree::OctreeView;
+
+/// A point light (WGSL twin `PointLight` in shaders/raytrace/render.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PointLight {
+    pub position: [f32; 3],
+    pub _pad0: f32,
+    /// Radiant intensity, W/sr.
+    pub intensity: [f32; 3],
+    pub _pad1: f32,
+}
+
+/// Emitter splats with a cumulative distribution proportional to their emitted power
+/// (luminance of the radiance times the area the splat stands for), for direct lighting.
+#[derive(Clone, Debug, Default)]
+pub struct EmitterTable {
+    /// Data-pool indices of the emitting splats.
+    pub splats: Vec<u32>,
+    /// Inclusive CDF, last entry 1.
+    pub cdf: Vec<f32>,
+    /// Sum of the weights (luminance · area).
+    pub total: f32,
+}
+
+fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+impl EmitterTable {
+    pub fn new(view: &OctreeView, materials: &[MaterialRecord]) -> EmitterTable {
+        let mut splats = Vec::new();
+        let mut weights = Vec::new();
+        for (i, s) in view.splats.iter().enumerate() {
+            let m = &materials[s.material as usize];
+            if m.class == class::EMITTER {
+                let w = luminance(m.radiance) * view.splat_area[i];
+                if w > 0.0 {
+                    splats.push(i as u32);
+                    weights.push(w as f64);
+                }
+            }
+        }
+        let total: f64 = weights.iter().sum();
+        let mut acc = 0.0f64;
+        let cdf = weights
+            .iter()
+            .map(|w| {
+                acc += w;
+                (acc / total) as f32
+            })
+            .collect::<Vec<f32>>();
+        let mut t = EmitterTable {
+            splats,
+            cdf,
+            total: total as f32,
+        };
+        if let Some(last) = t.cdf.last_mut() {
+            *last = 1.0;
+        }
+        t
+    }
+
+    /// Index into `splats` for a uniform number u in [0, 1): the first CDF entry > u.
+    #[inline]
+    pub fn pick(&self, u: f32) -> usize {
+        self.cdf
+            .partition_point(|&c| c <= u)
+            .min(self.cdf.len() - 1)
+    }
+
+    /// Probability of picking entry `k`.
+    #[inline]
+    pub fn pdf(&self, k: usize) -> f32 {
+        self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] }
+    }
+}
+
+/// Render parameters and camera as one uniform record (WGSL twin `Params`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Params {
+    pub cam_origin: [f32; 3],
+    pub width: u32,
+    pub cam_forward: [f32; 3],
+    pub height: u32,
+    pub cam_right: [f32; 3],
+    pub spp: u32,
+    pub cam_up: [f32; 3],
+    pub max_bounces: u32,
+    pub background: [f32; 3],
+    /// 0 = stored, 1 = direct.
+    pub mode: u32,
+    pub tan_half: [f32; 2],
+    pub self_hit: f32,
+    pub blend_thickness: f32,
+    pub light_samples: u32,
+    pub light_count: u32,
+    pub emitter_count: u32,
+    pub seed: u32,
+    /// First image row this dispatch renders (the GPU renders in bands).
+    pub row_offset: u32,
+    pub rows: u32,
+    pub _pad: [u32; 2],
+}
+
+/// Everything a render reads.
+pub struct RenderScene<'a> {
+    pub view: OctreeView<'a>,
+    pub materials: Vec<MaterialRecord>,
+    pub lights: Vec<PointLight>,
+    pub emitters: EmitterTable,
+    pub params: Params,
+}
+
+impl<'a> RenderScene<'a> {
+    pub fn new(
+        view: OctreeView<'a>,
+        materials: Vec<MaterialRecord>,
+        lights: &[pc_scene::config::PointLightConfig],
+        camera: &Camera,
+        cfg: &RaytraceConfig,
+    ) -> RenderScene<'a> {
+        let emitters = EmitterTable::new(&view, &materials);
+        let lights: Vec<PointLight> = lights
+            .iter()
+            .map(|l| PointLight {
+                position: l.position,
+                intensity: l.intensity,
+                ..Default::default()
+            })
+            .collect();
+        let params = Params {
+            cam_origin: camera.origin.into(),
+            width: camera.width,
+            cam_forward: camera.forward.into(),
+            height: camera.height,
+            cam_right: camera.right.into(),
+            spp: cfg.spp,
+            cam_up: camera.up.into(),
+            max_bounces: cfg.max_bounces,
+            background: cfg.background,
+            mode: match cfg.mode {
+                ShadingMode::Stored => 0,
+                ShadingMode::Direct => 1,
+            },
+            tan_half: [camera.tan_half.0, camera.tan_half.1],
+            self_hit: cfg.self_hit,
+            blend_thickness: cfg.blend_thickness,
+            light_samples: cfg.light_samples,
+            light_count: lights.len() as u32,
+            emitter_count: emitters.splats.len() as u32,
+            seed: cfg.seed,
+            row_offset: 0,
+            rows: camera.height,
+            _pad: [0; 2],
+        };
+        RenderScene {
+            view,
+            materials,
+            lights,
+            emitters,
+            params,
+        }
+    }
+
+    /// The camera ray through film position (sx, sy) ∈ [0,1]² (sx right, sy down).
+    #[inline]
+    pub fn camera_dir(&self, sx: f32, sy: f32) -> Vec3 {
+        let p = &self.params;
+        let x = (2.0 * sx - 1.0) * p.tan_half[0];
+        let y = (1.0 - 2.0 * sy) * p.tan_half[1];
+        (Vec3::from(p.cam_forward) + x * Vec3::from(p.cam_right) + y * Vec3::from(p.cam_up))
+            .normalize()
+    }
+}

@@ -1,0 +1,126 @@
+//! The pc-raytrace stage: config + octree artifact → image (EXR + PNG preview).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use pc_artifact::octree::{MaterialRecord, OctreeMeta};
+use pc_artifact::{Artifact, ArtifactKind};
+use pc_scene::camera::Camera;
+use pc_scene::config::{Backend, LoadedConfig};
+use pc_scene::load::material_table;
+use pc_tree::OctreeView;
+
+use crate::cpu::RayCounts;
+use crate::image::{write_exr, write_png, Image};
+use crate::scene::RenderScene;
+
+/// The materials of the config, checked against the ones the octree was built with: names and
+/// classes must match (colors may change without rebuilding the octree).
+pub fn current_materials(
+    cfg: &LoadedConfig,
+    octree: &Artifact,
+) -> anyhow::Result<Vec<MaterialRecord>> {
+    let meta: OctreeMeta = octree.metadata()?;
+    let materials: Vec<(String, pc_scene::config::MaterialConfig)> = cfg
+        .config
+        .materials
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let names: Vec<String> = materials.iter().map(|m| m.0.clone()).collect();
+    if names != meta.material_names {
+        bail!(
+            "{}: the octree was built with materials [{}] but {} now defines [{}]: rerun pc-octree",
+            octree.path().display(),
+            meta.material_names.join(", "),
+            cfg.path.display(),
+            names.join(", ")
+        );
+    }
+    let table = material_table(&materials);
+    let built: &[MaterialRecord] = octree.section("materials")?;
+    for (i, (m, b)) in table.iter().zip(built).enumerate() {
+        if m.class != b.class || m.per_point_color != b.per_point_color {
+            bail!(
+                "{}: material `{}` changed class since the octree was built: rerun pc-octree",
+                octree.path().display(),
+                names[i]
+            );
+        }
+    }
+    Ok(table)
+}
+
+/// Which backend runs, after `auto` is resolved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Device {
+    Cpu,
+    Gpu,
+}
+
+/// What one render made.
+pub struct Summary {
+    pub image: Image,
+    pub device: Device,
+    pub device_name: String,
+    pub seconds: f64,
+    pub counts: Option<RayCounts>,
+    pub exr: PathBuf,
+    pub png: PathBuf,
+}
+
+/// Render the config's camera view of the octree at `octree_path` and write the images.
+pub fn run(
+    cfg: &LoadedConfig,
+    octree_path: &Path,
+    exr: &Path,
+    backend: Backend,
+    tile_done: &(dyn Fn() + Sync),
+    total_tiles: &mut dyn FnMut(u64),
+) -> anyhow::Result<Summary> {
+    let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
+        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
+    let view = OctreeView::from_artifact(&art)?;
+    let materials = current_materials(cfg, &art)?;
+    let c = &cfg.config;
+    let camera = Camera::new(&c.camera);
+    let sc = RenderScene::new(view, materials, &c.lights, &camera, &c.raytrace);
+    let gpu = match backend {
+        Backend::Cpu => None,
+        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
+        Backend::Auto => pc_gpu::GpuContext::new().ok(),
+    };
+    let t = Instant::now();
+    let (image, device, device_name, counts) = match gpu {
+        Some(ctx) => {
+            let renderer = crate::gpu::render::GpuRenderer::new(&ctx, &sc)?;
+            let img = renderer.render(&ctx, &sc, c.raytrace.aovs)?;
+            (img, Device::Gpu, ctx.describe(), None)
+        }
+        None => {
+            let w = sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64;
+            total_tiles(w);
+            let (img, counts) = crate::cpu::render(&sc, c.raytrace.aovs, tile_done);
+            (
+                img,
+                Device::Cpu,
+                format!("CPU, {} threads", rayon::current_num_threads()),
+                Some(counts),
+            )
+        }
+    };
+    let seconds = t.elapsed().as_secs_f64();
+    write_exr(exr, &image)?;
+    let png = exr.with_extension("png");
+    write_png(&png, &image, c.raytrace.exposure)?;
+    Ok(Summary {
+        image,
+        device,
+        device_name,
+        seconds,
+        counts,
+        exr: exr.to_path_buf(),
+        png,
+    })
+}

@@ -1,0 +1,388 @@
+//! Renderer tests: analytic direct lighting, specular directions, CPU against GPU, the stage.
+
+use glam::Vec3;
+use pc_artifact::octree::{class, MaterialRecord};
+use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_raytrace::scene::RenderScene;
+use pc_scene::camera::Camera;
+use pc_scene::config::{CameraConfig, FovAxis, PointLightConfig, RaytraceConfig, ShadingMode};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+mod specular;
+
+/// Test scene in structure-of-arrays form with per-splat material indices.
+#[derive(Default, Clone)]
+pub struct Soa {
+    pub p: Vec<Vec3>,
+    pub n: Vec<Vec3>,
+    pub r: Vec<f32>,
+    pub m: Vec<u32>,
+}
+
+impl Soa {
+    /// Jittered grid on the rectangle c + a·u + b·v, a, b ∈ [-1, 1], spacing ≈ h, radius h.
+    pub fn rect(&mut self, c: Vec3, u: Vec3, v: Vec3, h: f32, m: u32, rng: &mut Pcg64) {
+        let (nu, nv) = (
+            (2.0 * u.length() / h).round().max(1.0) as i32,
+            (2.0 * v.length() / h).round().max(1.0) as i32,
+        );
+        let n = u.cross(v).normalize();
+        for i in 0..nu {
+            for j in 0..nv {
+                let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
+                let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
+                self.p.push(c + u * a + v * b);
+                self.n.push(n);
+                self.r.push(h);
+                self.m.push(m);
+            }
+        }
+    }
+
+    /// Sphere of `count` splats (Fibonacci), outward normals.
+    pub fn sphere(&mut self, c: Vec3, radius: f32, count: usize, m: u32) {
+        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+        let h = (4.0 * std::f32::consts::PI * radius * radius / count as f32).sqrt();
+        for k in 0..count {
+            let z = 1.0 - 2.0 * (k as f32 + 0.5) / count as f32;
+            let rho = (1.0 - z * z).sqrt();
+            let a = k as f32 * golden;
+            let n = Vec3::new(rho * a.cos(), rho * a.sin(), z);
+            self.p.push(c + n * radius);
+            self.n.push(n);
+            self.r.push(h);
+            self.m.push(m);
+        }
+    }
+
+    pub fn build(&self, materials: &[MaterialRecord]) -> Octree {
+        let classes: Vec<u32> = materials.iter().map(|m| m.class).collect();
+        let albedo = vec![Vec3::ONE; self.p.len()];
+        let input = BuildInput {
+            positions: &self.p,
+            normals: &self.n,
+            radii: &self.r,
+            albedo: &albedo,
+            material: &self.m,
+            material_class: &classes,
+        };
+        build(
+            &input,
+            &BuildParams {
+                max_leaf_points: 16,
+                area_samples: 16,
+                ..Default::default()
+            },
+            &mut |_| {},
+        )
+        .unwrap()
+    }
+}
+
+pub fn diffuse(albedo: f32) -> MaterialRecord {
+    MaterialRecord {
+        color: [albedo; 3],
+        class: class::DIFFUSE,
+        ior: 1.0,
+        ..Default::default()
+    }
+}
+
+pub fn emitter(radiance: f32) -> MaterialRecord {
+    MaterialRecord {
+        color: [0.0; 3],
+        class: class::EMITTER,
+        radiance: [radiance; 3],
+        ior: 1.0,
+        ..Default::default()
+    }
+}
+
+pub fn camera(origin: Vec3, target: Vec3, up: Vec3, fov: f32, w: u32, h: u32) -> Camera {
+    Camera::new(&CameraConfig {
+        origin: origin.into(),
+        target: target.into(),
+        up: up.into(),
+        fov,
+        fov_axis: FovAxis::Smaller,
+        width: w,
+        height: h,
+    })
+}
+
+pub fn params(spp: u32, mode: ShadingMode) -> RaytraceConfig {
+    RaytraceConfig {
+        spp,
+        mode,
+        ..Default::default()
+    }
+}
+
+/// Irradiance at a point on the normal through the corner of a Lambertian rectangle (sides
+/// a, b at distance h, radiance L): E = L/2 [X/√(1+X²) atan(Y/√(1+X²)) + Y/√(1+Y²) atan(X/√(1+Y²))].
+fn corner_irradiance(a: f64, b: f64, h: f64, l: f64) -> f64 {
+    let (x, y) = (a / h, b / h);
+    let sx = (1.0 + x * x).sqrt();
+    let sy = (1.0 + y * y).sqrt();
+    0.5 * l * (x / sx * (y / sx).atan() + y / sy * (x / sy).atan())
+}
+
+#[test]
+fn point_light_over_a_plane_matches_the_inverse_square_law() {
+    let mut rng = Pcg64::seed_from_u64(1);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X * 2.0, -Vec3::Z * 2.0, 0.02, 0, &mut rng);
+    let mats = vec![diffuse(0.5)];
+    let o = s.build(&mats);
+    let light = PointLightConfig {
+        position: [0.3, 1.0, -0.2],
+        intensity: [2.0; 3],
+    };
+    let cam = camera(Vec3::new(0.0, 3.0, 0.0), Vec3::ZERO, -Vec3::Z, 40.0, 48, 48);
+    let sc = RenderScene::new(
+        o.view(),
+        mats,
+        &[light.clone()],
+        &cam,
+        &params(1, ShadingMode::Direct),
+    );
+    let (img, _) = pc_raytrace::cpu::render(&sc, true, &|| {});
+    let aov = img.aovs.as_ref().unwrap();
+    let mut worst = 0.0f32;
+    for (i, px) in img.rgb.iter().enumerate() {
+        let depth = aov.depth[i];
+        assert!(depth > 0.0, "pixel {i} missed the plane");
+        let n = Vec3::from(aov.normal[i]);
+        assert!((n - Vec3::Y).length() < 1e-4);
+        // The point sample 0 of this pixel hit (the only sample: spp = 1).
+        let p = reconstruct(&sc, &img, i as u32, depth);
+        let to = Vec3::from(light.position) - p;
+        let want =
+            0.5 / std::f32::consts::PI * 2.0 * (to.normalize().dot(Vec3::Y)) / to.length_squared();
+        let rel = (px[0] - want).abs() / want;
+        worst = worst.max(rel);
+    }
+    assert!(worst < 1e-3, "worst relative error {worst}");
+}
+
+/// The first-hit point of pixel i's sample 0, from the camera and the recorded depth.
+fn reconstruct(sc: &RenderScene, _img: &pc_raytrace::image::Image, i: u32, depth: f32) -> Vec3 {
+    let w = sc.params.width;
+    let (px, py) = (i % w, i / w);
+    let pixel = py * w + px;
+    let (ox, oy) = pc_raytrace::sample::pixel_offset(sc.params.seed, pixel, 0, sc.params.spp);
+    let d = sc.camera_dir(
+        (px as f32 + ox) / w as f32,
+        (py as f32 + oy) / sc.params.height as f32,
+    );
+    Vec3::from(sc.params.cam_origin) + d * depth
+}
+
+#[test]
+fn area_light_irradiance_matches_the_rectangle_formula() {
+    // A 0.5 × 0.4 emitter facing down at height 0.8 over a large floor: the irradiance at the
+    // point under its centre is four corner terms. Shadow rays must not be blocked by the
+    // floor's own neighbouring splats (self-hit rule) or the emitter's (far end).
+    let mut rng = Pcg64::seed_from_u64(2);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X * 2.0, -Vec3::Z * 2.0, 0.02, 0, &mut rng);
+    s.rect(
+        Vec3::new(0.0, 0.8, 0.0),
+        Vec3::X * 0.25,
+        Vec3::Z * 0.2,
+        0.01,
+        1,
+        &mut rng,
+    );
+    let mats = vec![diffuse(0.5), emitter(3.0)];
+    let o = s.build(&mats);
+    let cam = camera(Vec3::new(0.0, 0.5, 0.0), Vec3::ZERO, -Vec3::Z, 2.0, 8, 8);
+    let mut p = params(1024, ShadingMode::Direct);
+    p.light_samples = 4;
+    let sc = RenderScene::new(o.view(), mats, &[], &cam, &p);
+    let (img, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    let mean = img.mean()[0];
+    let e = 4.0 * corner_irradiance(0.25, 0.2, 0.8, 3.0);
+    let want = 0.5 / std::f64::consts::PI * e;
+    let rel = (mean - want) / want;
+    // The emitter's splats stand for the area of the union of their disks, which overhangs
+    // the rectangle by up to a radius along its border (docs/octree.md, "Splat area"): the
+    // emitted power, and so the irradiance, is high by about that area excess. Everything
+    // else (emitter sampling, shadow rays, the cosine terms) must be exact within noise.
+    let union: f64 = (0..o.splats.len())
+        .filter(|&i| o.splats[i].material == 1)
+        .map(|i| o.splat_area[i] as f64)
+        .sum();
+    let excess = union / (0.5 * 0.4) - 1.0;
+    assert!(
+        excess > 0.0 && excess < 0.08,
+        "emitter area excess {excess}"
+    );
+    assert!(
+        (rel - excess).abs() < 0.015,
+        "mean {mean}, analytic {want}: error {rel}, area excess {excess}"
+    );
+}
+
+#[test]
+fn emitters_are_one_sided_and_background_shows_through() {
+    let mut rng = Pcg64::seed_from_u64(3);
+    let mut s = Soa::default();
+    // An emitter facing +z, seen from +z (front) and from -z (back).
+    s.rect(Vec3::ZERO, Vec3::X * 0.5, Vec3::Y * 0.5, 0.02, 0, &mut rng);
+    let mats = vec![emitter(2.0)];
+    let o = s.build(&mats);
+    let mut p = params(4, ShadingMode::Stored);
+    p.background = [0.25; 3];
+    let front = camera(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, Vec3::Y, 10.0, 8, 8);
+    let sc = RenderScene::new(o.view(), mats.clone(), &[], &front, &p);
+    let (img, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    assert!((img.mean()[0] - 2.0).abs() < 1e-4, "front {:?}", img.mean());
+    let back = camera(Vec3::new(0.0, 0.0, -2.0), Vec3::ZERO, Vec3::Y, 10.0, 8, 8);
+    let sc = RenderScene::new(o.view(), mats.clone(), &[], &back, &p);
+    let (img, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    assert!(img.mean()[0].abs() < 1e-6, "back {:?}", img.mean());
+    let away = camera(
+        Vec3::new(0.0, 0.0, 2.0),
+        Vec3::new(0.0, 0.0, 5.0),
+        Vec3::Y,
+        10.0,
+        8,
+        8,
+    );
+    let sc = RenderScene::new(o.view(), mats, &[], &away, &p);
+    let (img, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    assert!((img.mean()[0] - 0.25).abs() < 1e-6);
+}
+
+/// A small Cornell-like room with a mirror and a glass sphere, lit by a point light and an
+/// emitter: every code path of the renderer.
+pub fn mixed_room() -> (Octree, Vec<MaterialRecord>) {
+    let mut rng = Pcg64::seed_from_u64(9);
+    let mut s = Soa::default();
+    let h = 0.05;
+    s.rect(Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, 0, &mut rng); // floor
+    s.rect(Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng); // back
+    s.rect(Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, h, 1, &mut rng); // red left wall, normal +x
+    s.rect(Vec3::new(0.0, 1.0, 0.0), Vec3::X, Vec3::Z, h, 0, &mut rng); // ceiling, normal -y
+    s.rect(
+        Vec3::new(0.0, 0.98, -0.2),
+        Vec3::X * 0.25,
+        Vec3::Z * 0.2,
+        0.02,
+        2,
+        &mut rng,
+    ); // light, normal -y
+    s.sphere(Vec3::new(-0.4, -0.6, -0.3), 0.35, 3000, 3); // mirror
+    s.sphere(Vec3::new(0.4, -0.65, 0.1), 0.3, 2500, 4); // glass
+    let mats = vec![
+        diffuse(0.7),
+        MaterialRecord {
+            color: [0.6, 0.1, 0.1],
+            class: class::DIFFUSE,
+            ior: 1.0,
+            ..Default::default()
+        },
+        emitter(5.0),
+        MaterialRecord {
+            color: [0.9; 3],
+            class: class::MIRROR,
+            ior: 1.0,
+            phong: 50.0,
+            ..Default::default()
+        },
+        MaterialRecord {
+            color: [1.0; 3],
+            class: class::DIELECTRIC,
+            ior: 1.5,
+            phong: 80.0,
+            ..Default::default()
+        },
+    ];
+    let o = s.build(&mats);
+    (o, mats)
+}
+
+#[test]
+fn cpu_and_gpu_render_the_same_image() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let (o, mats) = mixed_room();
+    let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
+    let light = PointLightConfig {
+        position: [0.2, 0.7, 0.3],
+        intensity: [0.6; 3],
+    };
+    let mut p = params(4, ShadingMode::Direct);
+    p.max_bounces = 6;
+    let sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
+    let (cpu, _) = pc_raytrace::cpu::render(&sc, true, &|| {});
+    let gpu = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
+        .unwrap()
+        .render(&ctx, &sc, true)
+        .unwrap();
+    let c = pc_raytrace::image::compare(&gpu, &cpu).unwrap();
+    let (ca, ga) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+    let same_first_hit = ca
+        .splat
+        .iter()
+        .zip(&ga.splat)
+        .filter(|(a, b)| a == b)
+        .count();
+    if c.mean_relative >= 1e-3 {
+        let dir = std::env::temp_dir();
+        let _ = pc_raytrace::image::write_png(&dir.join("cpu-gpu-actual.png"), &gpu, 1.0);
+        let _ = pc_raytrace::image::write_png(&dir.join("cpu-gpu-expected.png"), &cpu, 1.0);
+        let _ = pc_raytrace::image::write_diff_png(&dir.join("cpu-gpu-diff.png"), &gpu, &cpu, 10.0);
+    }
+    assert!(
+        same_first_hit as f32 >= 0.99 * ca.splat.len() as f32,
+        "first hits differ: {same_first_hit} of {}",
+        ca.splat.len()
+    );
+    assert!(
+        c.mean_relative < 1e-3,
+        "{c} on {} (images in {})",
+        ctx.describe(),
+        std::env::temp_dir().display()
+    );
+    assert!(c.max_abs < 0.5, "{c}");
+    assert!(cpu.mean()[0] > 0.01);
+}
+
+#[test]
+fn wgsl_records_match_rust_layouts() {
+    let module = pc_gpu::validate_wgsl(&pc_raytrace::gpu::render::source()).unwrap();
+    for (name, size) in [
+        ("Params", std::mem::size_of::<pc_raytrace::scene::Params>()),
+        (
+            "PointLight",
+            std::mem::size_of::<pc_raytrace::scene::PointLight>(),
+        ),
+        ("Material", std::mem::size_of::<MaterialRecord>()),
+        (
+            "PixelOut",
+            std::mem::size_of::<pc_raytrace::gpu::render::PixelOut>(),
+        ),
+    ] {
+        let (wsize, _) =
+            pc_gpu::wgsl_struct_layout(&module, name).unwrap_or_else(|| panic!("no struct {name}"));
+        assert_eq!(wsize as usize, size, "{name}");
+    }
+    let (_, members) = pc_gpu::wgsl_struct_layout(&module, "Params").unwrap();
+    let off = |n: &str| members.iter().find(|m| m.0 == n).unwrap().1 as usize;
+    use pc_raytrace::scene::Params;
+    assert_eq!(off("tan_half"), std::mem::offset_of!(Params, tan_half));
+    assert_eq!(
+        off("light_samples"),
+        std::mem::offset_of!(Params, light_samples)
+    );
+    assert_eq!(off("row_offset"), std::mem::offset_of!(Params, row_offset));
+    let (_, members) = pc_gpu::wgsl_struct_layout(&module, "Material").unwrap();
+    assert_eq!(
+        members.iter().find(|m| m.0 == "phong").unwrap().1 as usize,
+        std::mem::offset_of!(MaterialRecord, phong)
+    );
+}

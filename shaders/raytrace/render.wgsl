@@ -1,0 +1,517 @@
+// Ray tracing kernel: one thread per pixel of a band of rows, looping over the pixel's samples.
+// Line-by-line twin of crates/pc-raytrace/src/cpu.rs (trace_sample, direct, phong) and of the
+// traversal in crates/pc-tree/src/ray.rs; shares shaders/common/octree.wgsl. Threads run in
+// 8x8 pixel blocks, so neighbouring rays (coherent, §8.5.14) share a workgroup.
+
+struct Material {
+    color: vec3<f32>,
+    class_id: u32,
+    radiance: vec3<f32>,
+    ior: f32,
+    phong: f32,
+    per_point_color: u32,
+    _pad: vec2<u32>,
+}
+
+struct PointLight {
+    position: vec3<f32>,
+    _pad0: f32,
+    intensity: vec3<f32>,
+    _pad1: f32,
+}
+
+struct Params {
+    cam_origin: vec3<f32>,
+    width: u32,
+    cam_forward: vec3<f32>,
+    height: u32,
+    cam_right: vec3<f32>,
+    spp: u32,
+    cam_up: vec3<f32>,
+    max_bounces: u32,
+    background: vec3<f32>,
+    mode: u32,
+    tan_half: vec2<f32>,
+    self_hit: f32,
+    blend_thickness: f32,
+    light_samples: u32,
+    light_count: u32,
+    emitter_count: u32,
+    seed: u32,
+    row_offset: u32,
+    rows: u32,
+    _pad: vec2<u32>,
+}
+
+struct PixelOut {
+    rgb: vec3<f32>,
+    depth: f32,
+    normal: vec3<f32>,
+    splat: u32,
+    albedo: vec3<f32>,
+    _pad: u32,
+}
+
+@group(0) @binding(0) var<uniform> octree_frame: Frame;
+@group(0) @binding(1) var<storage, read> octree_nodes: array<u32>;
+@group(0) @binding(2) var<storage, read> begin_end: array<u32>;
+@group(0) @binding(3) var<storage, read> splats: array<Splat>;
+@group(0) @binding(4) var<storage, read> node_info: array<NodeInfo>;
+@group(0) @binding(5) var<storage, read> splat_area: array<f32>;
+@group(0) @binding(6) var<storage, read> splat_leaf: array<u32>;
+@group(0) @binding(7) var<storage, read> materials: array<Material>;
+@group(0) @binding(8) var<storage, read> lights: array<PointLight>;
+// Emitter table: x = data-pool index, y = bits of the inclusive CDF.
+@group(0) @binding(9) var<storage, read> emitters: array<vec2<u32>>;
+@group(0) @binding(10) var<uniform> params: Params;
+@group(0) @binding(11) var<storage, read_write> out_pixels: array<PixelOut>;
+
+const PI: f32 = 3.14159265358979;
+const CLASS_EMITTER: u32 = 1u;
+const CLASS_MIRROR: u32 = 2u;
+const CLASS_DIELECTRIC: u32 = 3u;
+const F32_MAX: f32 = 3.40282347e38;
+
+// ---- sample pattern (twin of sample.rs) -----------------------------------------------------
+
+fn pcg(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+fn rand(pixel: u32, k: u32, d: u32) -> f32 {
+    let h = pcg(pixel ^ pcg(k ^ pcg(d ^ pcg(params.seed))));
+    return f32(h >> 8u) * (1.0 / 16777216.0);
+}
+
+fn dim(bounce: u32, i: u32) -> u32 {
+    return 2u + bounce * 16u + i;
+}
+
+fn pixel_offset(pixel: u32, k: u32) -> vec2<f32> {
+    let jx = rand(pixel, k, 0u);
+    let jy = rand(pixel, k, 1u);
+    let g = u32(sqrt(f32(params.spp)));
+    if g * g == params.spp && g > 1u {
+        let gf = f32(g);
+        return vec2<f32>((f32(k % g) + jx) / gf, (f32(k / g) + jy) / gf);
+    }
+    return vec2<f32>(jx, jy);
+}
+
+// ---- geometry (twins of pc-tree) ------------------------------------------------------------
+
+fn tangent_frame_u(n: vec3<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+}
+
+fn field_normal(info: NodeInfo, x: vec3<f32>) -> vec3<f32> {
+    let n = info.normal;
+    let u = tangent_frame_u(n);
+    let v = cross(n, u);
+    let d = x - info.centroid;
+    let m = n + u * (info.tilt.x * dot(d, u)) + v * (info.tilt.y * dot(d, v));
+    let l = length(m);
+    if l > 0.0 {
+        return m / l;
+    }
+    return n;
+}
+
+// Ray parameter at which the ray crosses the splat inside its disk, or -1.
+fn intersect_splat(o: vec3<f32>, d: vec3<f32>, s: Splat) -> f32 {
+    let denom = dot(d, s.normal);
+    if abs(denom) < 1e-8 {
+        return -1.0;
+    }
+    let t = dot(s.position - o, s.normal) / denom;
+    let x = o + d * t;
+    let e = x - s.position;
+    if dot(e, e) <= s.radius * s.radius {
+        return t;
+    }
+    return -1.0;
+}
+
+fn below(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(x) - 1u);
+}
+
+struct Hit {
+    t: f32,
+    splat: u32,
+    leaf: u32,
+    found: bool,
+}
+
+// Nearest hit in [t_min, t_max]; with any_hit, the first one found (shadow rays).
+// Twin of OctreeView::walk: descent per cell (§8.5.11), exact face stepping.
+fn trace(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) -> Hit {
+    var none = Hit(0.0, 0u, 0u, false);
+    let qo = (o - octree_frame.origin) * octree_frame.inv_size;
+    let qd = dir * octree_frame.inv_size + vec3<f32>(0.0);
+    let inv = 1.0 / qd;
+    let a = (vec3<f32>(0.0) - qo) * inv;
+    let b = (vec3<f32>(1.0) - qo) * inv;
+    let t0 = max(max(min(a.x, b.x), min(a.y, b.y)), min(a.z, b.z));
+    let t1 = min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z));
+    if !(t0 <= t1) {
+        return none;
+    }
+    let t_start = max(max(t0, t_min), 0.0);
+    let t_end = min(t1, t_max);
+    if t_start > t_end {
+        return none;
+    }
+    var q = clamp(qo + qd * t_start, vec3<f32>(0.0), vec3<f32>(below(1.0)));
+    for (var step = 0u; step < 1000000u; step = step + 1u) {
+        var lo = vec3<f32>(0.0);
+        var size = 1.0;
+        var w = octree_nodes[0];
+        var depth = 0u;
+        loop {
+            if (w & (NODE_LEAF | NODE_EMPTY)) != 0u || depth >= 22u {
+                break;
+            }
+            size = size * 0.5;
+            let mid = lo + vec3<f32>(size);
+            let upper = q >= mid;
+            let child = u32(upper.x) | (u32(upper.y) << 1u) | (u32(upper.z) << 2u);
+            lo = select(lo, mid, upper);
+            w = octree_nodes[(w & NODE_PTR) + child];
+            depth = depth + 1u;
+        }
+        let hi = lo + vec3<f32>(size);
+        let far = select(lo, hi, qd >= vec3<f32>(0.0));
+        let ta = (far - qo) * inv;
+        let t_exit = min(min(ta.x, ta.y), ta.z);
+        if (w & NODE_LEAF) != 0u {
+            let limit = min(t_exit, t_end);
+            let off = w & NODE_PTR;
+            let begin = begin_end[off];
+            let extra = begin_end[off + 1u];
+            let end = begin_end[off + 2u + extra];
+            var best = none;
+            let count = (end - begin) + extra;
+            for (var k = 0u; k < count; k = k + 1u) {
+                var i = begin + k;
+                if k >= end - begin {
+                    i = begin_end[off + 2u + (k - (end - begin))];
+                }
+                let th = intersect_splat(o, dir, splats[i]);
+                if th >= t_min && th <= limit && (!best.found || th < best.t) && th >= 0.0 {
+                    best = Hit(th, i, w, true);
+                    if any_hit {
+                        return best;
+                    }
+                }
+            }
+            if best.found {
+                return best;
+            }
+        }
+        if t_exit >= t_end {
+            return none;
+        }
+        var next = qo + qd * t_exit;
+        for (var axis = 0u; axis < 3u; axis = axis + 1u) {
+            if ta[axis] <= t_exit {
+                if qd[axis] >= 0.0 {
+                    if hi[axis] >= 1.0 {
+                        return none;
+                    }
+                    next[axis] = hi[axis];
+                } else {
+                    if lo[axis] <= 0.0 {
+                        return none;
+                    }
+                    next[axis] = below(lo[axis]);
+                }
+            } else {
+                next[axis] = clamp(next[axis], lo[axis], below(hi[axis]));
+            }
+        }
+        q = next;
+    }
+    return none;
+}
+
+fn occluded(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> bool {
+    return trace(o, dir, t_min, t_max, true).found;
+}
+
+// ---- shading (twins of cpu.rs) --------------------------------------------------------------
+
+fn reflect_dir(d: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return d - 2.0 * dot(d, n) * n;
+}
+
+fn fresnel(cos_i: f32, eta: f32) -> f32 {
+    let sin2_t = eta * eta * max(1.0 - cos_i * cos_i, 0.0);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = sqrt(1.0 - sin2_t);
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+fn emitter_pick(u: f32) -> u32 {
+    // First inclusive-CDF entry > u (binary search), clamped to the last.
+    var lo = 0u;
+    var hi = params.emitter_count;
+    loop {
+        if lo >= hi {
+            break;
+        }
+        let mid = (lo + hi) / 2u;
+        if bitcast<f32>(emitters[mid].y) <= u {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return min(lo, params.emitter_count - 1u);
+}
+
+fn emitter_pdf(k: u32) -> f32 {
+    var prev = 0.0;
+    if k > 0u {
+        prev = bitcast<f32>(emitters[k - 1u].y);
+    }
+    return bitcast<f32>(emitters[k].y) - prev;
+}
+
+fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u32) -> vec3<f32> {
+    var e = vec3<f32>(0.0);
+    for (var li = 0u; li < params.light_count; li = li + 1u) {
+        let l = lights[li];
+        let to = l.position - x;
+        let d2 = dot(to, to);
+        let d = sqrt(d2);
+        let dir = to / d;
+        let c = dot(n, dir);
+        if c > 0.0 && !occluded(x, dir, delta, d * (1.0 - 1e-4)) {
+            e = e + l.intensity * c / d2;
+        }
+    }
+    if params.emitter_count > 0u {
+        let inv_n = 1.0 / f32(params.light_samples);
+        for (var i = 0u; i < params.light_samples; i = i + 1u) {
+            let u0 = rand(pixel, k, dim(bounce, 1u + 3u * i));
+            let u1 = rand(pixel, k, dim(bounce, 2u + 3u * i));
+            let u2 = rand(pixel, k, dim(bounce, 3u + 3u * i));
+            let ke = emitter_pick(u0);
+            let j = emitters[ke].x;
+            let sj = splats[j];
+            let tu = tangent_frame_u(sj.normal);
+            let tv = cross(sj.normal, tu);
+            let r = sqrt(u1) * sj.radius;
+            let phi = 2.0 * PI * u2;
+            let y = sj.position + (tu * cos(phi) + tv * sin(phi)) * r;
+            let to = y - x;
+            let d2 = dot(to, to);
+            let d = sqrt(d2);
+            let dir = to / d;
+            let cos_x = dot(n, dir);
+            let cos_y = -dot(sj.normal, dir);
+            if cos_x > 0.0 && cos_y > 0.0 && !occluded(x, dir, delta, d - params.self_hit * sj.radius) {
+                let pdf_area = emitter_pdf(ke) / splat_area[j];
+                e = e + materials[sj.material].radiance * (cos_x * cos_y / (d2 * pdf_area)) * inv_n;
+            }
+        }
+    }
+    return e;
+}
+
+fn phong(x: vec3<f32>, n: vec3<f32>, wo: vec3<f32>, e: f32, delta: f32) -> vec3<f32> {
+    var acc = vec3<f32>(0.0);
+    for (var li = 0u; li < params.light_count; li = li + 1u) {
+        let l = lights[li];
+        let to = l.position - x;
+        let d2 = dot(to, to);
+        let d = sqrt(d2);
+        let dir = to / d;
+        let c = dot(n, dir);
+        if c <= 0.0 {
+            continue;
+        }
+        let spec = pow(max(dot(reflect_dir(-dir, n), wo), 0.0), e) * (e + 2.0) / (2.0 * PI);
+        if spec <= 0.0 {
+            continue;
+        }
+        if !occluded(x, dir, delta, d * (1.0 - 1e-4)) {
+            acc = acc + l.intensity * spec * c / d2;
+        }
+    }
+    return acc;
+}
+
+fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
+    var res = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0xffffffffu, vec3<f32>(0.0), 0u);
+    let pixel = py * params.width + px;
+    let off = pixel_offset(pixel, k);
+    let sx = (f32(px) + off.x) / f32(params.width);
+    let sy = (f32(py) + off.y) / f32(params.height);
+    let cx = (2.0 * sx - 1.0) * params.tan_half.x;
+    let cy = (1.0 - 2.0 * sy) * params.tan_half.y;
+    var ro = params.cam_origin;
+    var rd = normalize(params.cam_forward + cx * params.cam_right + cy * params.cam_up);
+    var t_min = 0.0;
+    var throughput = vec3<f32>(1.0);
+    for (var bounce = 0u; bounce <= params.max_bounces; bounce = bounce + 1u) {
+        let hit = trace(ro, rd, t_min, F32_MAX, false);
+        if !hit.found {
+            res.rgb = res.rgb + throughput * params.background;
+            break;
+        }
+        let s = splats[hit.splat];
+        let m = materials[s.material];
+        let x = ro + rd * hit.t;
+        let delta = params.self_hit * s.radius;
+        let ns = s.normal;
+        if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
+            let info = node_info[splat_leaf[hit.splat]];
+            var n = ns;
+            if any(info.normal != vec3<f32>(0.0)) {
+                n = field_normal(info, x);
+            }
+            if dot(n, ns) <= 0.0 {
+                n = ns;
+            }
+            let color = m.color * s.albedo;
+            if bounce == 0u {
+                res.depth = hit.t;
+                res.normal = n;
+                res.albedo = color;
+                res.splat = s.source;
+            }
+            var nf = n;
+            if dot(rd, n) >= 0.0 {
+                nf = -n;
+            }
+            if m.phong > 0.0 {
+                res.rgb = res.rgb + throughput * color * phong(x, nf, -rd, m.phong, delta);
+            }
+            var new_dir = reflect_dir(rd, nf);
+            if m.class_id == CLASS_MIRROR {
+                throughput = throughput * color;
+            } else {
+                let entering = dot(rd, ns) < 0.0;
+                var eta = m.ior;
+                if entering {
+                    eta = 1.0 / m.ior;
+                }
+                let cos_i = clamp(-dot(rd, nf), 0.0, 1.0);
+                let f = fresnel(cos_i, eta);
+                let u = rand(pixel, k, dim(bounce, 0u));
+                let ci = -dot(rd, nf);
+                let sin2_t = eta * eta * max(1.0 - ci * ci, 0.0);
+                if sin2_t < 1.0 && u >= f {
+                    throughput = throughput * color;
+                    new_dir = normalize(eta * rd + (eta * ci - sqrt(1.0 - sin2_t)) * nf);
+                }
+            }
+            ro = x;
+            rd = new_dir;
+            t_min = delta;
+            continue;
+        }
+        if dot(rd, ns) >= 0.0 {
+            if bounce == 0u {
+                res.depth = hit.t;
+                res.normal = ns;
+                res.splat = s.source;
+            }
+            break;
+        }
+        // Blend the splats of this surface covering x (twin of OctreeView::covering).
+        var wsum = 0.0;
+        var albedo = vec3<f32>(0.0);
+        var emit = vec3<f32>(0.0);
+        var nsum = vec3<f32>(0.0);
+        let off = hit.leaf & NODE_PTR;
+        let begin = begin_end[off];
+        let extra = begin_end[off + 1u];
+        let end = begin_end[off + 2u + extra];
+        let count = (end - begin) + extra;
+        for (var kk = 0u; kk < count; kk = kk + 1u) {
+            var j = begin + kk;
+            if kk >= end - begin {
+                j = begin_end[off + 2u + (kk - (end - begin))];
+            }
+            let sj = splats[j];
+            if dot(sj.normal, ns) <= 0.0 {
+                continue;
+            }
+            let dd = x - sj.position;
+            let h = dot(dd, sj.normal);
+            let rho2 = dot(dd, dd) - h * h;
+            let r2 = sj.radius * sj.radius;
+            if abs(h) <= params.blend_thickness * sj.radius && rho2 < r2 {
+                let uu = 1.0 - rho2 / r2;
+                let wgt = uu * uu;
+                let mj = materials[sj.material];
+                wsum = wsum + wgt;
+                albedo = albedo + wgt * mj.color * sj.albedo;
+                if mj.class_id == CLASS_EMITTER {
+                    emit = emit + wgt * mj.radiance;
+                }
+                nsum = nsum + wgt * sj.normal;
+            }
+        }
+        if wsum <= 0.0 {
+            wsum = 1.0;
+            albedo = m.color * s.albedo;
+            emit = vec3<f32>(0.0);
+            if m.class_id == CLASS_EMITTER {
+                emit = m.radiance;
+            }
+            nsum = ns;
+        }
+        albedo = albedo / wsum;
+        emit = emit / wsum;
+        var n = ns;
+        if length(nsum) > 0.0 {
+            n = normalize(nsum);
+        }
+        if bounce == 0u {
+            res.depth = hit.t;
+            res.normal = n;
+            res.albedo = albedo;
+            res.splat = s.source;
+        }
+        res.rgb = res.rgb + throughput * emit;
+        if params.mode == 1u {
+            res.rgb = res.rgb + throughput * albedo / PI * direct(x, n, delta, pixel, k, bounce);
+        }
+        break;
+    }
+    return res;
+}
+
+@compute @workgroup_size(8, 8)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let px = gid.x;
+    let row = gid.y;
+    if px >= params.width || row >= params.rows {
+        return;
+    }
+    let py = params.row_offset + row;
+    var acc = vec3<f32>(0.0);
+    var first = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0xffffffffu, vec3<f32>(0.0), 0u);
+    for (var k = 0u; k < params.spp; k = k + 1u) {
+        let r = trace_sample(px, py, k);
+        acc = acc + r.rgb;
+        if k == 0u {
+            first = r;
+        }
+    }
+    first.rgb = acc / f32(params.spp);
+    out_pixels[row * params.width + px] = first;
+}

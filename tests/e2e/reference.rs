@@ -1,0 +1,79 @@
+//! The reference Cornell box (~100k splats in shared/reference/cornell/points-100k): pc-octree builds it, and the splat areas add up to the surface area.
+
+use std::path::PathBuf;
+
+use pc_artifact::octree::sections;
+use pc_artifact::Artifact;
+use pcgi_tests::{args, pc_inspect, pc_octree, temp_dir, toml_string};
+
+/// Where the reference data is expected, relative to this package.
+fn reference_dir() -> PathBuf {
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/reference/cornell"
+    ))
+}
+
+#[test]
+fn reference_cornell_octree_areas_match_the_surface() {
+    let dir = reference_dir();
+    let points = dir.join("points-100k");
+    let json_path = points.join("cornell.materials.json");
+    assert!(
+        json_path.is_file(),
+        "the reference data is missing: expected {} (the reference Cornell box, \
+         shared/reference/cornell next to the workspace)",
+        json_path.display()
+    );
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&json_path)
+            .unwrap_or_else(|e| panic!("{}: {e}", json_path.display())),
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", json_path.display()));
+    let total_area = json["total_area"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{}: no `total_area`", json_path.display()));
+    let files: Vec<&String> = json["files"]
+        .as_object()
+        .unwrap_or_else(|| panic!("{}: no `files`", json_path.display()))
+        .keys()
+        .collect();
+    assert_eq!(files.len(), 8, "{}: {files:?}", json_path.display());
+
+    // The octree only cares about the material classes: one diffuse material for all.
+    let tmp = temp_dir();
+    let mut text = String::from(
+        "[output]\ndir = \"out\"\n\n[materials.white]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n",
+    );
+    for f in &files {
+        let ply = points.join(f);
+        assert!(ply.is_file(), "{}: missing", ply.display());
+        text.push_str(&format!(
+            "[[models]]\nfile = {}\nmaterial = \"white\"\n\n",
+            toml_string(&ply.display().to_string())
+        ));
+    }
+    let cfg = tmp.path().join("cornell.toml");
+    std::fs::write(&cfg, text).unwrap();
+
+    let out = pc_octree(args!["--config", cfg, "--quiet"]).success();
+    let artifact = tmp.path().join("out").join("octree.pcgi");
+    let out_v = pc_inspect(args![artifact, "--verify"]).success();
+    assert!(out_v.stdout.contains(": ok ("), "{out_v:?}");
+
+    let a = Artifact::open(&artifact).unwrap();
+    let areas: &[f32] = a.section(sections::SPLAT_AREA).unwrap();
+    assert!(
+        (90_000..=110_000).contains(&areas.len()),
+        "about 100k splats expected, got {}: {out:?}",
+        areas.len()
+    );
+    assert!(areas.iter().all(|x| x.is_finite() && *x >= 0.0));
+    let sum: f64 = areas.iter().map(|&x| x as f64).sum();
+    let rel = (sum - total_area).abs() / total_area;
+    assert!(
+        rel < 0.06,
+        "splat areas sum to {sum}, the reference surface is {total_area} ({:.1} % off)",
+        rel * 100.0
+    );
+}
