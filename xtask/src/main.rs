@@ -18,8 +18,8 @@ commands:
   bench [--sizes 1M,4M] [--runs N] [--write] octree build benchmark (writes BENCHMARKS.md with --write)
 ";
 
-/// The stages in dependency order. Later issues add pc-vmap, pc-caustics, pc-fmm, pc-raytrace.
-const STAGES: &[&str] = &["pc-octree"];
+/// The stages in dependency order. Later issues add pc-vmap, pc-caustics and pc-fmm between them.
+const STAGES: &[&str] = &["pc-octree", "pc-raytrace"];
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -431,7 +431,11 @@ pub fn build(
 
     // ---- splat areas: partition of unity over overlapping disks ---------------------------------
     phase("splat areas");
-    let splat_area = splat_areas(&frame, &nodes, &begin_end, &splats, params.area_samples);
+    let mut leaf_depth = vec![0u8; nodes.len()];
+    for l in &leaves {
+        leaf_depth[l.slot as usize] = l.depth as u8;
+    }
+    let splat_area = splat_areas(&frame, &nodes, &begin_end, &splats, &splat_leaf, &leaf_depth, params.area_samples);
     lap("splat areas", &mut timings, &mut t0);
 
     // ---- per-node average disk, normal, area, class; normal fields of leaves ------------------
@@ -602,39 +606,59 @@ fn disk_pattern(m: u32) -> impl Iterator<Item = (f32, f32)> {
 /// when x is within its radius in its plane, within half a radius of its plane, and the two
 /// normals agree within 60° (so the two sides of a thin wall, or the faces meeting at an edge,
 /// do not share area).
-pub fn splat_areas(
-    frame: &Frame,
-    nodes: &[u32],
-    begin_end: &[u32],
-    splats: &[Splat],
-    samples: u32,
-) -> Vec<f32> {
+///
+/// Speed: the owner leaf's list (own + referenced splats) holds every disk that reaches the
+/// owner cell, so for the samples that fall inside that cell it is enough to test the few disks
+/// that overlap disk i at all (filtered once per splat); samples outside the cell locate their
+/// own leaf and test its list.
+pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Splat], splat_leaf: &[u32], leaf_depth: &[u8], samples: u32) -> Vec<f32> {
     let pattern: Vec<(f32, f32)> = disk_pattern(samples.max(1)).collect();
     let origin = Vec3::from(frame.origin);
-    splats
-        .par_iter()
-        .map(|s| {
+    let leaf_list = |w: u32| -> (std::ops::Range<u32>, &[u32]) {
+        match pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(w)) {
+            Some((b, e, r)) => (b..e, r),
+            None => (0..0, &[]),
+        }
+    };
+    (0..splats.len())
+        .into_par_iter()
+        .map_init(Vec::new, |near: &mut Vec<u32>, i| {
+            let s = &splats[i];
             let c = Vec3::from(s.position);
             let n = Vec3::from(s.normal);
+            let owner = splat_leaf[i];
+            let depth = leaf_depth[owner as usize] as u32;
+            let scale = (1u32 << depth) as f32;
+            let cell = ((c - origin) * frame.inv_size * scale).floor();
+            // Disks that can cover some point of disk i.
+            let (own, refs) = leaf_list(nodes[owner as usize]);
+            near.clear();
+            for j in own.chain(refs.iter().copied()) {
+                let o = &splats[j as usize];
+                let reach = s.radius + o.radius;
+                if Vec3::from(o.normal).dot(n) >= 0.5 && (Vec3::from(o.position) - c).length_squared() <= reach * reach * 1.25 {
+                    near.push(j);
+                }
+            }
             let (u, v) = tangent_frame(s.normal);
             let (u, v) = (Vec3::from(u), Vec3::from(v));
             let mut acc = 0.0f32;
             for &(a, b) in &pattern {
                 let x = c + (u * a + v * b) * s.radius;
                 let q = (x - origin) * frame.inv_size;
-                let mut cover = 0u32;
-                if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
+                let cover = if (q * scale).floor() == cell {
+                    near.iter().filter(|&&j| covers(&splats[j as usize], x, n)).count() as u32
+                } else if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                     let loc = locate_normalized(nodes, q);
                     if node::is_leaf(loc.node) {
-                        if let Some((b0, e0, extra)) =
-                            pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(loc.node))
-                        {
-                            let own = (b0..e0).map(|j| &splats[j as usize]);
-                            let other = extra.iter().map(|&j| &splats[j as usize]);
-                            cover = own.chain(other).filter(|o| covers(o, x, n)).count() as u32;
-                        }
+                        let (own, refs) = leaf_list(loc.node);
+                        own.chain(refs.iter().copied()).filter(|&j| covers(&splats[j as usize], x, n)).count() as u32
+                    } else {
+                        0
                     }
-                }
+                } else {
+                    0
+                };
                 acc += 1.0 / cover.max(1) as f32;
             }
             std::f32::consts::PI * s.radius * s.radius * acc / pattern.len() as f32
