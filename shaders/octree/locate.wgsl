@@ -1,3 +1,4 @@
+// requires: common/octree.wgsl
 // Point location kernel: one thread per query point, writes (slot, node word, depth).
 // CPU twin: pc_tree::OctreeView::locate. Driven by crates/pc-octree/src/gpu/locate.rs.
 

@@ -86,6 +86,19 @@ pub fn ray_box(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3) -> Option<(f32, 
     (t0 <= t1 && !t0.is_nan() && !t1.is_nan()).then_some((t0, t1))
 }
 
+/// Levels of the octree (Morton bits per axis).
+const MAX_LEVELS: usize = 21;
+/// 2²¹, the number of deepest cells along the root's edge.
+const ROOT: u32 = 1 << MAX_LEVELS;
+/// Edge of a deepest cell in normalised coordinates, 2⁻²¹ (exact).
+const CELL: f32 = 1.0 / ROOT as f32;
+
+/// Integer coordinates of a normalised point in [0, 1)³ at the deepest level.
+#[inline]
+fn quantize(q: Vec3) -> [u32; 3] {
+    [q.x, q.y, q.z].map(|c| ((c * ROOT as f32) as u32).min(ROOT - 1))
+}
+
 /// The float just below `x` (x > 0).
 #[inline]
 fn below(x: f32) -> f32 {
@@ -116,24 +129,29 @@ impl<'a> OctreeView<'a> {
         if t > t_end {
             return None;
         }
-        let mut q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
+        // The current point as 21-bit integer cell coordinates (exact: q·2²¹ is a scaling by a
+        // power of two and the floor reads its bits), and the path of node words from the root.
+        let q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
+        let mut qi = quantize(q);
+        let mut path = [0u32; MAX_LEVELS + 1];
+        path[0] = self.nodes[0];
+        let mut depth = 0usize; // the deepest valid entry of `path` for qi
         loop {
             stats.cells += 1;
-            // Descent (§8.5.11), tracking the cell's corner and size exactly.
-            let mut lo = Vec3::ZERO;
-            let mut size = 1.0f32;
-            let mut w = self.nodes[0];
-            let mut depth = 0;
-            while w & (node::LEAF | node::EMPTY) == 0 && depth < 22 {
-                size *= 0.5;
-                let mid = lo + Vec3::splat(size);
-                let upper = q.cmpge(mid);
-                let child = upper.bitmask();
-                lo = Vec3::select(upper, mid, lo);
+            // Descend from the deepest ancestor that still contains qi (§8.5.11, resumed).
+            let mut w = path[depth];
+            while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
+                let shift = (MAX_LEVELS - 1 - depth) as u32;
+                let child = ((qi[0] >> shift) & 1) | (((qi[1] >> shift) & 1) << 1) | (((qi[2] >> shift) & 1) << 2);
                 w = self.nodes[(node::ptr(w) + child) as usize];
                 depth += 1;
+                path[depth] = w;
             }
-            let hi = lo + Vec3::splat(size);
+            let shift = (MAX_LEVELS - depth) as u32;
+            let lo_i = qi.map(|c| (c >> shift) << shift);
+            let size_i = 1u32 << shift;
+            let lo = Vec3::from_array(lo_i.map(|c| c as f32 * CELL));
+            let hi = Vec3::from_array(lo_i.map(|c| (c + size_i) as f32 * CELL));
             // Where the ray leaves this cell.
             let far = Vec3::select(qd.cmpge(Vec3::ZERO), hi, lo);
             let ta = (far - qo) * inv;
@@ -142,16 +160,21 @@ impl<'a> OctreeView<'a> {
                 let limit = t_exit.min(t_end);
                 let (range, refs) = self.leaf(w);
                 let mut best: Option<Hit> = None;
-                for i in range.chain(refs.iter().copied()) {
-                    stats.splat_tests += 1;
-                    let s = &self.splats[i as usize];
-                    if let Some(th) = intersect_splat(ray.origin, ray.dir, s) {
+                stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
+                for i in range {
+                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
                         if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                            best = Some(Hit {
-                                t: th,
-                                splat: i,
-                                leaf: w,
-                            });
+                            best = Some(Hit { t: th, splat: i, leaf: w });
+                            if any {
+                                return best;
+                            }
+                        }
+                    }
+                }
+                for &i in refs {
+                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
+                        if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
+                            best = Some(Hit { t: th, splat: i, leaf: w });
                             if any {
                                 return best;
                             }
@@ -165,27 +188,33 @@ impl<'a> OctreeView<'a> {
             if t_exit >= t_end {
                 return None;
             }
-            // Exact step into the face neighbour(s).
-            let mut next = qo + qd * t_exit;
-            let exits = ta.cmple(Vec3::splat(t_exit));
+            // Exact step into the face neighbour(s): the exit coordinate becomes the face (+) or
+            // the last cell below it (−); the others are the exit point clamped into the face.
+            let next = qo + qd * t_exit;
+            let mut ni = [0u32; 3];
             for axis in 0..3 {
-                if exits.test(axis) {
+                if ta[axis] <= t_exit {
                     if qd[axis] >= 0.0 {
-                        if hi[axis] >= 1.0 {
+                        if lo_i[axis] + size_i >= ROOT {
                             return None; // leaves the root
                         }
-                        next[axis] = hi[axis];
+                        ni[axis] = lo_i[axis] + size_i;
                     } else {
-                        if lo[axis] <= 0.0 {
+                        if lo_i[axis] == 0 {
                             return None;
                         }
-                        next[axis] = below(lo[axis]);
+                        ni[axis] = lo_i[axis] - 1;
                     }
                 } else {
-                    next[axis] = next[axis].clamp(lo[axis], below(hi[axis]));
+                    let c = ((next[axis].max(0.0) * ROOT as f32) as u32).min(ROOT - 1);
+                    ni[axis] = c.clamp(lo_i[axis], lo_i[axis] + size_i - 1);
                 }
             }
-            q = next;
+            // The deepest common ancestor of the old and new points: their top equal bits.
+            let diff = (qi[0] ^ ni[0]) | (qi[1] ^ ni[1]) | (qi[2] ^ ni[2]);
+            let common = (diff.leading_zeros() as usize).saturating_sub(32 - MAX_LEVELS);
+            depth = depth.min(common);
+            qi = ni;
         }
     }
 

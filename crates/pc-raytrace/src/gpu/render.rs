@@ -10,10 +10,11 @@ use pc_gpu::{compose, Binding, GpuContext, GpuError, Kernel};
 use crate::image::{Aovs, Image};
 use crate::scene::{Params, RenderScene};
 
-/// The kernel's source: shared octree code, then the kernel.
+/// The kernel's source: shared octree and traversal code, then the kernel.
 pub fn source() -> String {
     compose(&[
-        super::COMMON_OCTREE_WGSL,
+        pc_tree::gpu::COMMON_OCTREE_WGSL,
+        pc_tree::gpu::COMMON_TRAVERSE_WGSL,
         include_str!("../../../../shaders/raytrace/render.wgsl"),
     ])
 }

@@ -1,0 +1,138 @@
+//! pc-raybench: rays per second of the octree traversal, CPU (rayon) and GPU, for coherent
+//! primary rays and incoherent bounce rays (used by `cargo xtask bench`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Parser;
+use glam::Vec3;
+use pc_artifact::octree::tangent_frame;
+use pc_artifact::{Artifact, ArtifactKind};
+use pc_raytrace::sample::rand;
+use pc_scene::camera::Camera;
+use pc_tree::{OctreeView, Ray, TraversalStats};
+use rayon::prelude::*;
+
+/// Measure traversal speed on an octree artifact.
+#[derive(Parser)]
+#[command(name = "pc-raybench", version, about)]
+struct Args {
+    /// The pipeline description (camera, output folder).
+    #[arg(long, default_value = "pipeline.toml")]
+    config: PathBuf,
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Primary rays: one per pixel centre of a WIDTH×WIDTH image from the config's camera.
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    /// Incoherent rays: from random splats, cosine-distributed about their normals.
+    #[arg(long, default_value_t = 1_000_000)]
+    incoherent: usize,
+    /// Skip the GPU even when an adapter exists.
+    #[arg(long)]
+    cpu_only: bool,
+    /// Write the results here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn main() -> ExitCode {
+    match run(&Args::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pc-raybench: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn cpu_rate(view: &OctreeView, rays: &[Ray]) -> (f64, u64) {
+    let t = Instant::now();
+    let hits: u64 = rays
+        .par_iter()
+        .map_init(TraversalStats::default, |st, r| view.intersect(r, st).is_some() as u64)
+        .sum();
+    (rays.len() as f64 / t.elapsed().as_secs_f64(), hits)
+}
+
+/// Mean cells visited and splats tested per ray (a separate, uncounted-time pass).
+fn work(view: &OctreeView, rays: &[Ray]) -> (f64, f64) {
+    let mut st = TraversalStats::default();
+    for r in rays.iter().step_by(16) {
+        view.intersect(r, &mut st);
+    }
+    let n = rays.len().div_ceil(16) as f64;
+    (st.cells as f64 / n, st.splat_tests as f64 / n)
+}
+
+fn run(args: &Args) -> anyhow::Result<()> {
+    let mut set = args.set.clone();
+    set.push(format!("camera.width={}", args.width));
+    set.push(format!("camera.height={}", args.width));
+    let cfg = pc_scene::config::load_config(&args.config, &set)?;
+    let art = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree).context("run pc-octree first")?;
+    let view = OctreeView::from_artifact(&art)?;
+    let cam = Camera::new(&cfg.config.camera);
+    let primary: Vec<Ray> = (0..args.width * args.width)
+        .map(|i| Ray::new(cam.origin, cam.pixel_direction(i % args.width, i / args.width, 0.5, 0.5)))
+        .collect();
+    let n = view.splats.len() as u32;
+    let incoherent: Vec<Ray> = (0..args.incoherent as u32)
+        .map(|i| {
+            let s = &view.splats[((rand(1, i, 0, 0) * n as f32) as u32).min(n - 1) as usize];
+            let (u, v) = tangent_frame(s.normal);
+            let (r1, r2) = (rand(1, i, 0, 1), rand(1, i, 0, 2));
+            let (rr, phi) = (r1.sqrt(), std::f32::consts::TAU * r2);
+            let d = Vec3::from(u) * rr * phi.cos() + Vec3::from(v) * rr * phi.sin() + Vec3::from(s.normal) * (1.0 - r1).max(0.0).sqrt();
+            Ray { origin: Vec3::from(s.position), dir: d.normalize(), t_min: 0.5 * s.radius, t_max: f32::INFINITY }
+        })
+        .collect();
+    // Warm up (page in the mapped artifact), then measure.
+    let _ = cpu_rate(&view, &primary[..primary.len().min(10_000)]);
+    let (cpu_primary, primary_hits) = cpu_rate(&view, &primary);
+    let (cpu_incoherent, incoherent_hits) = cpu_rate(&view, &incoherent);
+    let threads = rayon::current_num_threads();
+    let (pc, pt) = work(&view, &primary);
+    let (ic, it) = work(&view, &incoherent);
+    eprintln!("pc-raybench: per primary ray {pc:.1} cells, {pt:.1} splat tests; per incoherent ray {ic:.1} cells, {it:.1} splat tests");
+    let mut gpu = String::from("null");
+    let mut line = String::new();
+    if !args.cpu_only {
+        if let Ok(ctx) = pc_gpu::GpuContext::new() {
+            let caster = pc_tree::gpu::RayCaster::new(&ctx, &view)?;
+            let time = |rays: &[Ray]| -> anyhow::Result<f64> {
+                let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
+                caster.cast(&ctx, &input[..input.len().min(4096)], false)?;
+                let t = Instant::now();
+                caster.cast(&ctx, &input, false)?;
+                Ok(rays.len() as f64 / t.elapsed().as_secs_f64())
+            };
+            let (gp, gi) = (time(&primary)?, time(&incoherent)?);
+            gpu = format!("{{\"device\": \"{}\", \"primary_rays_per_s\": {gp:.0}, \"incoherent_rays_per_s\": {gi:.0}}}", ctx.describe().replace('"', "'"));
+            line = format!(", GPU {} primary {:.2} M/s incoherent {:.2} M/s", ctx.describe(), gp / 1e6, gi / 1e6);
+        }
+    }
+    println!(
+        "pc-raybench: {} splats, {} threads: CPU primary {:.2} M rays/s ({} of {} hit), incoherent {:.2} M rays/s ({} of {} hit){line}",
+        view.splats.len(),
+        threads,
+        cpu_primary / 1e6,
+        primary_hits,
+        primary.len(),
+        cpu_incoherent / 1e6,
+        incoherent_hits,
+        incoherent.len()
+    );
+    if let Some(path) = &args.json {
+        let json = format!(
+            "{{\"splats\": {}, \"threads\": {threads}, \"primary_rays\": {}, \"cpu_primary_rays_per_s\": {cpu_primary:.0}, \"incoherent_rays\": {}, \"cpu_incoherent_rays_per_s\": {cpu_incoherent:.0}, \"gpu\": {gpu}}}\n",
+            view.splats.len(),
+            primary.len(),
+            incoherent.len()
+        );
+        std::fs::write(path, json).with_context(|| path.display().to_string())?;
+    }
+    Ok(())
+}

@@ -1,0 +1,89 @@
+//! Ray casting on the GPU: `shaders/tree/cast.wgsl`, twin of [`OctreeView::intersect`] and
+//! [`OctreeView::occluded`]. Shared by every stage that casts rays in bulk.
+
+use bytemuck::{Pod, Zeroable};
+use pc_gpu::{compose, grid, Binding, GpuContext, GpuError, Kernel};
+
+use crate::{OctreeView, Ray};
+
+/// Shared WGSL: octree records, point location, traversal.
+pub const COMMON_OCTREE_WGSL: &str = include_str!("../../../shaders/common/octree.wgsl");
+pub const COMMON_TRAVERSE_WGSL: &str = include_str!("../../../shaders/common/traverse.wgsl");
+
+/// The cast kernel's source.
+pub fn cast_source() -> String {
+    compose(&[COMMON_OCTREE_WGSL, COMMON_TRAVERSE_WGSL, include_str!("../../../shaders/tree/cast.wgsl")])
+}
+
+/// One ray as the kernel reads it (WGSL `RayIn`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RayIn {
+    pub origin: [f32; 3],
+    pub t_min: f32,
+    pub dir: [f32; 3],
+    pub t_max: f32,
+}
+
+impl From<&Ray> for RayIn {
+    fn from(r: &Ray) -> RayIn {
+        RayIn { origin: r.origin.into(), t_min: r.t_min, dir: r.dir.into(), t_max: r.t_max.min(f32::MAX) }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct CastParams {
+    count: u32,
+    any_hit: u32,
+    _pad: [u32; 2],
+}
+
+/// The octree on the GPU and a compiled cast kernel.
+pub struct RayCaster {
+    kernel: Kernel,
+    tree: [wgpu::Buffer; 4],
+}
+
+/// Rays per dispatch (bounded so a dispatch stays short).
+const RAYS_PER_DISPATCH: usize = 1 << 22;
+
+impl RayCaster {
+    pub fn new(ctx: &GpuContext, view: &OctreeView) -> Result<RayCaster, GpuError> {
+        let b = [
+            Binding::Uniform,
+            Binding::ReadOnly,
+            Binding::ReadOnly,
+            Binding::ReadOnly,
+            Binding::ReadOnly,
+            Binding::Uniform,
+            Binding::ReadWrite,
+        ];
+        let kernel = ctx.kernel("tree/cast", &cast_source(), "main", &b)?;
+        let tree = [
+            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
+            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
+            ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?,
+            ctx.storage("splats", bytemuck::cast_slice(view.splats))?,
+        ];
+        Ok(RayCaster { kernel, tree })
+    }
+
+    /// Nearest hit (t, data-pool index) of each ray, or with `any_hit` the first hit found.
+    pub fn cast(&self, ctx: &GpuContext, rays: &[RayIn], any_hit: bool) -> Result<Vec<Option<(f32, u32)>>, GpuError> {
+        let mut out = Vec::with_capacity(rays.len());
+        for chunk in rays.chunks(RAYS_PER_DISPATCH) {
+            let params = CastParams { count: chunk.len() as u32, any_hit: any_hit as u32, _pad: [0; 2] };
+            let rb = ctx.storage("rays", bytemuck::cast_slice(chunk))?;
+            let pb = ctx.uniform("cast_params", bytemuck::bytes_of(&params));
+            let size = (chunk.len() * 8) as u64;
+            let hb = ctx.output("hits", size)?;
+            let [f, n, be, sp] = &self.tree;
+            self.kernel.run(ctx, &[f, n, be, sp, &rb, &pb, &hb], grid(chunk.len() as u32, 64))?;
+            let bytes = ctx.read(&hb, size)?;
+            let words: &[[u32; 2]] = bytemuck::cast_slice(&bytes);
+            out.extend(words.iter().map(|w| (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]))));
+        }
+        Ok(out)
+    }
+}
