@@ -5,6 +5,7 @@
 mod bad_input;
 mod inspect;
 mod octree_cli;
+mod raytrace_cli;
 mod reference;
 
 use std::path::{Path, PathBuf};

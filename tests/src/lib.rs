@@ -5,7 +5,7 @@
 //! The binaries belong to other packages of the workspace, so cargo's `CARGO_BIN_EXE_<name>`
 //! does not name them. They are found next to the test executable
 //! (`target/<profile>/deps/e2e-<hash>` → `target/<profile>/<bin>`), and built first by one
-//! `cargo build --bins -p pc-octree -p pc-inspect -p pc-scene` with the test's own profile and
+//! `cargo build --bins -p pc-octree -p pc-inspect -p pc-scene -p pc-raytrace` with the test's own profile and
 //! target folder: `cargo test -p pcgi-tests` does not build binaries of other packages, and
 //! `cargo test --workspace` builds a package's binaries only when it has integration tests.
 //! Set `PCGI_E2E_NO_BUILD=1` to skip that build and use the binaries as they are.
@@ -28,7 +28,7 @@ macro_rules! args {
 }
 
 /// The packages whose binaries the tests run, and the binaries.
-const BIN_PACKAGES: [&str; 3] = ["pc-octree", "pc-inspect", "pc-scene"];
+const BIN_PACKAGES: [&str; 4] = ["pc-octree", "pc-inspect", "pc-scene", "pc-raytrace"];
 
 /// The workspace root (the folder of the root Cargo.toml).
 pub fn workspace_root() -> PathBuf {

@@ -15,7 +15,9 @@ commands:
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
   reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
-  bench [--sizes 1M,4M] [--runs N] [--write] octree build benchmark (writes BENCHMARKS.md with --write)
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays] [--write]
+                                             octree build and ray traversal benchmarks
+                                             (writes BENCHMARKS.md with --write)
 ";
 
 /// The stages in dependency order. Later issues add pc-vmap, pc-caustics and pc-fmm between them.
@@ -257,6 +259,7 @@ fn bench(args: &[String]) -> Result<()> {
     let mut sizes = vec![1_000_000usize, 4_000_000];
     let mut runs = 3usize;
     let mut write = false;
+    let mut only: Option<String> = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
@@ -270,12 +273,14 @@ fn bench(args: &[String]) -> Result<()> {
             }
             "--runs" => runs = it.next().context("--runs needs a number")?.parse()?,
             "--write" => write = true,
+            "--only" => only = Some(it.next().context("--only needs octree or rays")?.clone()),
             other => bail!("bench: unknown option `{other}`"),
         }
     }
-    let bin = build_release(&["pc-sample", "pc-octree"])?;
+    let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
     let work = root().join("target/bench");
     let mut rows = Vec::new();
+    let mut ray_rows = Vec::new();
     for &n in &sizes {
         let scene = work.join(format!("cornell-{n}"));
         if !scene.join("scene.toml").exists() {
@@ -352,6 +357,63 @@ fn bench(args: &[String]) -> Result<()> {
             ));
             println!("{}", rows.last().unwrap());
         }
+        if only.as_deref() != Some("octree") {
+            for threads in [1usize, 2] {
+                let stats = scene.join("rays.json");
+                let mut best: Option<serde_json::Value> = None;
+                for run in 0..runs {
+                    let mut cmd = Command::new(bin.join("pc-raybench"));
+                    cmd.env("RAYON_NUM_THREADS", threads.to_string())
+                        .arg("--config")
+                        .arg(&config)
+                        .arg("--json")
+                        .arg(&stats);
+                    // The GPU is measured once per size (it does not depend on CPU threads).
+                    if threads != 2 || run > 0 {
+                        cmd.arg("--cpu-only");
+                    }
+                    run_checked(&mut cmd, "pc-raybench")?;
+                    let v: serde_json::Value =
+                        serde_json::from_str(&std::fs::read_to_string(&stats)?)?;
+                    let keep_gpu = best
+                        .as_ref()
+                        .map(|b| b["gpu"].clone())
+                        .filter(|g| !g.is_null());
+                    let better = best.as_ref().is_none_or(|b| {
+                        v["cpu_primary_rays_per_s"].as_f64() > b["cpu_primary_rays_per_s"].as_f64()
+                    });
+                    let mut chosen = if better { v } else { best.take().unwrap() };
+                    if chosen["gpu"].is_null() {
+                        if let Some(g) = keep_gpu {
+                            chosen["gpu"] = g;
+                        }
+                    }
+                    best = Some(chosen);
+                }
+                let v = best.unwrap();
+                let m = |k: &str| v[k].as_f64().unwrap_or(f64::NAN) / 1e6;
+                let gpu = if v["gpu"].is_null() {
+                    "—".to_string()
+                } else {
+                    format!(
+                        "{:.2} / {:.2} M/s on {}",
+                        v["gpu"]["primary_rays_per_s"].as_f64().unwrap_or(f64::NAN) / 1e6,
+                        v["gpu"]["incoherent_rays_per_s"]
+                            .as_f64()
+                            .unwrap_or(f64::NAN)
+                            / 1e6,
+                        v["gpu"]["device"].as_str().unwrap_or("?")
+                    )
+                };
+                ray_rows.push(format!(
+                    "| {:.2}M | {threads} | {:.2} M/s | {:.2} M/s | {gpu} |",
+                    v["splats"].as_f64().unwrap_or(0.0) / 1e6,
+                    m("cpu_primary_rays_per_s"),
+                    m("cpu_incoherent_rays_per_s"),
+                ));
+                println!("{}", ray_rows.last().unwrap());
+            }
+        }
     }
     let table = format!(
         "Machine: {}. Date: {}. Command: `cargo xtask bench --sizes {} --runs {runs}` (best of {runs}).\n\n\
@@ -362,8 +424,29 @@ fn bench(args: &[String]) -> Result<()> {
         sizes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","),
         rows.join("\n")
     );
-    println!("\n{table}");
-    if write {
+    let ray_table = format!(
+        "Machine: {}. Date: {}. Command: `cargo xtask bench --sizes {} --runs {runs} --only rays` (best of {runs}). \
+Primary rays: one per pixel centre of a 1024×1024 view from the scene camera. Incoherent rays: from random splats, \
+cosine-distributed about their normals (diffuse bounce rays). GPU: rays uploaded, cast, hits read back (no GPU \
+is lent to this machine; a software adapter, when present, is listed as such).\n\n\
+| splats | CPU threads | CPU primary | CPU incoherent | GPU primary / incoherent |\n|---|---|---|---|---|\n{}\n",
+        machine(),
+        today(),
+        sizes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","),
+        ray_rows.join("\n")
+    );
+    println!("\n{table}\n{ray_table}");
+    if write && !ray_rows.is_empty() {
+        let path = root().join("BENCHMARKS.md");
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let (begin, end) = ("<!-- bench:rays:begin -->", "<!-- bench:rays:end -->");
+        let new = match (text.find(begin), text.find(end)) {
+            (Some(b), Some(e)) if b < e => format!("{}{begin}\n{ray_table}{}", &text[..b], &text[e..]),
+            _ => format!("{text}\n## Ray traversal (pc-tree, used by pc-raytrace)\n\n{begin}\n{ray_table}{end}\n"),
+        };
+        std::fs::write(&path, new)?;
+    }
+    if write && !rows.is_empty() {
         let path = root().join("BENCHMARKS.md");
         let text = std::fs::read_to_string(&path).unwrap_or_default();
         let (begin, end) = ("<!-- bench:octree:begin -->", "<!-- bench:octree:end -->");

@@ -27,11 +27,22 @@ fn every_kernel_validates_with_its_common_files() {
             }
             let src = std::fs::read_to_string(&f).unwrap();
             let deps = requires(&src);
-            assert!(!deps.is_empty() || !src.contains("octree_"), "{}: no `// requires:` line", f.display());
-            let mut parts: Vec<String> = deps.iter().map(|d| std::fs::read_to_string(root.join(d)).unwrap_or_else(|e| panic!("{}: {d}: {e}", f.display()))).collect();
+            assert!(
+                !deps.is_empty() || !src.contains("octree_"),
+                "{}: no `// requires:` line",
+                f.display()
+            );
+            let mut parts: Vec<String> = deps
+                .iter()
+                .map(|d| {
+                    std::fs::read_to_string(root.join(d))
+                        .unwrap_or_else(|e| panic!("{}: {d}: {e}", f.display()))
+                })
+                .collect();
             parts.push(src);
             let refs: Vec<&str> = parts.iter().map(String::as_str).collect();
-            pc_gpu::validate_wgsl(&pc_gpu::compose(&refs)).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            pc_gpu::validate_wgsl(&pc_gpu::compose(&refs))
+                .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
             kernels += 1;
         }
     }

@@ -435,7 +435,15 @@ pub fn build(
     for l in &leaves {
         leaf_depth[l.slot as usize] = l.depth as u8;
     }
-    let splat_area = splat_areas(&frame, &nodes, &begin_end, &splats, &splat_leaf, &leaf_depth, params.area_samples);
+    let splat_area = splat_areas(
+        &frame,
+        &nodes,
+        &begin_end,
+        &splats,
+        &splat_leaf,
+        &leaf_depth,
+        params.area_samples,
+    );
     lap("splat areas", &mut timings, &mut t0);
 
     // ---- per-node average disk, normal, area, class; normal fields of leaves ------------------
@@ -611,7 +619,15 @@ fn disk_pattern(m: u32) -> impl Iterator<Item = (f32, f32)> {
 /// owner cell, so for the samples that fall inside that cell it is enough to test the few disks
 /// that overlap disk i at all (filtered once per splat); samples outside the cell locate their
 /// own leaf and test its list.
-pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Splat], splat_leaf: &[u32], leaf_depth: &[u8], samples: u32) -> Vec<f32> {
+pub fn splat_areas(
+    frame: &Frame,
+    nodes: &[u32],
+    begin_end: &[u32],
+    splats: &[Splat],
+    splat_leaf: &[u32],
+    leaf_depth: &[u8],
+    samples: u32,
+) -> Vec<f32> {
     let pattern: Vec<(f32, f32)> = disk_pattern(samples.max(1)).collect();
     let origin = Vec3::from(frame.origin);
     let leaf_list = |w: u32| -> (std::ops::Range<u32>, &[u32]) {
@@ -636,7 +652,9 @@ pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Sp
             for j in own.chain(refs.iter().copied()) {
                 let o = &splats[j as usize];
                 let reach = s.radius + o.radius;
-                if Vec3::from(o.normal).dot(n) >= 0.5 && (Vec3::from(o.position) - c).length_squared() <= reach * reach * 1.25 {
+                if Vec3::from(o.normal).dot(n) >= 0.5
+                    && (Vec3::from(o.position) - c).length_squared() <= reach * reach * 1.25
+                {
                     near.push(j);
                 }
             }
@@ -647,12 +665,16 @@ pub fn splat_areas(frame: &Frame, nodes: &[u32], begin_end: &[u32], splats: &[Sp
                 let x = c + (u * a + v * b) * s.radius;
                 let q = (x - origin) * frame.inv_size;
                 let cover = if (q * scale).floor() == cell {
-                    near.iter().filter(|&&j| covers(&splats[j as usize], x, n)).count() as u32
+                    near.iter()
+                        .filter(|&&j| covers(&splats[j as usize], x, n))
+                        .count() as u32
                 } else if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                     let loc = locate_normalized(nodes, q);
                     if node::is_leaf(loc.node) {
                         let (own, refs) = leaf_list(loc.node);
-                        own.chain(refs.iter().copied()).filter(|&j| covers(&splats[j as usize], x, n)).count() as u32
+                        own.chain(refs.iter().copied())
+                            .filter(|&j| covers(&splats[j as usize], x, n))
+                            .count() as u32
                     } else {
                         0
                     }

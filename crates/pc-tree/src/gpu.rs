@@ -12,7 +12,11 @@ pub const COMMON_TRAVERSE_WGSL: &str = include_str!("../../../shaders/common/tra
 
 /// The cast kernel's source.
 pub fn cast_source() -> String {
-    compose(&[COMMON_OCTREE_WGSL, COMMON_TRAVERSE_WGSL, include_str!("../../../shaders/tree/cast.wgsl")])
+    compose(&[
+        COMMON_OCTREE_WGSL,
+        COMMON_TRAVERSE_WGSL,
+        include_str!("../../../shaders/tree/cast.wgsl"),
+    ])
 }
 
 /// One ray as the kernel reads it (WGSL `RayIn`).
@@ -27,7 +31,12 @@ pub struct RayIn {
 
 impl From<&Ray> for RayIn {
     fn from(r: &Ray) -> RayIn {
-        RayIn { origin: r.origin.into(), t_min: r.t_min, dir: r.dir.into(), t_max: r.t_max.min(f32::MAX) }
+        RayIn {
+            origin: r.origin.into(),
+            t_min: r.t_min,
+            dir: r.dir.into(),
+            t_max: r.t_max.min(f32::MAX),
+        }
     }
 }
 
@@ -70,19 +79,36 @@ impl RayCaster {
     }
 
     /// Nearest hit (t, data-pool index) of each ray, or with `any_hit` the first hit found.
-    pub fn cast(&self, ctx: &GpuContext, rays: &[RayIn], any_hit: bool) -> Result<Vec<Option<(f32, u32)>>, GpuError> {
+    pub fn cast(
+        &self,
+        ctx: &GpuContext,
+        rays: &[RayIn],
+        any_hit: bool,
+    ) -> Result<Vec<Option<(f32, u32)>>, GpuError> {
         let mut out = Vec::with_capacity(rays.len());
         for chunk in rays.chunks(RAYS_PER_DISPATCH) {
-            let params = CastParams { count: chunk.len() as u32, any_hit: any_hit as u32, _pad: [0; 2] };
+            let params = CastParams {
+                count: chunk.len() as u32,
+                any_hit: any_hit as u32,
+                _pad: [0; 2],
+            };
             let rb = ctx.storage("rays", bytemuck::cast_slice(chunk))?;
             let pb = ctx.uniform("cast_params", bytemuck::bytes_of(&params));
             let size = (chunk.len() * 8) as u64;
             let hb = ctx.output("hits", size)?;
             let [f, n, be, sp] = &self.tree;
-            self.kernel.run(ctx, &[f, n, be, sp, &rb, &pb, &hb], grid(chunk.len() as u32, 64))?;
+            self.kernel.run(
+                ctx,
+                &[f, n, be, sp, &rb, &pb, &hb],
+                grid(chunk.len() as u32, 64),
+            )?;
             let bytes = ctx.read(&hb, size)?;
             let words: &[[u32; 2]] = bytemuck::cast_slice(&bytes);
-            out.extend(words.iter().map(|w| (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]))));
+            out.extend(
+                words
+                    .iter()
+                    .map(|w| (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]))),
+            );
         }
         Ok(out)
     }

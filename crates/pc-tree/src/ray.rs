@@ -142,7 +142,9 @@ impl<'a> OctreeView<'a> {
             let mut w = path[depth];
             while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
                 let shift = (MAX_LEVELS - 1 - depth) as u32;
-                let child = ((qi[0] >> shift) & 1) | (((qi[1] >> shift) & 1) << 1) | (((qi[2] >> shift) & 1) << 2);
+                let child = ((qi[0] >> shift) & 1)
+                    | (((qi[1] >> shift) & 1) << 1)
+                    | (((qi[2] >> shift) & 1) << 2);
                 w = self.nodes[(node::ptr(w) + child) as usize];
                 depth += 1;
                 path[depth] = w;
@@ -162,9 +164,14 @@ impl<'a> OctreeView<'a> {
                 let mut best: Option<Hit> = None;
                 stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
                 for i in range {
-                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
+                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize])
+                    {
                         if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                            best = Some(Hit { t: th, splat: i, leaf: w });
+                            best = Some(Hit {
+                                t: th,
+                                splat: i,
+                                leaf: w,
+                            });
                             if any {
                                 return best;
                             }
@@ -172,9 +179,14 @@ impl<'a> OctreeView<'a> {
                     }
                 }
                 for &i in refs {
-                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
+                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize])
+                    {
                         if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                            best = Some(Hit { t: th, splat: i, leaf: w });
+                            best = Some(Hit {
+                                t: th,
+                                splat: i,
+                                leaf: w,
+                            });
                             if any {
                                 return best;
                             }

@@ -145,14 +145,28 @@ fn tiny_cells_at_max_depth_are_not_skipped() {
 
 #[test]
 fn gpu_ray_casting_matches_the_cpu_walk() {
-    let Some(ctx) = pc_gpu::test_context() else { return };
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
     let (s, classes) = mixed_scene(0.06);
-    let o = s.build(&classes, BuildParams { max_leaf_points: 8, ..Default::default() }).unwrap();
+    let o = s
+        .build(
+            &classes,
+            BuildParams {
+                max_leaf_points: 8,
+                ..Default::default()
+            },
+        )
+        .unwrap();
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(21);
     let mut rays = Vec::new();
     for _ in 0..4000 {
-        let origin = Vec3::new(rng.random_range(-0.9..0.9), rng.random_range(-0.9..0.9), rng.random_range(-0.9..0.9));
+        let origin = Vec3::new(
+            rng.random_range(-0.9..0.9),
+            rng.random_range(-0.9..0.9),
+            rng.random_range(-0.9..0.9),
+        );
         let mut r = Ray::new(origin, random_dir(&mut rng));
         if rng.random::<f32>() < 0.3 {
             r.t_min = 0.02;
@@ -168,12 +182,20 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
     let (mut agree, mut hits) = (0, 0);
     for (k, r) in rays.iter().enumerate() {
         let cpu = view.intersect(r, &mut stats);
-        assert_eq!(any[k].is_some(), view.occluded(r, &mut stats), "ray {k}: occlusion differs");
+        assert_eq!(
+            any[k].is_some(),
+            view.occluded(r, &mut stats),
+            "ray {k}: occlusion differs"
+        );
         match (cpu, nearest[k]) {
             (None, None) => agree += 1,
             (Some(c), Some((t, splat))) => {
                 hits += 1;
-                assert!((c.t - t).abs() <= 1e-5 * c.t.max(1.0), "ray {k}: t {} vs {t}", c.t);
+                assert!(
+                    (c.t - t).abs() <= 1e-5 * c.t.max(1.0),
+                    "ray {k}: t {} vs {t}",
+                    c.t
+                );
                 if c.splat == splat {
                     agree += 1;
                 }

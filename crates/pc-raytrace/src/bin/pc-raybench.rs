@@ -52,7 +52,9 @@ fn cpu_rate(view: &OctreeView, rays: &[Ray]) -> (f64, u64) {
     let t = Instant::now();
     let hits: u64 = rays
         .par_iter()
-        .map_init(TraversalStats::default, |st, r| view.intersect(r, st).is_some() as u64)
+        .map_init(TraversalStats::default, |st, r| {
+            view.intersect(r, st).is_some() as u64
+        })
         .sum();
     (rays.len() as f64 / t.elapsed().as_secs_f64(), hits)
 }
@@ -72,11 +74,17 @@ fn run(args: &Args) -> anyhow::Result<()> {
     set.push(format!("camera.width={}", args.width));
     set.push(format!("camera.height={}", args.width));
     let cfg = pc_scene::config::load_config(&args.config, &set)?;
-    let art = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree).context("run pc-octree first")?;
+    let art = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)
+        .context("run pc-octree first")?;
     let view = OctreeView::from_artifact(&art)?;
     let cam = Camera::new(&cfg.config.camera);
     let primary: Vec<Ray> = (0..args.width * args.width)
-        .map(|i| Ray::new(cam.origin, cam.pixel_direction(i % args.width, i / args.width, 0.5, 0.5)))
+        .map(|i| {
+            Ray::new(
+                cam.origin,
+                cam.pixel_direction(i % args.width, i / args.width, 0.5, 0.5),
+            )
+        })
         .collect();
     let n = view.splats.len() as u32;
     let incoherent: Vec<Ray> = (0..args.incoherent as u32)
@@ -85,8 +93,15 @@ fn run(args: &Args) -> anyhow::Result<()> {
             let (u, v) = tangent_frame(s.normal);
             let (r1, r2) = (rand(1, i, 0, 1), rand(1, i, 0, 2));
             let (rr, phi) = (r1.sqrt(), std::f32::consts::TAU * r2);
-            let d = Vec3::from(u) * rr * phi.cos() + Vec3::from(v) * rr * phi.sin() + Vec3::from(s.normal) * (1.0 - r1).max(0.0).sqrt();
-            Ray { origin: Vec3::from(s.position), dir: d.normalize(), t_min: 0.5 * s.radius, t_max: f32::INFINITY }
+            let d = Vec3::from(u) * rr * phi.cos()
+                + Vec3::from(v) * rr * phi.sin()
+                + Vec3::from(s.normal) * (1.0 - r1).max(0.0).sqrt();
+            Ray {
+                origin: Vec3::from(s.position),
+                dir: d.normalize(),
+                t_min: 0.5 * s.radius,
+                t_max: f32::INFINITY,
+            }
         })
         .collect();
     // Warm up (page in the mapped artifact), then measure.
@@ -111,7 +126,12 @@ fn run(args: &Args) -> anyhow::Result<()> {
             };
             let (gp, gi) = (time(&primary)?, time(&incoherent)?);
             gpu = format!("{{\"device\": \"{}\", \"primary_rays_per_s\": {gp:.0}, \"incoherent_rays_per_s\": {gi:.0}}}", ctx.describe().replace('"', "'"));
-            line = format!(", GPU {} primary {:.2} M/s incoherent {:.2} M/s", ctx.describe(), gp / 1e6, gi / 1e6);
+            line = format!(
+                ", GPU {} primary {:.2} M/s incoherent {:.2} M/s",
+                ctx.describe(),
+                gp / 1e6,
+                gi / 1e6
+            );
         }
     }
     println!(
