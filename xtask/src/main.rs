@@ -302,7 +302,14 @@ fn bench(args: &[String]) -> Result<()> {
             &config,
             "include = [\"scene.toml\"]\n[output]\ndir = \"out\"\n",
         )?;
+        // The octree the ray benchmark reads.
+        if only.as_deref() == Some("rays") && !scene.join("out/octree.pcgi").exists() {
+            run_checked(Command::new(bin.join("pc-octree")).arg("--quiet").arg("--config").arg(&config), "pc-octree")?;
+        }
         for threads in [1usize, 2] {
+            if only.as_deref() == Some("rays") {
+                break;
+            }
             let mut best: Option<serde_json::Value> = None;
             for _ in 0..runs {
                 let stats = scene.join("stats.json");
@@ -394,6 +401,8 @@ fn bench(args: &[String]) -> Result<()> {
                 let m = |k: &str| v[k].as_f64().unwrap_or(f64::NAN) / 1e6;
                 let gpu = if v["gpu"].is_null() {
                     "—".to_string()
+                } else if let Some(e) = v["gpu"]["error"].as_str() {
+                    format!("not run on {}: {e}", v["gpu"]["device"].as_str().unwrap_or("?"))
                 } else {
                     format!(
                         "{:.2} / {:.2} M/s on {}",

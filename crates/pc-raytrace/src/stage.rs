@@ -92,12 +92,21 @@ pub fn run(
         Backend::Auto => pc_gpu::GpuContext::new().ok(),
     };
     let t = Instant::now();
-    let (image, device, device_name, counts) = match gpu {
-        Some(ctx) => {
-            let renderer = crate::gpu::render::GpuRenderer::new(&ctx, &sc)?;
-            let img = renderer.render(&ctx, &sc, c.raytrace.aovs)?;
-            (img, Device::Gpu, ctx.describe(), None)
-        }
+    // With `auto`, a GPU that cannot take the scene (too large for its buffers, too few
+    // bindings) falls back to the CPU with a warning; with `gpu` it is an error.
+    let gpu_image = match &gpu {
+        Some(ctx) => match crate::gpu::render::GpuRenderer::new(ctx, &sc).and_then(|r| r.render(ctx, &sc, c.raytrace.aovs)) {
+            Ok(img) => Some((img, ctx.describe())),
+            Err(e) if backend == Backend::Auto => {
+                eprintln!("pc-raytrace: warning: rendering on the CPU: the GPU {} cannot: {e}", ctx.describe());
+                None
+            }
+            Err(e) => return Err(e.into()),
+        },
+        None => None,
+    };
+    let (image, device, device_name, counts) = match gpu_image {
+        Some((img, name)) => (img, Device::Gpu, name, None),
         None => {
             let w = sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64;
             total_tiles(w);

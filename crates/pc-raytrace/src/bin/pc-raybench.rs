@@ -116,22 +116,29 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let mut line = String::new();
     if !args.cpu_only {
         if let Ok(ctx) = pc_gpu::GpuContext::new() {
-            let caster = pc_tree::gpu::RayCaster::new(&ctx, &view)?;
-            let time = |rays: &[Ray]| -> anyhow::Result<f64> {
-                let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
-                caster.cast(&ctx, &input[..input.len().min(4096)], false)?;
-                let t = Instant::now();
-                caster.cast(&ctx, &input, false)?;
-                Ok(rays.len() as f64 / t.elapsed().as_secs_f64())
-            };
-            let (gp, gi) = (time(&primary)?, time(&incoherent)?);
-            gpu = format!("{{\"device\": \"{}\", \"primary_rays_per_s\": {gp:.0}, \"incoherent_rays_per_s\": {gi:.0}}}", ctx.describe().replace('"', "'"));
-            line = format!(
-                ", GPU {} primary {:.2} M/s incoherent {:.2} M/s",
-                ctx.describe(),
-                gp / 1e6,
-                gi / 1e6
-            );
+            let measured = (|| -> anyhow::Result<(f64, f64)> {
+                let caster = pc_tree::gpu::RayCaster::new(&ctx, &view)?;
+                let time = |rays: &[Ray]| -> anyhow::Result<f64> {
+                    let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
+                    caster.cast(&ctx, &input[..input.len().min(4096)], false)?;
+                    let t = Instant::now();
+                    caster.cast(&ctx, &input, false)?;
+                    Ok(rays.len() as f64 / t.elapsed().as_secs_f64())
+                };
+                Ok((time(&primary)?, time(&incoherent)?))
+            })();
+            let name = ctx.describe().replace('"', "'");
+            match measured {
+                Ok((gp, gi)) => {
+                    gpu = format!("{{\"device\": \"{name}\", \"primary_rays_per_s\": {gp:.0}, \"incoherent_rays_per_s\": {gi:.0}}}");
+                    line = format!(", GPU {name} primary {:.2} M/s incoherent {:.2} M/s", gp / 1e6, gi / 1e6);
+                }
+                Err(e) => {
+                    let msg = format!("{e:#}").replace('"', "'");
+                    eprintln!("pc-raybench: GPU not measured: {msg}");
+                    gpu = format!("{{\"device\": \"{name}\", \"error\": \"{msg}\"}}");
+                }
+            }
         }
     }
     println!(
