@@ -113,7 +113,6 @@ fn run(args: &[String]) -> Result<()> {
         report.join(", "),
         started.elapsed().as_secs_f64()
     );
-    println!("xtask run: the renderer (pc-raytrace) and the GI stages are not built yet; inspect the octree with `target/release/pc-inspect <output.dir>/octree.pcgi`");
     Ok(())
 }
 
@@ -304,7 +303,13 @@ fn bench(args: &[String]) -> Result<()> {
         )?;
         // The octree the ray benchmark reads.
         if only.as_deref() == Some("rays") && !scene.join("out/octree.pcgi").exists() {
-            run_checked(Command::new(bin.join("pc-octree")).arg("--quiet").arg("--config").arg(&config), "pc-octree")?;
+            run_checked(
+                Command::new(bin.join("pc-octree"))
+                    .arg("--quiet")
+                    .arg("--config")
+                    .arg(&config),
+                "pc-octree",
+            )?;
         }
         for threads in [1usize, 2] {
             if only.as_deref() == Some("rays") {
@@ -402,7 +407,10 @@ fn bench(args: &[String]) -> Result<()> {
                 let gpu = if v["gpu"].is_null() {
                     "—".to_string()
                 } else if let Some(e) = v["gpu"]["error"].as_str() {
-                    format!("not run on {}: {e}", v["gpu"]["device"].as_str().unwrap_or("?"))
+                    format!(
+                        "not run on {}: {e}",
+                        v["gpu"]["device"].as_str().unwrap_or("?")
+                    )
                 } else {
                     format!(
                         "{:.2} / {:.2} M/s on {}",

@@ -89,16 +89,22 @@ pub fn run(
     let gpu = match backend {
         Backend::Cpu => None,
         Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
-        Backend::Auto => pc_gpu::GpuContext::new().ok(),
+        // `auto` means a real GPU: a software rasterizer (llvmpipe) is slower than the CPU path.
+        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
     };
     let t = Instant::now();
     // With `auto`, a GPU that cannot take the scene (too large for its buffers, too few
     // bindings) falls back to the CPU with a warning; with `gpu` it is an error.
     let gpu_image = match &gpu {
-        Some(ctx) => match crate::gpu::render::GpuRenderer::new(ctx, &sc).and_then(|r| r.render(ctx, &sc, c.raytrace.aovs)) {
+        Some(ctx) => match crate::gpu::render::GpuRenderer::new(ctx, &sc)
+            .and_then(|r| r.render(ctx, &sc, c.raytrace.aovs))
+        {
             Ok(img) => Some((img, ctx.describe())),
             Err(e) if backend == Backend::Auto => {
-                eprintln!("pc-raytrace: warning: rendering on the CPU: the GPU {} cannot: {e}", ctx.describe());
+                eprintln!(
+                    "pc-raytrace: warning: rendering on the CPU: the GPU {} cannot: {e}",
+                    ctx.describe()
+                );
                 None
             }
             Err(e) => return Err(e.into()),

@@ -133,11 +133,18 @@ pub fn parse_ply(bytes: &[u8], path: &Path, opts: &PlyOptions) -> Result<PointSe
 
 /// ply-rs-bw's messages span several lines; keep errors on one.
 fn flatten(msg: &str) -> String {
-    msg.split(['\n', '\t'])
+    let flat = msg
+        .split(['\n', '\t'])
         .map(str::trim)
         .filter(|s| !s.is_empty())
         .collect::<Vec<_>>()
-        .join("; ")
+        .join("; ");
+    // ply-rs-bw appends its parser's internal state ("; Error: ParseError { .. }") after the
+    // offending line; the line number and the quoted text are what a user needs.
+    match flat.find("; Error: ") {
+        Some(i) => flat[..i].trim_end_matches(';').trim_end().to_string(),
+        None => flat,
+    }
 }
 
 /// ply-rs-bw keeps elements and properties in maps, so a repeated name would silently merge

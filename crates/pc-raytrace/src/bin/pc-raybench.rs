@@ -131,7 +131,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
             match measured {
                 Ok((gp, gi)) => {
                     gpu = format!("{{\"device\": \"{name}\", \"primary_rays_per_s\": {gp:.0}, \"incoherent_rays_per_s\": {gi:.0}}}");
-                    line = format!(", GPU {name} primary {:.2} M/s incoherent {:.2} M/s", gp / 1e6, gi / 1e6);
+                    line = format!(
+                        ", GPU {name} primary {:.2} M/s incoherent {:.2} M/s",
+                        gp / 1e6,
+                        gi / 1e6
+                    );
                 }
                 Err(e) => {
                     let msg = format!("{e:#}").replace('"', "'");
