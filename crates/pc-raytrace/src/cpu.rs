@@ -119,7 +119,7 @@ pub fn trace_sample(
         if bounce > 0 {
             counts.bounce += 1;
         }
-        let Some(hit) = view.intersect(&ray, &mut counts.traversal) else {
+        let Some(hit) = sc.intersect(&ray, &mut counts.traversal) else {
             out.rgb += throughput * Vec3::from(p.background);
             break;
         };
@@ -252,7 +252,7 @@ pub fn direct(
                 t_min: delta,
                 t_max: d * (1.0 - 1e-4),
             };
-            if !view.occluded(&shadow, &mut counts.traversal) {
+            if !sc.occluded(&shadow, &mut counts.traversal) {
                 e += Vec3::from(l.intensity) * cos / d2;
             }
         }
@@ -285,7 +285,7 @@ pub fn direct(
                     t_min: delta,
                     t_max: d - p.self_hit * sj.radius,
                 };
-                if !view.occluded(&shadow, &mut counts.traversal) {
+                if !sc.occluded(&shadow, &mut counts.traversal) {
                     let pdf_area = sc.emitters.pdf(ke) / view.splat_area[j];
                     let radiance = Vec3::from(sc.materials[sj.material as usize].radiance);
                     e += radiance * (cos_x * cos_y / (d2 * pdf_area)) * inv_n;
@@ -327,7 +327,7 @@ fn phong(
             t_min: delta,
             t_max: d * (1.0 - 1e-4),
         };
-        if !sc.view.occluded(&shadow, &mut counts.traversal) {
+        if !sc.occluded(&shadow, &mut counts.traversal) {
             out += Vec3::from(l.intensity) * spec * cos / d2;
         }
     }

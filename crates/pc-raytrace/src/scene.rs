@@ -115,6 +115,8 @@ pub struct Params {
 /// Everything a render reads.
 pub struct RenderScene<'a> {
     pub view: OctreeView<'a>,
+    /// Packed leaf lists for the CPU walk (built by [`RenderScene::prepare_cpu`]).
+    pub accel: Option<pc_tree::accel::Accel>,
     pub materials: Vec<MaterialRecord>,
     pub lights: Vec<PointLight>,
     pub emitters: EmitterTable,
@@ -165,10 +167,40 @@ impl<'a> RenderScene<'a> {
         };
         RenderScene {
             view,
+            accel: None,
             materials,
             lights,
             emitters,
             params,
+        }
+    }
+
+    /// Build the packed leaf lists the CPU renderer walks (same hits, faster).
+    pub fn prepare_cpu(&mut self) {
+        if self.accel.is_none() {
+            self.accel = Some(pc_tree::accel::Accel::new(&self.view));
+        }
+    }
+
+    /// Nearest hit, through the packed lists when prepared.
+    #[inline]
+    pub fn intersect(
+        &self,
+        ray: &pc_tree::Ray,
+        st: &mut pc_tree::TraversalStats,
+    ) -> Option<pc_tree::Hit> {
+        match &self.accel {
+            Some(a) => a.intersect(&self.view, ray, st),
+            None => self.view.intersect(ray, st),
+        }
+    }
+
+    /// Any hit, through the packed lists when prepared.
+    #[inline]
+    pub fn occluded(&self, ray: &pc_tree::Ray, st: &mut pc_tree::TraversalStats) -> bool {
+        match &self.accel {
+            Some(a) => a.occluded(&self.view, ray, st),
+            None => self.view.occluded(ray, st),
         }
     }
 

@@ -85,7 +85,7 @@ pub fn run(
     let materials = current_materials(cfg, &art)?;
     let c = &cfg.config;
     let camera = Camera::new(&c.camera);
-    let sc = RenderScene::new(view, materials, &c.lights, &camera, &c.raytrace);
+    let mut sc = RenderScene::new(view, materials, &c.lights, &camera, &c.raytrace);
     let gpu = match backend {
         Backend::Cpu => None,
         Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
@@ -114,6 +114,7 @@ pub fn run(
     let (image, device, device_name, counts) = match gpu_image {
         Some((img, name)) => (img, Device::Gpu, name, None),
         None => {
+            sc.prepare_cpu();
             let w = sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64;
             total_tiles(w);
             let (img, counts) = crate::cpu::render(&sc, c.raytrace.aovs, tile_done);

@@ -11,6 +11,7 @@ use glam::Vec3;
 use pc_artifact::octree::{node, sections, tangent_frame, BeginEnd, Frame, NodeInfo, Splat};
 use pc_artifact::{Artifact, ArtifactError};
 
+pub mod accel;
 pub mod gpu;
 pub mod ray;
 pub use ray::{intersect_splat, Hit, Ray, TraversalStats};

@@ -117,6 +117,38 @@ impl<'a> OctreeView<'a> {
     }
 
     fn walk(&self, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
+        self.walk_with(ray, stats, |w, limit, stats| {
+            let (range, refs) = self.leaf(w);
+            let mut best: Option<Hit> = None;
+            stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
+            for i in range.chain(refs.iter().copied()) {
+                if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
+                    if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
+                        best = Some(Hit {
+                            t: th,
+                            splat: i,
+                            leaf: w,
+                        });
+                        if any {
+                            return best;
+                        }
+                    }
+                }
+            }
+            best
+        })
+    }
+
+    /// The walk, with the test of one leaf's splats supplied by the caller (`test(node word,
+    /// t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the packed
+    /// layout of [`crate::accel::Accel`] shares the same traversal.
+    #[inline(always)]
+    pub(crate) fn walk_with(
+        &self,
+        ray: &Ray,
+        stats: &mut TraversalStats,
+        mut test: impl FnMut(u32, f32, &mut TraversalStats) -> Option<Hit>,
+    ) -> Option<Hit> {
         // Normalised root coordinates: the root is [0,1)³ and t is the same parameter.
         let origin = Vec3::from(self.frame.origin);
         let qo = (ray.origin - origin) * self.frame.inv_size;
@@ -159,42 +191,9 @@ impl<'a> OctreeView<'a> {
             let ta = (far - qo) * inv;
             let t_exit = ta.min_element();
             if node::is_leaf(w) {
-                let limit = t_exit.min(t_end);
-                let (range, refs) = self.leaf(w);
-                let mut best: Option<Hit> = None;
-                stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
-                for i in range {
-                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize])
-                    {
-                        if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                            best = Some(Hit {
-                                t: th,
-                                splat: i,
-                                leaf: w,
-                            });
-                            if any {
-                                return best;
-                            }
-                        }
-                    }
-                }
-                for &i in refs {
-                    if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize])
-                    {
-                        if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                            best = Some(Hit {
-                                t: th,
-                                splat: i,
-                                leaf: w,
-                            });
-                            if any {
-                                return best;
-                            }
-                        }
-                    }
-                }
-                if best.is_some() {
-                    return best;
+                let hit = test(w, t_exit.min(t_end), stats);
+                if hit.is_some() {
+                    return hit;
                 }
             }
             if t_exit >= t_end {

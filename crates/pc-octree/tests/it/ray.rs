@@ -207,3 +207,43 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
     // Same splat except where two overlapping disks are hit at the same t.
     assert!(agree >= rays.len() * 99 / 100, "{agree} of {}", rays.len());
 }
+
+#[test]
+fn packed_leaf_lists_give_identical_hits() {
+    let (s, classes) = mixed_scene(0.06);
+    let o = s
+        .build(
+            &classes,
+            BuildParams {
+                max_leaf_points: 8,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    let view = o.view();
+    let accel = pc_tree::accel::Accel::new(&view);
+    let mut rng = Pcg64::seed_from_u64(33);
+    let mut st = TraversalStats::default();
+    for k in 0..5000 {
+        let origin = Vec3::new(
+            rng.random_range(-0.9..0.9),
+            rng.random_range(-0.9..0.9),
+            rng.random_range(-0.9..0.9),
+        );
+        let mut r = Ray::new(origin, random_dir(&mut rng));
+        if k % 3 == 0 {
+            r.t_min = 0.03;
+            r.t_max = 1.0;
+        }
+        assert_eq!(
+            accel.intersect(&view, &r, &mut st),
+            view.intersect(&r, &mut st),
+            "ray {k}"
+        );
+        assert_eq!(
+            accel.occluded(&view, &r, &mut st),
+            view.occluded(&r, &mut st),
+            "ray {k}"
+        );
+    }
+}

@@ -317,7 +317,8 @@ fn cpu_and_gpu_render_the_same_image() {
     };
     let mut p = params(4, ShadingMode::Direct);
     p.max_bounces = 6;
-    let sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
+    let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
+    sc.prepare_cpu(); // the packed leaf lists the stage uses on the CPU
     let (cpu, _) = pc_raytrace::cpu::render(&sc, true, &|| {});
     let gpu = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
         .unwrap()
