@@ -11,6 +11,7 @@ pub mod error;
 pub mod key;
 pub mod kind;
 pub mod octree;
+pub mod vmap;
 
 pub use container::{
     is_valid_section_name, Artifact, ArtifactWriter, HeaderInfo, SectionInfo, FORMAT_VERSION,
@@ -18,5 +19,5 @@ pub use container::{
     TABLE_ENTRY_SIZE,
 };
 pub use error::{ArtifactError, METADATA_REGION, TABLE_REGION};
-pub use key::{Key, KeyHasher};
+pub use key::{build_id, Key, KeyHasher};
 pub use kind::ArtifactKind;

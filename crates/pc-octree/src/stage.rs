@@ -22,6 +22,7 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, anyhow::Error> {
     let mut h = KeyHasher::new();
     h.update_str(STAGE);
     h.update_str(STAGE_VERSION);
+    h.update_key(&pc_artifact::build_id());
     h.update_serialize(&(
         c.octree.max_leaf_points,
         c.octree.max_depth,

@@ -1,20 +1,7 @@
-//! Sample pattern shared bit for bit by the CPU and GPU renderers: a counter-based hash RNG
-//! (PCG hash) keyed by seed, pixel, sample and dimension, and stratified pixel positions.
+//! Sample pattern shared bit for bit by the CPU and GPU renderers: the counter-based hash RNG
+//! of `pc_tree::rng` keyed by seed, pixel, sample and dimension, and stratified pixel positions.
 
-/// PCG hash (Jarzynski & Olano 2020, "Hash Functions for GPU Rendering"). WGSL twin `pcg`.
-#[inline]
-pub fn pcg(v: u32) -> u32 {
-    let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
-    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
-    (word >> 22) ^ word
-}
-
-/// A uniform number in [0, 1) for (seed, pixel, sample, dimension), 24 random bits.
-#[inline]
-pub fn rand(seed: u32, pixel: u32, sample: u32, dim: u32) -> f32 {
-    let h = pcg(pixel ^ pcg(sample ^ pcg(dim ^ pcg(seed))));
-    (h >> 8) as f32 * (1.0 / 16_777_216.0)
-}
+pub use pc_tree::rng::{pcg, rand};
 
 /// Position inside the pixel of sample `k` of `spp`: stratified on a g×g grid when spp = g²
 /// (jittered within each stratum), otherwise uniform random.

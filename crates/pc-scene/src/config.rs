@@ -33,6 +33,8 @@ pub struct PipelineConfig {
     #[serde(default)]
     pub octree: OctreeConfig,
     #[serde(default)]
+    pub vmap: VmapConfig,
+    #[serde(default)]
     pub raytrace: RaytraceConfig,
 }
 
@@ -262,6 +264,43 @@ impl Default for OctreeConfig {
     }
 }
 
+/// pc-vmap parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct VmapConfig {
+    /// Opening criterion: well separated when (R_a + R_b) / distance < theta.
+    pub theta: f32,
+    /// Visibility rays per far-field node pair (and per node for the light lists).
+    pub rays: u32,
+    /// Near-field pairs of V-map leaves: every splat pair up to this many, else this many
+    /// samples.
+    pub near_rays: u32,
+    /// Nodes with at most this many splats are V-map leaves (their pairs are near-field).
+    pub leaf_splats: u32,
+    /// Self-hit distance in radii of the splat a visibility ray leaves or reaches (§8.5.6).
+    pub self_hit: f32,
+    /// Where the rays are cast.
+    pub backend: Backend,
+    pub seed: u32,
+    /// Artifact file name inside `output.dir`.
+    pub file: PathBuf,
+}
+
+impl Default for VmapConfig {
+    fn default() -> Self {
+        VmapConfig {
+            theta: 0.5,
+            rays: 16,
+            near_rays: 64,
+            leaf_splats: 64,
+            self_hit: 0.5,
+            backend: Backend::Auto,
+            seed: 0,
+            file: PathBuf::from("vmap.pcgi"),
+        }
+    }
+}
+
 /// What a diffuse hit shows.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "lowercase")]
@@ -352,6 +391,10 @@ impl LoadedConfig {
     /// The octree artifact path, resolved.
     pub fn octree_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.octree.file)
+    }
+    /// The vmap artifact path, resolved.
+    pub fn vmap_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.vmap.file)
     }
     /// The rendered image path, resolved.
     pub fn image_path(&self) -> PathBuf {
@@ -661,6 +704,19 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
             "octree.area_samples must lie in 1..=64, got {}",
             o.area_samples
         ));
+    }
+    let v = &c.vmap;
+    if !(v.theta.is_finite() && v.theta > 0.0 && v.theta < 2.0) {
+        return err(format!("vmap.theta must lie in (0, 2), got {}", v.theta));
+    }
+    if v.rays == 0 || v.rays > 4096 || v.leaf_splats == 0 {
+        return err(format!(
+            "vmap.rays must lie in 1..=4096 and vmap.leaf_splats be positive, got {} and {}",
+            v.rays, v.leaf_splats
+        ));
+    }
+    if !(v.self_hit.is_finite() && v.self_hit >= 0.0) {
+        return err("vmap.self_hit must be finite and non-negative".into());
     }
     let r = &c.raytrace;
     if r.spp == 0 || r.spp > 65536 {

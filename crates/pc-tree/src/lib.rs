@@ -14,6 +14,7 @@ use pc_artifact::{Artifact, ArtifactError};
 pub mod accel;
 pub mod gpu;
 pub mod ray;
+pub mod rng;
 pub use ray::{intersect_splat, Hit, Ray, TraversalStats};
 
 /// The node a point falls in.

@@ -1,0 +1,645 @@
+//! The V-map build (seed §7.2, §7.3 phases 2 and 3): a dual traversal of the octree that finds,
+//! for every pair of nodes, the coarsest level at which they see each other, with the visible
+//! fraction; and the nodes each point light sees. See docs/vmap.md.
+//!
+//! The traversal is level-synchronous: every round classifies a frontier of node pairs in
+//! parallel, casts all the visibility rays the round needs in one batch (CPU or GPU, the same
+//! rays), then turns each pair into a link, nothing, or finer pairs for the next round.
+
+use glam::Vec3;
+use pc_artifact::octree::node;
+use pc_artifact::vmap::{Link, VmapParams};
+use pc_tree::rng::{pcg, rand};
+use pc_tree::{OctreeView, Ray};
+use rayon::prelude::*;
+
+/// Casts batches of visibility rays: `true` where the segment `[t_min, t_max]` is unoccluded.
+pub trait Caster: Sync {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
+    fn name(&self) -> String;
+}
+
+/// The CPU caster: the renderer's traversal over packed leaf lists, rayon across rays.
+pub struct CpuCaster<'a> {
+    pub view: &'a OctreeView<'a>,
+    pub accel: pc_tree::accel::Accel,
+}
+
+impl<'a> CpuCaster<'a> {
+    pub fn new(view: &'a OctreeView<'a>) -> Self {
+        CpuCaster {
+            view,
+            accel: pc_tree::accel::Accel::new(view),
+        }
+    }
+}
+
+impl Caster for CpuCaster<'_> {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
+        Ok(rays
+            .par_iter()
+            .map_init(pc_tree::TraversalStats::default, |st, r| {
+                !self.accel.occluded(self.view, r, st)
+            })
+            .collect())
+    }
+    fn name(&self) -> String {
+        format!("CPU, {} threads", rayon::current_num_threads())
+    }
+}
+
+/// The GPU caster: `shaders/tree/cast.wgsl` with any-hit rays.
+pub struct GpuCaster {
+    pub ctx: pc_gpu::GpuContext,
+    pub caster: pc_tree::gpu::RayCaster,
+}
+
+impl Caster for GpuCaster {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
+        let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
+        let hits = self
+            .caster
+            .cast(&self.ctx, &input, true)
+            .map_err(|e| e.to_string())?;
+        Ok(hits.iter().map(Option::is_none).collect())
+    }
+    fn name(&self) -> String {
+        self.ctx.describe()
+    }
+}
+
+/// What the V-map needs per node-pool slot.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct VNode {
+    /// Own splats of the subtree, `[lo, hi)` in the data pool.
+    pub lo: u32,
+    pub hi: u32,
+    pub center: Vec3,
+    pub radius: f32,
+    pub axis: Vec3,
+    /// Cosine of the normal cone's half-angle; -1 when the normals span every direction.
+    pub cone_cos: f32,
+    /// No pair goes below a V-map leaf.
+    pub vleaf: bool,
+}
+
+impl VNode {
+    pub fn count(&self) -> u32 {
+        self.hi - self.lo
+    }
+}
+
+/// Subtree ranges, normal cones and V-map leaves of every node-pool slot.
+pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
+    let n = view.nodes.len();
+    let mut out = vec![
+        VNode {
+            cone_cos: -1.0,
+            ..Default::default()
+        };
+        n
+    ];
+    // Ranges bottom-up: children are always after their parent in the pool.
+    let mut range = vec![(u32::MAX, 0u32); n];
+    for slot in (0..n).rev() {
+        let w = view.nodes[slot];
+        if node::is_empty(w) {
+            continue;
+        }
+        if node::is_leaf(w) {
+            let (r, _) = view.leaf(w);
+            if r.end > r.start {
+                range[slot] = (r.start, r.end);
+            }
+        } else {
+            let c = node::ptr(w) as usize;
+            let (mut lo, mut hi) = (u32::MAX, 0u32);
+            for k in 0..8 {
+                let (a, b) = range[c + k];
+                if a < b {
+                    lo = lo.min(a);
+                    hi = hi.max(b);
+                }
+            }
+            if lo < hi {
+                range[slot] = (lo, hi);
+            }
+        }
+    }
+    out.par_iter_mut().enumerate().for_each(|(slot, v)| {
+        let (lo, hi) = range[slot];
+        if lo >= hi {
+            return;
+        }
+        let info = &view.node_info[slot];
+        let axis = Vec3::from(info.normal);
+        let cone_cos = if axis == Vec3::ZERO {
+            -1.0
+        } else {
+            view.splats[lo as usize..hi as usize]
+                .iter()
+                .map(|s| axis.dot(Vec3::from(s.normal)))
+                .fold(1.0f32, f32::min)
+        };
+        *v = VNode {
+            lo,
+            hi,
+            center: Vec3::from(info.centroid),
+            radius: info.disk_radius,
+            axis,
+            cone_cos,
+            vleaf: node::is_leaf(view.nodes[slot]) || hi - lo <= leaf_splats,
+        };
+    });
+    out
+}
+
+/// Non-empty children of an internal node.
+fn children<'v>(view: &OctreeView, vn: &'v [VNode], slot: u32) -> impl Iterator<Item = u32> + 'v {
+    let w = view.nodes[slot as usize];
+    let first = if node::is_leaf(w) || node::is_empty(w) {
+        0
+    } else {
+        node::ptr(w)
+    };
+    let count = if first == 0 { 0 } else { 8 };
+    (first..first + count).filter(move |&c| vn[c as usize].count() > 0)
+}
+
+/// Whether some normal of `a`'s cone can face a direction within `spread` of `dir`.
+#[inline]
+fn faces(a: &VNode, dir: Vec3, spread: f32) -> bool {
+    if a.cone_cos <= -1.0 {
+        return true;
+    }
+    let angle = a.axis.dot(dir).clamp(-1.0, 1.0).acos();
+    angle < std::f32::consts::FRAC_PI_2 + a.cone_cos.clamp(-1.0, 1.0).acos() + spread + 1e-4
+}
+
+/// Conservative normal-cone test: can any splat of `a` face any splat of `b` and vice versa?
+pub fn may_face(a: &VNode, b: &VNode) -> bool {
+    let d = b.center - a.center;
+    let dist = d.length();
+    if dist <= 1e-12 {
+        return true;
+    }
+    let dir = d / dist;
+    let spread = ((a.radius + b.radius) / dist).min(1.0).asin();
+    faces(a, dir, spread) && faces(b, -dir, spread)
+}
+
+/// Opening criterion of the FMM: (R_a + R_b) / distance < theta.
+#[inline]
+pub fn well_separated(a: &VNode, b: &VNode, theta: f32) -> bool {
+    (a.radius + b.radius) < theta * (b.center - a.center).length()
+}
+
+/// A sample point on a node's splats: the centre of a splat drawn from the k-th of m strata
+/// along the node's Morton-ordered range (spatially stratified). Centres, not random points on
+/// the disks: a disk's rim can overhang the surface (past a wall's edge, behind the floor at a
+/// corner), where rays would be blocked by the neighbouring surface's own overhang. Returns
+/// (data-pool index, point, normal, radius).
+fn sample(
+    view: &OctreeView,
+    v: &VNode,
+    seed: u32,
+    stream: u32,
+    k: u32,
+    m: u32,
+) -> (u32, Vec3, Vec3, f32) {
+    let count = v.count();
+    let u0 = rand(seed, stream, k, 0);
+    // m = 1: uniform over the whole range (k only picks the random number).
+    let (k, m) = if m == 1 { (0, 1) } else { (k, m) };
+    let i = v.lo + (((k as f32 + u0) / m as f32 * count as f32) as u32).min(count - 1);
+    let s = &view.splats[i as usize];
+    (i, Vec3::from(s.position), Vec3::from(s.normal), s.radius)
+}
+
+/// The visibility rays between two nodes, each with the weight of its sample pair in the
+/// form-factor sum, w = A_a A_b cos θa cos θb / r²: the fraction of a link is then the visible
+/// share of the pair's form factor, which is what the FMM multiplies it with. (A plain share of
+/// rays would do far apart, where the kernel is nearly constant, but not for near-field pairs,
+/// whose closest splats dominate the sum.) Only sample pairs whose front sides face each other
+/// carry light (one-sided surfaces), and only those are cast.
+fn pair_rays(
+    view: &OctreeView,
+    vn: &[VNode],
+    a: u32,
+    b: u32,
+    near: bool,
+    p: &VmapParams,
+    out: &mut Vec<(Ray, f32)>,
+) {
+    let stream = pcg(a ^ pcg(b));
+    let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+    // Near-field pairs: every splat pair when there are at most `near_rays` of them (the kernel
+    // is nearly singular there and a few samples would dominate the sum), else that many samples.
+    let all = near && (va.count() as u64 * vb.count() as u64) <= p.near_rays as u64;
+    let n = if all {
+        va.count() * vb.count()
+    } else if near {
+        p.near_rays
+    } else {
+        p.rays
+    };
+    for k in 0..n {
+        let (ia, xa, na, ra, ib, xb, nb, rb) = if all {
+            let (i, j) = (va.lo + k / vb.count(), vb.lo + k % vb.count());
+            let (si, sj) = (&view.splats[i as usize], &view.splats[j as usize]);
+            (
+                i,
+                Vec3::from(si.position),
+                Vec3::from(si.normal),
+                si.radius,
+                j,
+                Vec3::from(sj.position),
+                Vec3::from(sj.normal),
+                sj.radius,
+            )
+        } else {
+            // The near end stratified along a's range, the far end uniform over b's: the two
+            // ends must be independent, or a node paired with itself would pair each splat
+            // with itself.
+            let (ia, xa, na, ra) = sample(view, va, p.seed, stream, k, n);
+            let (ib, xb, nb, rb) = sample(view, vb, p.seed ^ 0x9e37_79b9, stream, k, 1);
+            (ia, xa, na, ra, ib, xb, nb, rb)
+        };
+        if ia == ib {
+            continue;
+        }
+        let d = xb - xa;
+        let len = d.length();
+        if len <= 1e-9 {
+            continue;
+        }
+        let dir = d / len;
+        let (ca, cb) = (na.dot(dir), nb.dot(-dir));
+        if ca <= 0.0 || cb <= 0.0 {
+            continue;
+        }
+        // Splats closer than their two self-hit distances see each other (nothing fits
+        // between): an empty interval, which every caster reports visible. These are the
+        // heaviest pairs of a near-field sum, so they must stay in it.
+        let t_min = p.self_hit * ra;
+        let t_max = (len - p.self_hit * rb).max(t_min);
+        let w = view.splat_area[ia as usize] * view.splat_area[ib as usize] * ca * cb / (len * len);
+        out.push((
+            Ray {
+                origin: xa,
+                dir,
+                t_min,
+                t_max,
+            },
+            w,
+        ));
+    }
+}
+
+/// Rays per batch handed to a caster (bounds the memory of a round).
+const RAYS_PER_BATCH: u64 = 1 << 22;
+
+/// Rays `pair_rays` makes for a pair (an upper bound: back-facing samples are skipped).
+fn ray_count(vn: &[VNode], a: u32, b: u32, near: bool, p: &VmapParams) -> u32 {
+    let (na, nb) = (vn[a as usize].count() as u64, vn[b as usize].count() as u64);
+    if near && na * nb <= p.near_rays as u64 {
+        (na * nb) as u32
+    } else if near {
+        p.near_rays
+    } else {
+        p.rays
+    }
+}
+
+/// Cast the rays of `tested` pairs and decide each: a link, nothing, finer pairs (returned), or
+/// a partially visible pair of V-map leaves for the exhaustive pass (returned).
+#[allow(clippy::type_complexity)]
+fn decide(
+    view: &OctreeView,
+    vn: &[VNode],
+    p: &VmapParams,
+    caster: &dyn Caster,
+    tested: &[(u32, u32, bool)],
+    links: &mut Links,
+) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), String> {
+    let mut next = Vec::new();
+    let mut partial = Vec::new();
+    let per_pair: Vec<Vec<(Ray, f32)>> = tested
+        .par_iter()
+        .map(|&(a, b, near)| {
+            let mut r = Vec::with_capacity(p.rays as usize);
+            pair_rays(view, vn, a, b, near, p, &mut r);
+            r
+        })
+        .collect();
+    let rays: Vec<Ray> = per_pair.iter().flatten().map(|r| r.0).collect();
+    let visible = caster.visible(&rays)?;
+    links.pairs_tested += tested.len() as u64;
+    links.rays += rays.len() as u64;
+    // 3. Decide.
+    let mut at = 0;
+    for ((a, b, near), r) in tested.iter().copied().zip(&per_pair) {
+        let total = r.len();
+        let vis = &visible[at..at + total];
+        at += total;
+        let seen = vis.iter().filter(|&&v| v).count();
+        let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+        if total == 0 {
+            continue; // no sample pair faces each other
+        }
+        if seen == 0 {
+            // All rays blocked. With at least half the samples carrying light, a visible share
+            // above about a tenth would have shown (0.9^16 < 0.2): drop the pair. With fewer
+            // informative samples (nodes whose splats mostly face away), refine instead, unless
+            // both are V-map leaves.
+            if !near && total * 2 < p.rays as usize && !(va.vleaf && vb.vleaf) {
+                split(view, vn, a, b, &mut next);
+            }
+            continue;
+        }
+        let wsum: f32 = r.iter().map(|x| x.1).sum();
+        let wvis: f32 = r
+            .iter()
+            .zip(vis)
+            .filter(|(_, &v)| v)
+            .map(|(x, _)| x.1)
+            .sum();
+        let fraction = if seen == total {
+            1.0
+        } else if wsum > 0.0 {
+            (wvis / wsum).clamp(0.0, 1.0)
+        } else {
+            seen as f32 / total as f32
+        };
+        if near {
+            let l = |x: u32| Link::near(x, fraction);
+            links.pairs.push((a, l(b)));
+            if a != b {
+                links.pairs.push((b, l(a)));
+            }
+            links.near += 1;
+        } else if seen == total {
+            links.pairs.push((a, Link::far(b, fraction)));
+            links.pairs.push((b, Link::far(a, fraction)));
+            links.far += 1;
+        } else if va.vleaf && vb.vleaf {
+            partial.push((a, b));
+        } else {
+            split(view, vn, a, b, &mut next);
+        }
+    }
+    Ok((next, partial))
+}
+
+/// The exhaustive pass over partially visible pairs of V-map leaves: their fraction is the only
+/// estimate the links carry, so every splat pair (up to `near_rays`) is cast, like the near field.
+fn exact_partial(
+    view: &OctreeView,
+    vn: &[VNode],
+    p: &VmapParams,
+    caster: &dyn Caster,
+    partial: &[(u32, u32)],
+    links: &mut Links,
+) -> Result<(), String> {
+    {
+        let per_pair: Vec<Vec<(Ray, f32)>> = partial
+            .par_iter()
+            .map(|&(a, b)| {
+                let mut r = Vec::new();
+                pair_rays(view, vn, a, b, true, p, &mut r);
+                r
+            })
+            .collect();
+        let rays: Vec<Ray> = per_pair.iter().flatten().map(|r| r.0).collect();
+        let visible = caster.visible(&rays)?;
+        links.rays += rays.len() as u64;
+        let mut at = 0;
+        for (&(a, b), r) in partial.iter().zip(&per_pair) {
+            let vis = &visible[at..at + r.len()];
+            at += r.len();
+            let wsum: f32 = r.iter().map(|x| x.1).sum();
+            let wvis: f32 = r
+                .iter()
+                .zip(vis)
+                .filter(|(_, &v)| v)
+                .map(|(x, _)| x.1)
+                .sum();
+            if wvis > 0.0 && wsum > 0.0 {
+                let f = (wvis / wsum).clamp(0.0, 1.0);
+                links.pairs.push((a, Link::far(b, f)));
+                links.pairs.push((b, Link::far(a, f)));
+                links.far += 1;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Result of a build.
+#[derive(Debug, Default)]
+pub struct Links {
+    /// (node, link) pairs, both directions of every link.
+    pub pairs: Vec<(u32, Link)>,
+    pub far: u64,
+    pub near: u64,
+    pub pairs_tested: u64,
+    pub rays: u64,
+}
+
+#[derive(Clone, Copy)]
+enum Step {
+    Drop,
+    Split(u32, u32),
+    Rays { near: bool },
+}
+
+/// Classify a pair without rays.
+fn classify(view: &OctreeView, vn: &[VNode], a: u32, b: u32, theta: f32) -> Step {
+    let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+    if a == b {
+        return if va.vleaf {
+            Step::Rays { near: true }
+        } else {
+            Step::Split(a, b)
+        };
+    }
+    if !may_face(va, vb) {
+        return Step::Drop;
+    }
+    if well_separated(va, vb, theta) {
+        return Step::Rays { near: false };
+    }
+    if va.vleaf && vb.vleaf {
+        return Step::Rays { near: true };
+    }
+    let _ = view;
+    Step::Split(a, b)
+}
+
+/// The finer pairs of (a, b): all child pairs of a self pair, else the children of the larger
+/// non-leaf node against the other.
+fn split(view: &OctreeView, vn: &[VNode], a: u32, b: u32, out: &mut Vec<(u32, u32)>) {
+    if a == b {
+        let kids: Vec<u32> = children(view, vn, a).collect();
+        for (i, &x) in kids.iter().enumerate() {
+            for &y in &kids[i..] {
+                out.push((x, y));
+            }
+        }
+        return;
+    }
+    let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+    let split_a = !va.vleaf && (vb.vleaf || va.radius >= vb.radius);
+    if split_a {
+        out.extend(children(view, vn, a).map(|c| (c.min(b), c.max(b))));
+    } else {
+        out.extend(children(view, vn, b).map(|c| (c.min(a), c.max(a))));
+    }
+}
+
+/// Build the links of the octree. `round` is called after each round with the frontier size.
+pub fn build_links(
+    view: &OctreeView,
+    vn: &[VNode],
+    p: &VmapParams,
+    caster: &dyn Caster,
+    round: &mut dyn FnMut(usize, usize),
+) -> Result<Links, String> {
+    let mut links = Links::default();
+    if vn[0].count() == 0 {
+        return Ok(links);
+    }
+    let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
+    let mut level = 0;
+    while !frontier.is_empty() {
+        level += 1;
+        // 1. Classify in parallel; collect finer pairs and the pairs that need rays.
+        let steps: Vec<Step> = frontier
+            .par_iter()
+            .map(|&(a, b)| classify(view, vn, a, b, p.theta))
+            .collect();
+        let mut next: Vec<(u32, u32)> = Vec::new();
+        let mut tested: Vec<(u32, u32, bool)> = Vec::new();
+        let mut partial: Vec<(u32, u32)> = Vec::new();
+        for (&(a, b), s) in frontier.iter().zip(&steps) {
+            match *s {
+                Step::Drop => {}
+                Step::Split(a, b) => split(view, vn, a, b, &mut next),
+                Step::Rays { near } => tested.push((a, b, near)),
+            }
+        }
+        // 2.-4. Rays for the tested pairs, in chunks of bounded size (memory), then decide.
+        let mut first = 0;
+        while first < tested.len() {
+            let mut last = first;
+            let mut budget = 0u64;
+            while last < tested.len() && budget < RAYS_PER_BATCH {
+                let (a, b, near) = tested[last];
+                budget += ray_count(vn, a, b, near, p) as u64;
+                last += 1;
+            }
+            let (more, part) = decide(view, vn, p, caster, &tested[first..last], &mut links)?;
+            next.extend(more);
+            partial.extend(part);
+            first = last;
+        }
+        let mut first = 0;
+        while first < partial.len() {
+            let last = (first + (RAYS_PER_BATCH / p.near_rays.max(1) as u64).max(1) as usize)
+                .min(partial.len());
+            exact_partial(view, vn, p, caster, &partial[first..last], &mut links)?;
+            first = last;
+        }
+        round(level, next.len());
+        frontier = next;
+    }
+    Ok(links)
+}
+
+/// For each point light, the nodes it sees with the visible fraction (coarsest level at which
+/// the fraction is 1, V-map leaves when partial).
+pub fn light_lists(
+    view: &OctreeView,
+    vn: &[VNode],
+    lights: &[Vec3],
+    p: &VmapParams,
+    caster: &dyn Caster,
+) -> Result<Vec<Vec<Link>>, String> {
+    let mut out = Vec::with_capacity(lights.len());
+    for (li, &pos) in lights.iter().enumerate() {
+        let mut list = Vec::new();
+        let mut frontier: Vec<u32> = if vn[0].count() > 0 { vec![0] } else { vec![] };
+        while !frontier.is_empty() {
+            let candidates: Vec<u32> = frontier
+                .iter()
+                .copied()
+                .filter(|&a| {
+                    let v = &vn[a as usize];
+                    let d = pos - v.center;
+                    let dist = d.length();
+                    dist <= v.radius || faces(v, d / dist, (v.radius / dist).min(1.0).asin())
+                })
+                .collect();
+            let per: Vec<Vec<Ray>> = candidates
+                .par_iter()
+                .map(|&a| {
+                    let v = &vn[a as usize];
+                    let stream = pcg(a ^ pcg(0x5151 + li as u32));
+                    let mut r = Vec::new();
+                    for k in 0..p.rays {
+                        let (_, x, n, rad) = sample(view, v, p.seed, stream, k, p.rays);
+                        let d = pos - x;
+                        let len = d.length();
+                        if len <= 1e-9 || n.dot(d) <= 0.0 {
+                            continue;
+                        }
+                        r.push(Ray {
+                            origin: x,
+                            dir: d / len,
+                            t_min: p.self_hit * rad,
+                            t_max: len * (1.0 - 1e-4),
+                        });
+                    }
+                    r
+                })
+                .collect();
+            let rays: Vec<Ray> = per.iter().flatten().copied().collect();
+            let visible = caster.visible(&rays)?;
+            let mut at = 0;
+            let mut next = Vec::new();
+            for (&a, r) in candidates.iter().zip(&per) {
+                let total = r.len();
+                let seen = visible[at..at + total].iter().filter(|&&v| v).count();
+                at += total;
+                if total == 0 || seen == 0 {
+                    continue;
+                }
+                // Light lists always go down to V-map leaves: a few rays cannot prove a large
+                // node fully lit (a shadow can cover a corner the samples missed), and the lists
+                // stay small (one entry per lit leaf).
+                if vn[a as usize].vleaf {
+                    list.push(Link::far(a, seen as f32 / total as f32));
+                } else {
+                    next.extend(children(view, vn, a));
+                }
+            }
+            frontier = next;
+        }
+        list.sort_by_key(|l| l.node);
+        out.push(list);
+    }
+    Ok(out)
+}
+
+/// CSR of the links: row offsets per node-pool slot (+1) and the links sorted by row.
+pub fn csr(nodes: usize, mut pairs: Vec<(u32, Link)>) -> (Vec<u32>, Vec<Link>) {
+    pairs.par_sort_unstable_by_key(|&(a, l)| (a, l.node));
+    let mut offsets = vec![0u32; nodes + 1];
+    for &(a, _) in &pairs {
+        offsets[a as usize + 1] += 1;
+    }
+    for i in 0..nodes {
+        offsets[i + 1] += offsets[i];
+    }
+    (offsets, pairs.into_iter().map(|p| p.1).collect())
+}

@@ -1,0 +1,93 @@
+//! pc-vmap: compute the V-map of the scene's octree (thin wrapper over the library).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::{Parser, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use pc_scene::config::Backend;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum BackendArg {
+    Cpu,
+    Gpu,
+    Auto,
+}
+
+/// View-independent visibility links between octree nodes, and the nodes each light sees.
+#[derive(Parser)]
+#[command(name = "pc-vmap", version, about)]
+struct Args {
+    /// The pipeline description.
+    #[arg(long, default_value = "pipeline.toml")]
+    config: PathBuf,
+    /// Override a config key, e.g. `--set vmap.rays=32` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Where rays are cast: cpu, gpu, or auto; default: vmap.backend.
+    #[arg(long, value_enum)]
+    backend: Option<BackendArg>,
+    /// The octree artifact (default: <output.dir>/<octree.file>).
+    #[arg(long)]
+    octree: Option<PathBuf>,
+    /// The vmap artifact to write (default: <output.dir>/<vmap.file>).
+    #[arg(long, short)]
+    output: Option<PathBuf>,
+    /// No progress display.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pc-vmap: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(args: &Args) -> anyhow::Result<()> {
+    let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
+    let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
+    let out = args.output.clone().unwrap_or_else(|| cfg.vmap_path());
+    let backend = match args.backend {
+        Some(BackendArg::Cpu) => Backend::Cpu,
+        Some(BackendArg::Gpu) => Backend::Gpu,
+        Some(BackendArg::Auto) => Backend::Auto,
+        None => cfg.config.vmap.backend,
+    };
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new_spinner()
+    };
+    bar.set_style(ProgressStyle::with_template(
+        "{spinner} vmap {msg} {elapsed}",
+    )?);
+    bar.enable_steady_tick(Duration::from_millis(100));
+    let mut round = |level: usize, frontier: usize| {
+        bar.set_message(format!("round {level}: {frontier} node pairs next"))
+    };
+    let s = pc_vmap::stage::run(&cfg, &octree, &out, backend, &mut round)
+        .with_context(|| format!("computing the V-map for {}", args.config.display()))?;
+    bar.finish_and_clear();
+    let m = &s.meta;
+    println!(
+        "pc-vmap: wrote {} ({} far and {} near links{}, {} node pairs tested, {} rays, {} light lists) in {:.2} s on {}",
+        s.path.display(),
+        m.far_links,
+        m.near_links,
+        if m.links_reused { " reused" } else { "" },
+        m.pairs_tested,
+        m.rays_cast,
+        m.lights.len(),
+        s.seconds,
+        m.device
+    );
+    Ok(())
+}

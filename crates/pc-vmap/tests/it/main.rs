@@ -1,0 +1,410 @@
+//! V-map tests: occlusion by a plate, visible form-factor sums against brute force, light lists
+//! and shadows, CPU against GPU casting, links reused when only the lights move.
+
+use glam::Vec3;
+use pc_artifact::octree::class;
+use pc_artifact::vmap::{Link, VmapParams};
+use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_tree::{OctreeView, Ray, TraversalStats};
+use pc_vmap::build::{build_links, csr, light_lists, vnodes, Caster, CpuCaster, VNode};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+mod stage;
+
+#[derive(Default, Clone)]
+pub struct Soa {
+    pub p: Vec<Vec3>,
+    pub n: Vec<Vec3>,
+    pub r: Vec<f32>,
+}
+
+impl Soa {
+    /// Jittered grid on c + a·u + b·v, a, b ∈ [-1, 1], spacing ≈ h, radius h, normal u × v.
+    pub fn rect(&mut self, c: Vec3, u: Vec3, v: Vec3, h: f32, rng: &mut Pcg64) {
+        let (nu, nv) = (
+            (2.0 * u.length() / h).round().max(1.0) as i32,
+            (2.0 * v.length() / h).round().max(1.0) as i32,
+        );
+        let n = u.cross(v).normalize();
+        for i in 0..nu {
+            for j in 0..nv {
+                let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
+                let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
+                self.p.push(c + u * a + v * b);
+                self.n.push(n);
+                self.r.push(h);
+            }
+        }
+    }
+
+    /// Axis-aligned box with outward faces.
+    pub fn cube(&mut self, c: Vec3, half: Vec3, h: f32, rng: &mut Pcg64) {
+        let (x, y, z) = (Vec3::X * half.x, Vec3::Y * half.y, Vec3::Z * half.z);
+        self.rect(c + x, y, z, h, rng);
+        self.rect(c - x, z, y, h, rng);
+        self.rect(c + y, z, x, h, rng);
+        self.rect(c - y, x, z, h, rng);
+        self.rect(c + z, x, y, h, rng);
+        self.rect(c - z, y, x, h, rng);
+    }
+
+    pub fn build(&self, k: u32) -> Octree {
+        let n = self.p.len();
+        let input = BuildInput {
+            positions: &self.p,
+            normals: &self.n,
+            radii: &self.r,
+            albedo: &vec![Vec3::ONE; n],
+            material: &vec![0; n],
+            material_class: &[class::DIFFUSE],
+        };
+        build(
+            &input,
+            &BuildParams {
+                max_leaf_points: k,
+                area_samples: 8,
+                ..Default::default()
+            },
+            &mut |_| {},
+        )
+        .unwrap()
+    }
+}
+
+pub fn params(rays: u32, leaf: u32) -> VmapParams {
+    VmapParams {
+        theta: 0.5,
+        rays,
+        near_rays: 1024,
+        leaf_splats: leaf,
+        self_hit: 0.5,
+        seed: 1,
+    }
+}
+
+/// Exact visibility of the segment between two splat centres.
+fn visible(view: &OctreeView, a: usize, b: usize, st: &mut TraversalStats) -> bool {
+    let (sa, sb) = (&view.splats[a], &view.splats[b]);
+    let (pa, pb) = (Vec3::from(sa.position), Vec3::from(sb.position));
+    let d = pb - pa;
+    let len = d.length();
+    let ray = Ray {
+        origin: pa,
+        dir: d / len,
+        t_min: 0.5 * sa.radius,
+        t_max: len - 0.5 * sb.radius,
+    };
+    ray.t_max <= ray.t_min || !view.occluded(&ray, st)
+}
+
+/// The point-to-point form-factor kernel times the source area: cos θi cos θj / (π r²) A_j,
+/// zero unless the two front sides face each other.
+fn kernel(view: &OctreeView, i: usize, j: usize) -> f64 {
+    let (si, sj) = (&view.splats[i], &view.splats[j]);
+    let d = Vec3::from(sj.position) - Vec3::from(si.position);
+    let r2 = d.length_squared() as f64;
+    let dir = d.normalize();
+    let ci = Vec3::from(si.normal).dot(dir) as f64;
+    let cj = -Vec3::from(sj.normal).dot(dir) as f64;
+    if ci <= 0.0 || cj <= 0.0 || r2 <= 0.0 {
+        return 0.0;
+    }
+    ci * cj / (std::f64::consts::PI * r2) * view.splat_area[j] as f64
+}
+
+/// Per splat, the visible form-factor sum Σ_j K(i,j) V(i,j): exact, and as the V-map links
+/// give it (each link's fraction applied to every splat pair under the two nodes).
+fn form_factor_sums(
+    view: &OctreeView,
+    vn: &[VNode],
+    offsets: &[u32],
+    links: &[Link],
+) -> (Vec<f64>, Vec<f64>) {
+    use rayon::prelude::*;
+    let n = view.splats.len();
+    let exact: Vec<f64> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut st = TraversalStats::default();
+            (0..n)
+                .filter(|&j| j != i)
+                .map(|j| {
+                    let k = kernel(view, i, j);
+                    if k > 0.0 && visible(view, i, j, &mut st) {
+                        k
+                    } else {
+                        0.0
+                    }
+                })
+                .sum()
+        })
+        .collect();
+    let mut vmap = vec![0.0f64; n];
+    for x in 0..vn.len() {
+        let vx = &vn[x];
+        for l in &links[offsets[x] as usize..offsets[x + 1] as usize] {
+            let vy = &vn[l.slot() as usize];
+            for i in vx.lo..vx.hi {
+                let s: f64 = (vy.lo..vy.hi)
+                    .filter(|&j| j != i)
+                    .map(|j| kernel(view, i as usize, j as usize))
+                    .sum();
+                vmap[i as usize] += s * l.fraction as f64;
+            }
+        }
+    }
+    (exact, vmap)
+}
+
+/// A small open room with a box on its floor: occlusion everywhere.
+fn room(h: f32) -> Soa {
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut s = Soa::default();
+    s.rect(Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, &mut rng); // floor, up
+    s.rect(Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, &mut rng); // back, +z
+    s.rect(Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, h, &mut rng); // left, +x
+    s.cube(
+        Vec3::new(0.1, -0.7, -0.2),
+        Vec3::new(0.3, 0.3, 0.3),
+        h,
+        &mut rng,
+    );
+    s
+}
+
+#[test]
+fn visible_form_factor_sums_per_leaf_match_brute_force() {
+    let s = room(0.085);
+    assert!(s.p.len() > 1000 && s.p.len() < 3000, "{} splats", s.p.len());
+    let o = s.build(8);
+    let view = o.view();
+    let rays: u32 = std::env::var("VMAP_RAYS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(32);
+    let leaf: u32 = std::env::var("VMAP_LEAF")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(8);
+    let p = params(rays, leaf);
+    let vn = vnodes(&view, p.leaf_splats);
+    let caster = CpuCaster::new(&view);
+    let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let (offsets, links) = csr(view.nodes.len(), l.pairs);
+    let (exact, vmap) = form_factor_sums(&view, &vn, &offsets, &links);
+    // Per octree leaf: Σ over its splats of area × form-factor sum.
+    let mut worst = 0.0f64;
+    let mut leaves = 0;
+    for (slot, &w) in view.nodes.iter().enumerate() {
+        if !pc_artifact::octree::node::is_leaf(w) {
+            continue;
+        }
+        let (r, _) = view.leaf(w);
+        if r.end - r.start < 4 {
+            continue;
+        }
+        let sum = |v: &[f64]| {
+            r.clone()
+                .map(|i| v[i as usize] * view.splat_area[i as usize] as f64)
+                .sum::<f64>()
+        };
+        let (e, m) = (sum(&exact), sum(&vmap));
+        if e < 1e-4 * sum(&vec![1.0; view.splats.len()]) {
+            continue;
+        }
+        let rel = (m - e).abs() / e;
+        if rel > 0.05 && std::env::var("VMAP_DEBUG").is_ok() {
+            let c = Vec3::from(view.splats[r.start as usize].position);
+            let nrm = Vec3::from(view.splats[r.start as usize].normal);
+            eprintln!(
+                "leaf {slot} at {c} n {nrm} ({} splats): exact {e:.5}, vmap {m:.5}, rel {rel:.3}",
+                r.end - r.start
+            );
+        }
+        worst = worst.max(rel);
+        leaves += 1;
+        let _ = slot;
+    }
+    let total_e: f64 = exact
+        .iter()
+        .zip(view.splat_area)
+        .map(|(f, a)| f * *a as f64)
+        .sum();
+    let total_m: f64 = vmap
+        .iter()
+        .zip(view.splat_area)
+        .map(|(f, a)| f * *a as f64)
+        .sum();
+    eprintln!("{} splats, {leaves} leaves, {} far + {} near links, {} rays; worst leaf error {:.4}, total {:.5} vs {:.5}", view.splats.len(), l.far, l.near, l.rays, worst, total_m, total_e);
+    assert!(leaves > 50);
+    assert!(
+        (total_m - total_e).abs() / total_e < 0.01,
+        "total {total_m} vs exact {total_e}"
+    );
+    assert!(worst < 0.02, "worst per-leaf relative error {worst}");
+}
+
+#[test]
+fn no_link_crosses_an_occluding_plate() {
+    // Two walls facing each other with a plate between them covering their middle.
+    let mut rng = Pcg64::seed_from_u64(6);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X, Vec3::Y, 0.05, &mut rng); // wall 1 at z=0, facing +z
+    s.rect(Vec3::new(0.0, 0.0, 2.0), Vec3::Y, Vec3::X, 0.05, &mut rng); // wall 2 at z=2, facing -z
+    let wall = s.p.len();
+    s.rect(
+        Vec3::new(0.0, 0.0, 0.98),
+        Vec3::Y * 0.5,
+        Vec3::X * 0.5,
+        0.05,
+        &mut rng,
+    ); // plate, facing -z
+    s.rect(
+        Vec3::new(0.0, 0.0, 1.02),
+        Vec3::X * 0.5,
+        Vec3::Y * 0.5,
+        0.05,
+        &mut rng,
+    ); // plate, facing +z
+    let o = s.build(8);
+    let view = o.view();
+    let p = params(16, 16);
+    let vn = vnodes(&view, p.leaf_splats);
+    let l = build_links(&view, &vn, &p, &CpuCaster::new(&view), &mut |_, _| {}).unwrap();
+    let src: Vec<u32> = view.splats.iter().map(|x| x.source).collect();
+    let on_wall = |v: &VNode, z: f32| {
+        (v.lo..v.hi).all(|i| {
+            (src[i as usize] as usize) < wall
+                && (view.splats[i as usize].position[2] - z).abs() < 1e-3
+        })
+    };
+    let (mut wall_links, mut crossing, mut beside) = (0, 0, 0);
+    for &(x, link) in &l.pairs {
+        let (vx, vy) = (&vn[x as usize], &vn[link.slot() as usize]);
+        if !(on_wall(vx, 0.0) && on_wall(vy, 2.0)) {
+            continue;
+        }
+        wall_links += 1;
+        // Every segment between the two nodes' bounding spheres meets the plane z = 1 within
+        // (R_x + R_y) / 2 of where the centre segment does: if that whole disc lies inside the
+        // plate (half-width 0.5), every path between the nodes crosses the plate.
+        let mid = (vx.center + vy.center) * 0.5;
+        let reach = 0.5 * (vx.radius + vy.radius) + 0.05;
+        if mid.x.abs() + reach < 0.5 && mid.y.abs() + reach < 0.5 {
+            crossing += 1;
+        }
+        if mid.x.abs() > 0.7 || mid.y.abs() > 0.7 {
+            beside += 1;
+        }
+    }
+    assert!(wall_links > 20, "only {wall_links} wall-to-wall links");
+    assert_eq!(
+        crossing, 0,
+        "{crossing} of {wall_links} wall-to-wall links cross the plate"
+    );
+    assert!(beside > 10, "only {beside} links pass beside the plate");
+}
+
+#[test]
+fn a_point_light_above_a_box_does_not_see_its_shadow() {
+    let mut rng = Pcg64::seed_from_u64(7);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X * 1.5, -Vec3::Z * 1.5, 0.04, &mut rng); // floor y=0, up
+    let floor = s.p.len();
+    let (lo, hi) = (Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 0.6, 0.3));
+    s.cube(
+        (lo + hi) * 0.5 + Vec3::Y * 0.002,
+        (hi - lo) * 0.5,
+        0.04,
+        &mut rng,
+    );
+    let o = s.build(8);
+    let view = o.view();
+    let p = params(16, 16);
+    let vn = vnodes(&view, p.leaf_splats);
+    let light = Vec3::new(0.2, 2.0, 0.1);
+    let lists = light_lists(&view, &vn, &[light], &p, &CpuCaster::new(&view)).unwrap();
+    // The fraction the list implies for each splat (entries are disjoint subtrees).
+    let mut implied = vec![0.0f32; view.splats.len()];
+    for l in &lists[0] {
+        let v = &vn[l.slot() as usize];
+        for i in v.lo..v.hi {
+            implied[i as usize] = l.fraction;
+        }
+    }
+    // Analytic shadow of the box on the floor, with a margin of two splat radii.
+    let shadowed = |p: Vec3, margin: f32| {
+        let d = light - p;
+        let inv = d.recip();
+        let a = (lo - Vec3::splat(margin) - p) * inv;
+        let b = (hi + Vec3::splat(margin) - p) * inv;
+        let t0 = a.min(b).max_element();
+        let t1 = a.max(b).min_element();
+        t0 <= t1 && t1 > 0.0 && t0 < 1.0
+    };
+    let (mut dark, mut lit) = (0, 0);
+    for (i, sp) in view.splats.iter().enumerate() {
+        if sp.source as usize >= floor {
+            continue;
+        }
+        let pos = Vec3::from(sp.position);
+        if shadowed(pos, -0.08) {
+            dark += 1;
+            assert_eq!(
+                implied[i], 0.0,
+                "floor splat at {pos} in the box's shadow is in the light list"
+            );
+        } else if !shadowed(pos, 0.08) {
+            lit += 1;
+            assert!(
+                implied[i] > 0.0,
+                "lit floor splat at {pos} is missing from the light list"
+            );
+        }
+    }
+    assert!(dark > 50 && lit > 1000, "{dark} shadowed, {lit} lit");
+}
+
+#[test]
+fn gpu_casting_matches_the_cpu() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let s = room(0.06);
+    let o = s.build(8);
+    let view = o.view();
+    let mut rng = Pcg64::seed_from_u64(8);
+    let rays: Vec<Ray> = (0..20_000)
+        .map(|_| {
+            let a = rng.random_range(0..view.splats.len());
+            let b = rng.random_range(0..view.splats.len());
+            let (pa, pb) = (
+                Vec3::from(view.splats[a].position),
+                Vec3::from(view.splats[b].position),
+            );
+            let d = pb - pa;
+            let len = d.length().max(1e-3);
+            Ray {
+                origin: pa,
+                dir: d / len,
+                t_min: 0.03,
+                t_max: (len - 0.03).max(0.031),
+            }
+        })
+        .collect();
+    let cpu = CpuCaster::new(&view).visible(&rays).unwrap();
+    let caster = pc_tree::gpu::RayCaster::new(&ctx, &view).unwrap();
+    let gpu = pc_vmap::build::GpuCaster { ctx, caster }
+        .visible(&rays)
+        .unwrap();
+    let same = cpu.iter().zip(&gpu).filter(|(a, b)| a == b).count();
+    assert!(
+        same as f64 >= 0.999 * rays.len() as f64,
+        "{same} of {} agree",
+        rays.len()
+    );
+    assert!(
+        cpu.iter().filter(|&&v| v).count() > 1000 && cpu.iter().filter(|&&v| !v).count() > 1000
+    );
+}
