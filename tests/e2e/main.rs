@@ -7,6 +7,7 @@ mod inspect;
 mod octree_cli;
 mod raytrace_cli;
 mod reference;
+mod vmap_cli;
 
 use std::path::{Path, PathBuf};
 

@@ -28,7 +28,13 @@ macro_rules! args {
 }
 
 /// The packages whose binaries the tests run, and the binaries.
-const BIN_PACKAGES: [&str; 4] = ["pc-octree", "pc-inspect", "pc-scene", "pc-raytrace"];
+const BIN_PACKAGES: [&str; 5] = [
+    "pc-octree",
+    "pc-inspect",
+    "pc-scene",
+    "pc-raytrace",
+    "pc-vmap",
+];
 
 /// The workspace root (the folder of the root Cargo.toml).
 pub fn workspace_root() -> PathBuf {

@@ -20,8 +20,8 @@ commands:
                                              (writes BENCHMARKS.md with --write)
 ";
 
-/// The stages in dependency order. Later issues add pc-vmap, pc-caustics and pc-fmm between them.
-const STAGES: &[&str] = &["pc-octree", "pc-raytrace"];
+/// The stages in dependency order. Later issues add pc-caustics and pc-fmm before pc-raytrace.
+const STAGES: &[&str] = &["pc-octree", "pc-vmap", "pc-raytrace"];
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();

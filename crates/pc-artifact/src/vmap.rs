@@ -72,6 +72,9 @@ pub struct VmapParams {
     pub leaf_splats: u32,
     /// Self-hit distance in radii (§8.5.6).
     pub self_hit: f32,
+    /// Partly visible pairs whose form factor (either way) is below this keep a partial link
+    /// instead of being refined; 0 refines every partial pair down to V-map leaves.
+    pub refine_form_factor: f32,
     pub seed: u32,
 }
 

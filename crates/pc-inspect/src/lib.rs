@@ -57,6 +57,7 @@ pub fn metadata_json(a: &Artifact) -> anyhow::Result<String> {
 pub fn statistics(a: &Artifact) -> anyhow::Result<String> {
     match a.header().kind {
         ArtifactKind::Octree => octree_statistics(a),
+        ArtifactKind::Vmap => vmap_statistics(a),
         other => Ok(format!("(no statistics for {other} artifacts yet)\n")),
     }
 }
@@ -189,6 +190,118 @@ fn octree_statistics(a: &Artifact) -> anyhow::Result<String> {
     Ok(s)
 }
 
+/// The sections of a vmap artifact, checked for consistency.
+pub struct VmapView<'a> {
+    pub offsets: &'a [u32],
+    pub links: &'a [pc_artifact::vmap::Link],
+    pub light_offsets: &'a [u32],
+    pub light_links: &'a [pc_artifact::vmap::Link],
+    pub node_range: &'a [[u32; 2]],
+}
+
+/// Map the sections of a vmap artifact and check the CSR structure.
+pub fn vmap_view(a: &Artifact) -> anyhow::Result<VmapView<'_>> {
+    use pc_artifact::vmap::sections as s;
+    let v = VmapView {
+        offsets: a.section(s::LINK_OFFSETS)?,
+        links: a.section(s::LINKS)?,
+        light_offsets: a.section(s::LIGHT_OFFSETS)?,
+        light_links: a.section(s::LIGHT_LINKS)?,
+        node_range: a.section(s::NODE_RANGE)?,
+    };
+    let nodes = v.node_range.len();
+    let csr_ok = |o: &[u32], len: usize| {
+        o.first() == Some(&0)
+            && o.windows(2).all(|w| w[0] <= w[1])
+            && o.last().map(|&x| x as usize) == Some(len)
+    };
+    if v.offsets.len() != nodes + 1 || !csr_ok(v.offsets, v.links.len()) {
+        return Err(a
+            .invalid("link offsets are not a CSR index over the links")
+            .into());
+    }
+    if !csr_ok(v.light_offsets, v.light_links.len()) {
+        return Err(a
+            .invalid("light offsets are not a CSR index over the light links")
+            .into());
+    }
+    if v.links
+        .iter()
+        .chain(v.light_links)
+        .any(|l| l.slot() as usize >= nodes || !(l.fraction > 0.0 && l.fraction <= 1.0))
+    {
+        return Err(a
+            .invalid("a link names a node outside the octree or has a fraction outside (0, 1]")
+            .into());
+    }
+    Ok(v)
+}
+
+fn vmap_statistics(a: &Artifact) -> anyhow::Result<String> {
+    let v = vmap_view(a)?;
+    let meta: pc_artifact::vmap::VmapMeta = a.metadata()?;
+    let mut s = String::new();
+    let near = v.links.iter().filter(|l| l.is_near()).count();
+    let partial = v.links.iter().filter(|l| l.fraction < 1.0).count();
+    let rows = v.offsets.windows(2).filter(|w| w[1] > w[0]).count();
+    let max_row = v.offsets.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    let _ = writeln!(
+        s,
+        "links       {} stored ({} far, {} near; both directions), {} partially visible",
+        v.links.len(),
+        v.links.len() - near,
+        near,
+        partial
+    );
+    let _ = writeln!(
+        s,
+        "nodes       {} with links (mean {:.1}, max {} links per node)",
+        rows,
+        v.links.len() as f64 / rows.max(1) as f64,
+        max_row
+    );
+    let _ = writeln!(
+        s,
+        "lights      {} ({} nodes seen in all)",
+        v.light_offsets.len().saturating_sub(1),
+        v.light_links.len()
+    );
+    let _ = writeln!(
+        s,
+        "parameters  theta {}, rays {}, near rays {}, leaf splats {}, self-hit {}",
+        meta.params.theta,
+        meta.params.rays,
+        meta.params.near_rays,
+        meta.params.leaf_splats,
+        meta.params.self_hit
+    );
+    let _ = writeln!(
+        s,
+        "work        {} node pairs tested, {} rays on {}{}",
+        meta.pairs_tested,
+        meta.rays_cast,
+        meta.device,
+        if meta.links_reused {
+            " (links reused)"
+        } else {
+            ""
+        }
+    );
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    let total: f64 = meta.timings.iter().map(|t| t.1).sum();
+    let _ = writeln!(
+        s,
+        "time        {:.3} s: {}",
+        total,
+        meta.timings
+            .iter()
+            .map(|(n, t)| format!("{n} {t:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(s)
+}
+
 /// Full verification: the container checks done by opening, plus the kind's structural checks.
 pub fn verify(path: &Path) -> anyhow::Result<String> {
     let a = Artifact::open(path)?;
@@ -221,6 +334,14 @@ pub fn verify(path: &Path) -> anyhow::Result<String> {
                 v.splats.len()
             ))
         }
+        ArtifactKind::Vmap => {
+            let v = vmap_view(&a)?;
+            Ok(format!(
+                "{}: ok (checksums, CSR structure, {} links)",
+                path.display(),
+                v.links.len()
+            ))
+        }
         _ => Ok(format!("{}: ok (checksums)", path.display())),
     }
 }
@@ -249,6 +370,68 @@ fn class_color(c: u32) -> Vec3 {
 fn ramp(t: f32) -> Vec3 {
     let t = t.clamp(0.0, 1.0);
     Vec3::new(t, 1.0 - (2.0 * t - 1.0).abs(), 1.0 - t)
+}
+
+/// Write the links of one V-map node as a PLY: the node's splats in white, every splat of each
+/// linked node colored by the link's visible fraction (blue 0 → red 1; near-field links green).
+/// `octree` is the octree artifact the V-map was made from.
+pub fn export_vmap_links(
+    vmap: &Artifact,
+    octree: &Artifact,
+    node: u32,
+    out: &Path,
+) -> anyhow::Result<usize> {
+    let v = vmap_view(vmap)?;
+    let t = OctreeView::from_artifact(octree)?;
+    let meta: pc_artifact::vmap::VmapMeta = vmap.metadata()?;
+    anyhow::ensure!(
+        meta.octree_key == octree.header().key.to_string(),
+        "{}: the V-map was made from another octree (key {}), not {}",
+        vmap.path().display(),
+        meta.octree_key,
+        octree.path().display()
+    );
+    anyhow::ensure!(
+        (node as usize) < v.node_range.len(),
+        "node {node} is outside the octree ({} nodes)",
+        v.node_range.len()
+    );
+    let (mut pos, mut nrm, mut rad, mut col) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut push = |range: [u32; 2], c: Vec3| {
+        for i in range[0]..range[1].max(range[0]) {
+            let sp = &t.splats[i as usize];
+            pos.push(Vec3::from(sp.position));
+            nrm.push(Vec3::from(sp.normal));
+            rad.push(sp.radius);
+            col.push(c);
+        }
+    };
+    push(v.node_range[node as usize], Vec3::ONE);
+    for l in &v.links[v.offsets[node as usize] as usize..v.offsets[node as usize + 1] as usize] {
+        let c = if l.is_near() {
+            Vec3::new(0.1, 0.9, 0.1)
+        } else {
+            ramp(l.fraction)
+        };
+        push(v.node_range[l.slot() as usize], c);
+    }
+    let pts = PlyPoints {
+        positions: &pos,
+        normals: Some(&nrm),
+        radii: Some(&rad),
+        colors: Some(&col),
+    };
+    write_ply(
+        out,
+        &pts,
+        PlyFormat::BinaryLittleEndian,
+        &[format!(
+            "pc-inspect: links of node {node} of {}",
+            vmap.path().display()
+        )],
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    Ok(pos.len())
 }
 
 /// Write a PLY debug view of the artifact; returns the number of points written.

@@ -22,9 +22,15 @@ struct Args {
     /// Write a debug view as a PLY file (open it in CloudCompare or MeshLab).
     #[arg(long, value_name = "OUT.ply")]
     export_ply: Option<PathBuf>,
-    /// Which debug view to export.
+    /// Which debug view to export (octree artifacts).
     #[arg(long, value_enum, default_value = "splats")]
     view: View,
+    /// V-map artifacts: export the links of this node (node-pool index) with --export-ply.
+    #[arg(long)]
+    node: Option<u32>,
+    /// V-map artifacts: the octree it was made from (default: octree.pcgi beside it).
+    #[arg(long)]
+    octree: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -49,12 +55,28 @@ fn run(args: &Args) -> anyhow::Result<()> {
         println!("{}", pc_inspect::verify(&args.file)?);
     }
     if let Some(out) = &args.export_ply {
-        let n = pc_inspect::export_ply(&a, args.view, out)?;
-        println!(
-            "pc-inspect: wrote {} ({n} points, {:?} view)",
-            out.display(),
-            args.view
-        );
+        if a.header().kind == pc_artifact::ArtifactKind::Vmap {
+            let node = args.node.ok_or_else(|| {
+                anyhow::anyhow!("--export-ply of a V-map needs --node N (a node-pool index)")
+            })?;
+            let octree_path = args
+                .octree
+                .clone()
+                .unwrap_or_else(|| args.file.with_file_name("octree.pcgi"));
+            let octree = Artifact::open(&octree_path)?;
+            let n = pc_inspect::export_vmap_links(&a, &octree, node, out)?;
+            println!(
+                "pc-inspect: wrote {} ({n} points: node {node} and the nodes it links to)",
+                out.display()
+            );
+        } else {
+            let n = pc_inspect::export_ply(&a, args.view, out)?;
+            println!(
+                "pc-inspect: wrote {} ({n} points, {:?} view)",
+                out.display(),
+                args.view
+            );
+        }
     }
     Ok(())
 }

@@ -279,6 +279,9 @@ pub struct VmapConfig {
     pub leaf_splats: u32,
     /// Self-hit distance in radii of the splat a visibility ray leaves or reaches (§8.5.6).
     pub self_hit: f32,
+    /// Partly visible node pairs exchanging a smaller form factor than this (either way) keep a
+    /// partial link instead of being refined to V-map leaves; 0 always refines.
+    pub refine_form_factor: f32,
     /// Where the rays are cast.
     pub backend: Backend,
     pub seed: u32,
@@ -294,6 +297,7 @@ impl Default for VmapConfig {
             near_rays: 64,
             leaf_splats: 64,
             self_hit: 0.5,
+            refine_form_factor: 1e-3,
             backend: Backend::Auto,
             seed: 0,
             file: PathBuf::from("vmap.pcgi"),

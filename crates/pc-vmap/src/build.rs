@@ -384,6 +384,13 @@ fn decide(
             links.far += 1;
         } else if va.vleaf && vb.vleaf {
             partial.push((a, b));
+        } else if p.refine_form_factor > 0.0 && form_factors(view, va, vb, r) < p.refine_form_factor
+        {
+            // Too little light flows between the two to be worth resolving the shadow edge
+            // (hierarchical radiosity's importance criterion): keep the partial link.
+            links.pairs.push((a, Link::far(b, fraction)));
+            links.pairs.push((b, Link::far(a, fraction)));
+            links.far += 1;
         } else {
             split(view, vn, a, b, &mut next);
         }
@@ -433,6 +440,26 @@ fn exact_partial(
         }
     }
     Ok(())
+}
+
+/// The larger of the two form factors F_AB, F_BA estimated from a pair's sample weights: the
+/// mean weight times the number of splat pairs over π estimates Σ A_i A_j cos cos / (π r²), the
+/// area-weighted form factor between the nodes; divide by each node's area.
+fn form_factors(view: &OctreeView, va: &VNode, vb: &VNode, samples: &[(Ray, f32)]) -> f32 {
+    if samples.is_empty() {
+        return 0.0;
+    }
+    let mean = samples.iter().map(|s| s.1 as f64).sum::<f64>() / samples.len() as f64;
+    let pairs = va.count() as f64 * vb.count() as f64;
+    let total = mean * pairs / std::f64::consts::PI;
+    let area = |v: &VNode| {
+        view.splat_area[v.lo as usize..v.hi as usize]
+            .iter()
+            .map(|&a| a as f64)
+            .sum::<f64>()
+            .max(1e-30)
+    };
+    (total / area(va)).max(total / area(vb)) as f32
 }
 
 /// Result of a build.

@@ -25,6 +25,7 @@ pub fn params(cfg: &LoadedConfig) -> VmapParams {
         near_rays: v.near_rays,
         leaf_splats: v.leaf_splats,
         self_hit: v.self_hit,
+        refine_form_factor: v.refine_form_factor,
         seed: v.seed,
     }
 }

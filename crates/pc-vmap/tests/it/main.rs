@@ -73,12 +73,18 @@ impl Soa {
 }
 
 pub fn params(rays: u32, leaf: u32) -> VmapParams {
+    // 0 (the default here) refines every partial pair; VMAP_REFINE=0.001 tries the stage default.
+    let refine_form_factor = std::env::var("VMAP_REFINE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0);
     VmapParams {
         theta: 0.5,
         rays,
         near_rays: 1024,
         leaf_splats: leaf,
         self_hit: 0.5,
+        refine_form_factor,
         seed: 1,
     }
 }
