@@ -12,39 +12,25 @@ use indicatif::{ProgressBar, ProgressStyle};
 #[derive(Parser)]
 #[command(name = "pc-octree", version, about)]
 struct Args {
-    /// The pipeline description.
-    #[arg(long, default_value = "pipeline.toml")]
-    config: PathBuf,
-    /// Override a config key, e.g. `--set octree.max_leaf_points=8` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    #[command(flatten)]
+    stage: pc_scene::cli::StageArgs,
     /// Write the artifact here instead of `<output.dir>/<octree.file>`.
     #[arg(long, short)]
     output: Option<PathBuf>,
-    /// No progress bars.
-    #[arg(long, short)]
-    quiet: bool,
     /// Also write the timings, counts and peak memory as JSON (for `cargo xtask bench`).
     #[arg(long, value_name = "FILE")]
     stats_json: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("pc-octree: error: {e:#}");
-            ExitCode::from(2)
-        }
-    }
+    pc_scene::cli::exit("pc-octree", run(&Args::parse()))
 }
 
 fn run(args: &Args) -> anyhow::Result<()> {
-    let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
+    let cfg = args.stage.load()?;
     let out = args.output.clone().unwrap_or_else(|| cfg.octree_path());
     let started = Instant::now();
-    let bar = if args.quiet {
+    let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(cfg.config.models.len() as u64)
@@ -61,7 +47,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         bar.set_message(name.to_string());
     };
     let summary = pc_octree::stage::run(&cfg, &out, &mut on_import, &mut on_phase)
-        .with_context(|| format!("building the octree for {}", args.config.display()))?;
+        .with_context(|| format!("building the octree for {}", args.stage.config.display()))?;
     bar.finish_and_clear();
     let s = &summary.octree.stats;
     let secs = started.elapsed().as_secs_f64();

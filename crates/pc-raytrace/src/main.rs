@@ -5,63 +5,37 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context;
-use clap::{Parser, ValueEnum};
+use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use pc_scene::config::Backend;
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum BackendArg {
-    Cpu,
-    Gpu,
-    Auto,
-}
 
 /// Ray trace the octree (primary and specular rays, diffuse shading, supersampling).
 #[derive(Parser)]
 #[command(name = "pc-raytrace", version, about)]
 struct Args {
-    /// The pipeline description.
-    #[arg(long, default_value = "pipeline.toml")]
-    config: PathBuf,
-    /// Override a config key, e.g. `--set raytrace.spp=64` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    #[command(flatten)]
+    stage: pc_scene::cli::StageArgs,
     /// cpu, gpu, or auto (the GPU when an adapter exists); default: raytrace.backend.
     #[arg(long, value_enum)]
-    backend: Option<BackendArg>,
+    backend: Option<Backend>,
     /// The octree artifact (default: <output.dir>/<octree.file>).
     #[arg(long)]
     octree: Option<PathBuf>,
     /// The EXR to write (default: <output.dir>/<raytrace.image>); a PNG preview goes beside it.
     #[arg(long, short)]
     output: Option<PathBuf>,
-    /// No progress bar.
-    #[arg(long, short)]
-    quiet: bool,
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("pc-raytrace: error: {e:#}");
-            ExitCode::from(2)
-        }
-    }
+    pc_scene::cli::exit("pc-raytrace", run(&Args::parse()))
 }
 
 fn run(args: &Args) -> anyhow::Result<()> {
-    let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
+    let cfg = args.stage.load()?;
     let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
     let exr = args.output.clone().unwrap_or_else(|| cfg.image_path());
-    let backend = match args.backend {
-        Some(BackendArg::Cpu) => Backend::Cpu,
-        Some(BackendArg::Gpu) => Backend::Gpu,
-        Some(BackendArg::Auto) => Backend::Auto,
-        None => cfg.config.raytrace.backend,
-    };
-    let bar = if args.quiet {
+    let backend = args.backend.unwrap_or(cfg.config.raytrace.backend);
+    let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(0)
@@ -74,7 +48,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let tick = || bar.inc(1);
     let mut set_len = |n: u64| bar.set_length(n);
     let s = pc_raytrace::stage::run(&cfg, &octree, &exr, backend, &tick, &mut set_len)
-        .with_context(|| format!("rendering {}", args.config.display()))?;
+        .with_context(|| format!("rendering {}", args.stage.config.display()))?;
     bar.finish_and_clear();
     let p = &cfg.config.raytrace;
     let (w, h) = (s.image.width, s.image.height);

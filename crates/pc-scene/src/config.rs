@@ -317,8 +317,8 @@ pub enum ShadingMode {
     Direct,
 }
 
-/// Which device renders.
-#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+/// Which device runs a stage's kernels (config key and `--backend` flag alike).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
     Cpu,

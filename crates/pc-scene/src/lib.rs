@@ -1,6 +1,7 @@
 //! Scene and configuration: pipeline.toml, PLY import, normal and radius estimation, camera, samplers.
 
 pub mod camera;
+pub mod cli;
 pub mod config;
 pub mod error;
 pub mod estimate;

@@ -5,63 +5,37 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context;
-use clap::{Parser, ValueEnum};
+use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use pc_scene::config::Backend;
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum BackendArg {
-    Cpu,
-    Gpu,
-    Auto,
-}
 
 /// View-independent visibility links between octree nodes, and the nodes each light sees.
 #[derive(Parser)]
 #[command(name = "pc-vmap", version, about)]
 struct Args {
-    /// The pipeline description.
-    #[arg(long, default_value = "pipeline.toml")]
-    config: PathBuf,
-    /// Override a config key, e.g. `--set vmap.rays=32` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    #[command(flatten)]
+    stage: pc_scene::cli::StageArgs,
     /// Where rays are cast: cpu, gpu, or auto; default: vmap.backend.
     #[arg(long, value_enum)]
-    backend: Option<BackendArg>,
+    backend: Option<Backend>,
     /// The octree artifact (default: <output.dir>/<octree.file>).
     #[arg(long)]
     octree: Option<PathBuf>,
     /// The vmap artifact to write (default: <output.dir>/<vmap.file>).
     #[arg(long, short)]
     output: Option<PathBuf>,
-    /// No progress display.
-    #[arg(long, short)]
-    quiet: bool,
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("pc-vmap: error: {e:#}");
-            ExitCode::from(2)
-        }
-    }
+    pc_scene::cli::exit("pc-vmap", run(&Args::parse()))
 }
 
 fn run(args: &Args) -> anyhow::Result<()> {
-    let cfg = pc_scene::config::load_config(&args.config, &args.set)?;
+    let cfg = args.stage.load()?;
     let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
     let out = args.output.clone().unwrap_or_else(|| cfg.vmap_path());
-    let backend = match args.backend {
-        Some(BackendArg::Cpu) => Backend::Cpu,
-        Some(BackendArg::Gpu) => Backend::Gpu,
-        Some(BackendArg::Auto) => Backend::Auto,
-        None => cfg.config.vmap.backend,
-    };
-    let bar = if args.quiet {
+    let backend = args.backend.unwrap_or(cfg.config.vmap.backend);
+    let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new_spinner()
@@ -74,7 +48,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         bar.set_message(format!("round {level}: {frontier} node pairs next"))
     };
     let s = pc_vmap::stage::run(&cfg, &octree, &out, backend, &mut round)
-        .with_context(|| format!("computing the V-map for {}", args.config.display()))?;
+        .with_context(|| format!("computing the V-map for {}", args.stage.config.display()))?;
     bar.finish_and_clear();
     let m = &s.meta;
     println!(
