@@ -415,23 +415,17 @@ pub fn export_vmap_links(
         };
         push(v.node_range[l.slot() as usize], c);
     }
-    let pts = PlyPoints {
-        positions: &pos,
-        normals: Some(&nrm),
-        radii: Some(&rad),
-        colors: Some(&col),
-    };
-    write_ply(
+    write_points(
         out,
-        &pts,
-        PlyFormat::BinaryLittleEndian,
-        &[format!(
+        &pos,
+        &nrm,
+        &rad,
+        &col,
+        format!(
             "pc-inspect: links of node {node} of {}",
             vmap.path().display()
-        )],
+        ),
     )
-    .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    Ok(pos.len())
 }
 
 /// Write a PLY debug view of the artifact; returns the number of points written.
@@ -498,21 +492,33 @@ pub fn export_ply(a: &Artifact, view: View, out: &Path) -> anyhow::Result<usize>
             }
         }
     }
-    let pts = PlyPoints {
-        positions: &pos,
-        normals: (!nrm.is_empty()).then_some(&nrm[..]),
-        radii: (!rad.is_empty()).then_some(&rad[..]),
-        colors: Some(&col),
-    };
-    write_ply(
+    write_points(
         out,
-        &pts,
-        PlyFormat::BinaryLittleEndian,
-        &[format!(
-            "pc-inspect {view:?} view of {}",
-            a.path().display()
-        )],
+        &pos,
+        &nrm,
+        &rad,
+        &col,
+        format!("pc-inspect {view:?} view of {}", a.path().display()),
     )
-    .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+}
+
+/// Write a debug view as a binary PLY (empty normal or radius lists are left out); returns the
+/// number of points.
+fn write_points(
+    out: &Path,
+    pos: &[Vec3],
+    nrm: &[Vec3],
+    rad: &[f32],
+    col: &[Vec3],
+    comment: String,
+) -> anyhow::Result<usize> {
+    let pts = PlyPoints {
+        positions: pos,
+        normals: (!nrm.is_empty()).then_some(nrm),
+        radii: (!rad.is_empty()).then_some(rad),
+        colors: Some(col),
+    };
+    write_ply(out, &pts, PlyFormat::BinaryLittleEndian, &[comment])
+        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     Ok(pos.len())
 }
