@@ -10,24 +10,16 @@ use rand_pcg::Pcg64;
 mod artifact;
 mod ray;
 
-/// A test scene in structure-of-arrays form.
-#[derive(Default, Clone)]
-pub struct Soa {
-    pub p: Vec<Vec3>,
-    pub n: Vec<Vec3>,
-    pub r: Vec<f32>,
-    pub m: Vec<u32>,
+pub use pc_testkit::Soa;
+
+/// Building an octree straight from a test scene.
+pub trait BuildSoa {
+    fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError>;
 }
 
-impl Soa {
-    pub fn push(&mut self, p: Vec3, n: Vec3, r: f32, m: u32) {
-        self.p.push(p);
-        self.n.push(n);
-        self.r.push(r);
-        self.m.push(m);
-    }
-    pub fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError> {
-        let albedo = vec![Vec3::ONE; self.p.len()];
+impl BuildSoa for Soa {
+    fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError> {
+        let albedo = self.ones();
         let input = BuildInput {
             positions: &self.p,
             normals: &self.n,
@@ -40,68 +32,15 @@ impl Soa {
     }
 }
 
-/// Jittered grid on the rectangle c + a·u + b·v, a, b ∈ [-1, 1], spacing h, radius h.
-pub fn plane(s: &mut Soa, c: Vec3, u: Vec3, v: Vec3, h: f32, m: u32, rng: &mut Pcg64) {
-    let (nu, nv) = (
-        (2.0 * u.length() / h).round() as i32,
-        (2.0 * v.length() / h).round() as i32,
-    );
-    let n = u.cross(v).normalize();
-    for i in 0..nu {
-        for j in 0..nv {
-            let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
-            let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
-            s.push(c + u * a + v * b, n, h, m);
-        }
-    }
-}
-
-/// Fibonacci sphere of `count` splats, outward normals, radius chosen so disks overlap.
-pub fn sphere(s: &mut Soa, c: Vec3, radius: f32, count: usize, m: u32) {
-    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-    let h = (4.0 * std::f32::consts::PI * radius * radius / count as f32).sqrt();
-    for k in 0..count {
-        let z = 1.0 - 2.0 * (k as f32 + 0.5) / count as f32;
-        let rho = (1.0 - z * z).sqrt();
-        let a = k as f32 * golden;
-        let n = Vec3::new(rho * a.cos(), rho * a.sin(), z);
-        s.push(c + n * radius, n, h, m);
-    }
-}
-
 /// Diffuse box room (5 planes) with a mirror sphere and a glass sphere: classes 0, 2, 3.
 pub fn mixed_scene(h: f32) -> (Soa, Vec<u32>) {
     let mut rng = Pcg64::seed_from_u64(7);
     let mut s = Soa::default();
-    plane(
-        &mut s,
-        Vec3::new(0.0, -1.0, 0.0),
-        Vec3::X,
-        -Vec3::Z,
-        h,
-        0,
-        &mut rng,
-    );
-    plane(
-        &mut s,
-        Vec3::new(0.0, 0.0, -1.0),
-        Vec3::X,
-        Vec3::Y,
-        h,
-        0,
-        &mut rng,
-    );
-    plane(
-        &mut s,
-        Vec3::new(-1.0, 0.0, 0.0),
-        Vec3::Y,
-        Vec3::Z,
-        h,
-        0,
-        &mut rng,
-    );
-    sphere(&mut s, Vec3::new(-0.4, -0.6, -0.3), 0.4, 1500, 1);
-    sphere(&mut s, Vec3::new(0.45, -0.7, 0.2), 0.3, 900, 2);
+    s.rect(Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, 0, &mut rng);
+    s.rect(Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng);
+    s.rect(Vec3::new(-1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, h, 0, &mut rng);
+    s.sphere(Vec3::new(-0.4, -0.6, -0.3), 0.4, 1500, 1);
+    s.sphere(Vec3::new(0.45, -0.7, 0.2), 0.3, 900, 2);
     (s, vec![class::DIFFUSE, class::MIRROR, class::DIELECTRIC])
 }
 
@@ -471,7 +410,7 @@ fn splat_areas_sum_to_the_surface_area() {
     // shell the flat disks stick out by), so the areas must sum to 4πR² closely.
     for count in [2000usize, 8000] {
         let mut s = Soa::default();
-        sphere(&mut s, Vec3::ZERO, 1.0, count, 0);
+        s.sphere(Vec3::ZERO, 1.0, count, 0);
         let o = s
             .build(
                 &[class::DIFFUSE],
@@ -502,7 +441,7 @@ fn splat_areas_sum_to_the_surface_area() {
 #[test]
 fn normal_fields_follow_the_curvature() {
     let mut s = Soa::default();
-    sphere(&mut s, Vec3::ZERO, 2.0, 20_000, 0);
+    s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
     let o = s
         .build(
             &[class::MIRROR],

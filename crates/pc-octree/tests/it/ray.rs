@@ -7,7 +7,7 @@ use pc_tree::{intersect_splat, Ray, TraversalStats};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use crate::{mixed_scene, sphere, Soa};
+use crate::{mixed_scene, BuildSoa, Soa};
 
 fn brute(o: &pc_octree::Octree, ray: &Ray) -> Option<(f32, u32)> {
     let mut best: Option<(f32, u32)> = None;
@@ -120,8 +120,8 @@ fn nearest_hits_agree_with_brute_force_from_inside_and_outside() {
 fn tiny_cells_at_max_depth_are_not_skipped() {
     // A dense cluster forces deep, tiny cells; the exact step must not jump over them.
     let mut s = Soa::default();
-    sphere(&mut s, Vec3::ZERO, 1e-3, 500, 0);
-    sphere(&mut s, Vec3::new(0.5, 0.0, 0.0), 0.3, 500, 0);
+    s.sphere(Vec3::ZERO, 1e-3, 500, 0);
+    s.sphere(Vec3::new(0.5, 0.0, 0.0), 0.3, 500, 0);
     let o = s
         .build(
             &[class::DIFFUSE],

@@ -6,59 +6,22 @@ use pc_octree::{build, BuildInput, BuildParams, Octree};
 use pc_raytrace::scene::RenderScene;
 use pc_scene::camera::Camera;
 use pc_scene::config::{CameraConfig, FovAxis, PointLightConfig, RaytraceConfig, ShadingMode};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
 mod specular;
 
-/// Test scene in structure-of-arrays form with per-splat material indices.
-#[derive(Default, Clone)]
-pub struct Soa {
-    pub p: Vec<Vec3>,
-    pub n: Vec<Vec3>,
-    pub r: Vec<f32>,
-    pub m: Vec<u32>,
+pub use pc_testkit::Soa;
+
+/// Building an octree straight from a test scene and its materials.
+pub trait BuildSoa {
+    fn build(&self, materials: &[MaterialRecord]) -> Octree;
 }
 
-impl Soa {
-    /// Jittered grid on the rectangle c + a·u + b·v, a, b ∈ [-1, 1], spacing ≈ h, radius h.
-    pub fn rect(&mut self, c: Vec3, u: Vec3, v: Vec3, h: f32, m: u32, rng: &mut Pcg64) {
-        let (nu, nv) = (
-            (2.0 * u.length() / h).round().max(1.0) as i32,
-            (2.0 * v.length() / h).round().max(1.0) as i32,
-        );
-        let n = u.cross(v).normalize();
-        for i in 0..nu {
-            for j in 0..nv {
-                let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
-                let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
-                self.p.push(c + u * a + v * b);
-                self.n.push(n);
-                self.r.push(h);
-                self.m.push(m);
-            }
-        }
-    }
-
-    /// Sphere of `count` splats (Fibonacci), outward normals.
-    pub fn sphere(&mut self, c: Vec3, radius: f32, count: usize, m: u32) {
-        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-        let h = (4.0 * std::f32::consts::PI * radius * radius / count as f32).sqrt();
-        for k in 0..count {
-            let z = 1.0 - 2.0 * (k as f32 + 0.5) / count as f32;
-            let rho = (1.0 - z * z).sqrt();
-            let a = k as f32 * golden;
-            let n = Vec3::new(rho * a.cos(), rho * a.sin(), z);
-            self.p.push(c + n * radius);
-            self.n.push(n);
-            self.r.push(h);
-            self.m.push(m);
-        }
-    }
-
-    pub fn build(&self, materials: &[MaterialRecord]) -> Octree {
+impl BuildSoa for Soa {
+    fn build(&self, materials: &[MaterialRecord]) -> Octree {
         let classes: Vec<u32> = materials.iter().map(|m| m.class).collect();
-        let albedo = vec![Vec3::ONE; self.p.len()];
+        let albedo = self.ones();
         let input = BuildInput {
             positions: &self.p,
             normals: &self.n,
@@ -67,16 +30,12 @@ impl Soa {
             material: &self.m,
             material_class: &classes,
         };
-        build(
-            &input,
-            &BuildParams {
-                max_leaf_points: 16,
-                area_samples: 16,
-                ..Default::default()
-            },
-            &mut |_| {},
-        )
-        .unwrap()
+        let params = BuildParams {
+            max_leaf_points: 16,
+            area_samples: 16,
+            ..Default::default()
+        };
+        build(&input, &params, &mut |_| {}).unwrap()
     }
 }
 

@@ -8,7 +8,7 @@ use pc_tree::{Ray, TraversalStats};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use crate::{diffuse, Soa};
+use crate::{diffuse, BuildSoa, Soa};
 
 #[test]
 fn snell_and_total_internal_reflection_are_exact() {

@@ -12,63 +12,30 @@ use rand_pcg::Pcg64;
 
 mod stage;
 
-#[derive(Default, Clone)]
-pub struct Soa {
-    pub p: Vec<Vec3>,
-    pub n: Vec<Vec3>,
-    pub r: Vec<f32>,
+pub use pc_testkit::Soa;
+
+/// Building an octree (one diffuse material) straight from a test scene.
+pub trait BuildSoa {
+    fn build(&self, k: u32) -> Octree;
 }
 
-impl Soa {
-    /// Jittered grid on c + a·u + b·v, a, b ∈ [-1, 1], spacing ≈ h, radius h, normal u × v.
-    pub fn rect(&mut self, c: Vec3, u: Vec3, v: Vec3, h: f32, rng: &mut Pcg64) {
-        let (nu, nv) = (
-            (2.0 * u.length() / h).round().max(1.0) as i32,
-            (2.0 * v.length() / h).round().max(1.0) as i32,
-        );
-        let n = u.cross(v).normalize();
-        for i in 0..nu {
-            for j in 0..nv {
-                let a = -1.0 + (i as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nu as f32;
-                let b = -1.0 + (j as f32 + 0.5 + rng.random_range(-0.2..0.2)) * 2.0 / nv as f32;
-                self.p.push(c + u * a + v * b);
-                self.n.push(n);
-                self.r.push(h);
-            }
-        }
-    }
-
-    /// Axis-aligned box with outward faces.
-    pub fn cube(&mut self, c: Vec3, half: Vec3, h: f32, rng: &mut Pcg64) {
-        let (x, y, z) = (Vec3::X * half.x, Vec3::Y * half.y, Vec3::Z * half.z);
-        self.rect(c + x, y, z, h, rng);
-        self.rect(c - x, z, y, h, rng);
-        self.rect(c + y, z, x, h, rng);
-        self.rect(c - y, x, z, h, rng);
-        self.rect(c + z, x, y, h, rng);
-        self.rect(c - z, y, x, h, rng);
-    }
-
-    pub fn build(&self, k: u32) -> Octree {
-        let n = self.p.len();
+impl BuildSoa for Soa {
+    fn build(&self, k: u32) -> Octree {
+        let albedo = self.ones();
         let input = BuildInput {
             positions: &self.p,
             normals: &self.n,
             radii: &self.r,
-            albedo: &vec![Vec3::ONE; n],
-            material: &vec![0; n],
+            albedo: &albedo,
+            material: &self.m,
             material_class: &[class::DIFFUSE],
         };
-        build(
-            &input,
-            &BuildParams {
-                max_leaf_points: k,
-                area_samples: 8,
-                ..Default::default()
-            },
-            &mut |_| {},
-        )
-        .unwrap()
+        let params = BuildParams {
+            max_leaf_points: k,
+            area_samples: 8,
+            ..Default::default()
+        };
+        build(&input, &params, &mut |_| {}).unwrap()
     }
 }
 
@@ -167,13 +134,14 @@ fn form_factor_sums(
 fn room(h: f32) -> Soa {
     let mut rng = Pcg64::seed_from_u64(5);
     let mut s = Soa::default();
-    s.rect(Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, &mut rng); // floor, up
-    s.rect(Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, &mut rng); // back, +z
-    s.rect(Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, h, &mut rng); // left, +x
+    s.rect(Vec3::new(0.0, -1.0, 0.0), Vec3::X, -Vec3::Z, h, 0, &mut rng); // floor, up
+    s.rect(Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng); // back, +z
+    s.rect(Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, h, 0, &mut rng); // left, +x
     s.cube(
         Vec3::new(0.1, -0.7, -0.2),
         Vec3::new(0.3, 0.3, 0.3),
         h,
+        0,
         &mut rng,
     );
     s
@@ -256,14 +224,22 @@ fn no_link_crosses_an_occluding_plate() {
     // Two walls facing each other with a plate between them covering their middle.
     let mut rng = Pcg64::seed_from_u64(6);
     let mut s = Soa::default();
-    s.rect(Vec3::ZERO, Vec3::X, Vec3::Y, 0.05, &mut rng); // wall 1 at z=0, facing +z
-    s.rect(Vec3::new(0.0, 0.0, 2.0), Vec3::Y, Vec3::X, 0.05, &mut rng); // wall 2 at z=2, facing -z
+    s.rect(Vec3::ZERO, Vec3::X, Vec3::Y, 0.05, 0, &mut rng); // wall 1 at z=0, facing +z
+    s.rect(
+        Vec3::new(0.0, 0.0, 2.0),
+        Vec3::Y,
+        Vec3::X,
+        0.05,
+        0,
+        &mut rng,
+    ); // wall 2 at z=2, facing -z
     let wall = s.p.len();
     s.rect(
         Vec3::new(0.0, 0.0, 0.98),
         Vec3::Y * 0.5,
         Vec3::X * 0.5,
         0.05,
+        0,
         &mut rng,
     ); // plate, facing -z
     s.rect(
@@ -271,6 +247,7 @@ fn no_link_crosses_an_occluding_plate() {
         Vec3::X * 0.5,
         Vec3::Y * 0.5,
         0.05,
+        0,
         &mut rng,
     ); // plate, facing +z
     let o = s.build(8);
@@ -316,13 +293,14 @@ fn no_link_crosses_an_occluding_plate() {
 fn a_point_light_above_a_box_does_not_see_its_shadow() {
     let mut rng = Pcg64::seed_from_u64(7);
     let mut s = Soa::default();
-    s.rect(Vec3::ZERO, Vec3::X * 1.5, -Vec3::Z * 1.5, 0.04, &mut rng); // floor y=0, up
+    s.rect(Vec3::ZERO, Vec3::X * 1.5, -Vec3::Z * 1.5, 0.04, 0, &mut rng); // floor y=0, up
     let floor = s.p.len();
     let (lo, hi) = (Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 0.6, 0.3));
     s.cube(
         (lo + hi) * 0.5 + Vec3::Y * 0.002,
         (hi - lo) * 0.5,
         0.04,
+        0,
         &mut rng,
     );
     let o = s.build(8);
