@@ -15,42 +15,7 @@ use crate::cpu::RayCounts;
 use crate::image::{write_exr, write_png, Image};
 use crate::scene::RenderScene;
 
-/// The materials of the config, checked against the ones the octree was built with: names and
-/// classes must match (colors may change without rebuilding the octree).
-pub fn current_materials(
-    cfg: &LoadedConfig,
-    octree: &Artifact,
-) -> anyhow::Result<Vec<MaterialRecord>> {
-    let meta: OctreeMeta = octree.metadata()?;
-    let materials: Vec<(String, pc_scene::config::MaterialConfig)> = cfg
-        .config
-        .materials
-        .iter()
-        .map(|(k, v)| (k.clone(), v.clone()))
-        .collect();
-    let names: Vec<String> = materials.iter().map(|m| m.0.clone()).collect();
-    if names != meta.material_names {
-        bail!(
-            "{}: the octree was built with materials [{}] but {} now defines [{}]: rerun pc-octree",
-            octree.path().display(),
-            meta.material_names.join(", "),
-            cfg.path.display(),
-            names.join(", ")
-        );
-    }
-    let table = material_table(&materials);
-    let built: &[MaterialRecord] = octree.section("materials")?;
-    for (i, (m, b)) in table.iter().zip(built).enumerate() {
-        if m.class != b.class || m.per_point_color != b.per_point_color {
-            bail!(
-                "{}: material `{}` changed class since the octree was built: rerun pc-octree",
-                octree.path().display(),
-                names[i]
-            );
-        }
-    }
-    Ok(table)
-}
+pub use pc_scene::cli::current_materials;
 
 /// Which backend runs, after `auto` is resolved.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

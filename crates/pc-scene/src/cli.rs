@@ -38,3 +38,41 @@ pub fn exit(name: &str, result: anyhow::Result<()>) -> ExitCode {
         }
     }
 }
+
+/// The materials of the config, checked against the ones the octree was built with: names and
+/// classes must match (colors may change without rebuilding the octree).
+pub fn current_materials(
+    cfg: &LoadedConfig,
+    octree: &pc_artifact::Artifact,
+) -> anyhow::Result<Vec<pc_artifact::octree::MaterialRecord>> {
+    let meta: pc_artifact::octree::OctreeMeta = octree.metadata()?;
+    let materials: Vec<(String, crate::config::MaterialConfig)> = cfg
+        .config
+        .materials
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let names: Vec<String> = materials.iter().map(|m| m.0.clone()).collect();
+    if names != meta.material_names {
+        anyhow::bail!(
+            "{}: the octree was built with materials [{}] but {} now defines [{}]: rerun pc-octree",
+            octree.path().display(),
+            meta.material_names.join(", "),
+            cfg.path.display(),
+            names.join(", ")
+        );
+    }
+    let table = crate::load::material_table(&materials);
+    let built: &[pc_artifact::octree::MaterialRecord] = octree.section("materials")?;
+    for (i, (m, b)) in table.iter().zip(built).enumerate() {
+        if m.class != b.class || m.per_point_color != b.per_point_color {
+            anyhow::bail!(
+                "{}: material `{}` changed class since the octree was built: rerun pc-octree",
+                octree.path().display(),
+                names[i]
+            );
+        }
+    }
+    Ok(table)
+}
+

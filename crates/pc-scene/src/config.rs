@@ -35,6 +35,8 @@ pub struct PipelineConfig {
     #[serde(default)]
     pub vmap: VmapConfig,
     #[serde(default)]
+    pub fmm: FmmConfig,
+    #[serde(default)]
     pub raytrace: RaytraceConfig,
 }
 
@@ -305,12 +307,49 @@ impl Default for VmapConfig {
     }
 }
 
+/// pc-fmm parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct FmmConfig {
+    /// Taylor expansion order p of the far field.
+    pub order: u32,
+    /// Expansion separation: two clusters interact through expansions when
+    /// (r_a + r_b) < theta · distance.
+    pub theta: f32,
+    /// Largest accepted cosine-clamp error of one interaction, as a form factor.
+    pub clamp_tol: f32,
+    /// The solve stops when the relative residual falls below this.
+    pub tolerance: f32,
+    /// The solve stops after this many iterations even if not converged.
+    pub max_iterations: u32,
+    /// Where the FMM passes run.
+    pub backend: Backend,
+    /// Artifact file name inside `output.dir`.
+    pub file: PathBuf,
+}
+
+impl Default for FmmConfig {
+    fn default() -> Self {
+        FmmConfig {
+            order: 4,
+            theta: 0.5,
+            clamp_tol: 1e-4,
+            tolerance: 1e-4,
+            max_iterations: 200,
+            backend: Backend::Auto,
+            file: PathBuf::from("radiosity.pcgi"),
+        }
+    }
+}
+
 /// What a diffuse hit shows.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum ShadingMode {
-    /// The radiance stored at the splats: emission (and, once pc-fmm has run, radiosity).
+    /// `stored` when the radiosity artifact exists, else `direct`.
     #[default]
+    Auto,
+    /// The radiance stored at the splats: the radiosity artifact's, or emission alone.
     Stored,
     /// Preview: emission plus albedo times direct light from point lights and emitters, with
     /// shadow rays.
@@ -361,7 +400,7 @@ impl Default for RaytraceConfig {
         RaytraceConfig {
             spp: 16,
             max_bounces: 8,
-            mode: ShadingMode::Stored,
+            mode: ShadingMode::Auto,
             backend: Backend::Auto,
             self_hit: 0.5,
             blend_thickness: 0.5,
@@ -399,6 +438,10 @@ impl LoadedConfig {
     /// The vmap artifact path, resolved.
     pub fn vmap_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.vmap.file)
+    }
+    /// The radiosity artifact path, resolved.
+    pub fn radiosity_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.fmm.file)
     }
     /// The rendered image path, resolved.
     pub fn image_path(&self) -> PathBuf {
@@ -721,6 +764,22 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
     }
     if !(v.self_hit.is_finite() && v.self_hit >= 0.0) {
         return err("vmap.self_hit must be finite and non-negative".into());
+    }
+    let f = &c.fmm;
+    if f.order > 12 {
+        return err(format!("fmm.order must lie in 0..=12, got {}", f.order));
+    }
+    if !(f.theta.is_finite() && f.theta > 0.0 && f.theta < 1.0) {
+        return err(format!("fmm.theta must lie in (0, 1), got {}", f.theta));
+    }
+    if !(f.clamp_tol.is_finite() && f.clamp_tol >= 0.0) {
+        return err("fmm.clamp_tol must be finite and non-negative".into());
+    }
+    if !(f.tolerance.is_finite() && f.tolerance > 0.0) || f.max_iterations == 0 {
+        return err(format!(
+            "fmm.tolerance must be positive and fmm.max_iterations at least 1, got {} and {}",
+            f.tolerance, f.max_iterations
+        ));
     }
     let r = &c.raytrace;
     if r.spp == 0 || r.spp > 65536 {

@@ -1,0 +1,56 @@
+//! Schema of the `radiosity` artifact written by pc-fmm (docs/fmm.md, docs/artifacts.md).
+//!
+//! | section     | element     | what                                                        |
+//! |-------------|-------------|-------------------------------------------------------------|
+//! | `radiance`  | `[f32; 3]`  | per data-pool splat: outgoing diffuse radiance, linear RGB   |
+//! | `source`    | `[f32; 3]`  | per splat: the solve's source term E (emission + direct)     |
+//! | `residuals` | `f64`       | relative residual after each iteration                       |
+//!
+//! `radiance` holds emission plus every LD⁺ bounce and the LDD bounces fed by caustic energy,
+//! but not the caustic energy's own first diffuse bounce: the renderer adds that from the
+//! photon map (seed §8.1, §8.5.15). Specular splats hold zero.
+
+use serde::{Deserialize, Serialize};
+
+pub mod sections {
+    pub const RADIANCE: &str = "radiance";
+    pub const SOURCE: &str = "source";
+    pub const RESIDUALS: &str = "residuals";
+}
+
+/// Parameters of the solve (part of the artifact key).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FmmParams {
+    /// Taylor expansion order p.
+    pub order: u32,
+    /// Expansion separation: (r_a + r_b) < theta · distance.
+    pub theta: f32,
+    /// Largest accepted cosine-clamp error of one interaction, as a form factor.
+    pub clamp_tol: f32,
+    /// The solve stops once the relative residual falls below this.
+    pub tolerance: f32,
+    pub max_iterations: u32,
+}
+
+/// Metadata of a radiosity artifact.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RadiosityMeta {
+    /// Keys of the octree and V-map artifacts the solve used.
+    pub octree_key: String,
+    pub vmap_key: String,
+    /// Key of the caustics artifact whose energy fed the solve, if any.
+    pub photons_key: Option<String>,
+    pub params: FmmParams,
+    pub iterations: u32,
+    pub converged: bool,
+    pub residuals: Vec<f64>,
+    /// Splats that take part (diffuse and emitting).
+    pub active_splats: u64,
+    pub m2l: u64,
+    pub p2l: u64,
+    pub m2p: u64,
+    pub p2p: u64,
+    pub p2p_pairs: u64,
+    pub device: String,
+    pub timings: Vec<(String, f64)>,
+}

@@ -1,0 +1,352 @@
+//! The CPU operator (rayon): one application of the transport operator by the FMM, and the
+//! direct O(N²) sum over the same links that tests hold it against. The GPU twin is
+//! [`crate::gpu`] (shaders/fmm/*.wgsl).
+//!
+//! Both compute, for every active splat i,
+//! `out_i = Σ_links f Σ_{j ∈ B, j ≠ i} K(i, j) A_j L_j` with
+//! `K = max(0, n_i·d) max(0, −n_j·d) / (π |d|⁴)`, `d = x_j − x_i`.
+
+use rayon::prelude::*;
+
+use crate::expansion::{self as ex, Basis, Coef, Sym};
+use crate::plan::{Plan, POINT};
+use crate::tree::{Points, Tree, NONE};
+
+const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
+
+/// The source weights `w_j = A_j L_j` (zero for inactive splats).
+pub fn weights(pts: &Points, radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    (0..pts.pos.len())
+        .into_par_iter()
+        .map(|j| {
+            if pts.active[j] {
+                let a = pts.area[j];
+                [a * radiance[j][0], a * radiance[j][1], a * radiance[j][2]]
+            } else {
+                [0.0; 3]
+            }
+        })
+        .collect()
+}
+
+/// The source charges `q_j = n_j w_j`.
+pub fn charges(pts: &Points, w: &[[f32; 3]]) -> Vec<Coef> {
+    (0..pts.pos.len())
+        .into_par_iter()
+        .map(|j| {
+            let mut q = [0.0f32; 9];
+            let n = pts.normal[j];
+            for c in 0..3 {
+                for k in 0..3 {
+                    q[c * 3 + k] = n[k] * w[j][c];
+                }
+            }
+            q
+        })
+        .collect()
+}
+
+/// Clamped point-to-point kernel `K(i, j) = max(0, n_i·d) max(0, −n_j·d) / (π |d|⁴)`.
+#[inline(always)]
+pub fn kernel(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
+    let d = [xj[0] - xi[0], xj[1] - xi[1], xj[2] - xi[2]];
+    let ci = ni[0] * d[0] + ni[1] * d[1] + ni[2] * d[2];
+    let cj = -(nj[0] * d[0] + nj[1] * d[1] + nj[2] * d[2]);
+    if ci <= 0.0 || cj <= 0.0 {
+        return 0.0;
+    }
+    let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    ci * cj * INV_PI / (r2 * r2)
+}
+
+/// Scratch of one worker.
+struct Scratch {
+    pow: Vec<f32>,
+    a: Vec<f32>,
+    g: Vec<Sym>,
+}
+
+impl Scratch {
+    fn new(b: &Basis) -> Scratch {
+        Scratch {
+            pow: vec![0.0; b.len()],
+            a: vec![0.0; b.len()],
+            g: vec![[0.0; 6]; b.len()],
+        }
+    }
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// Raw pointer for disjoint parallel writes.
+#[derive(Clone, Copy)]
+struct SyncPtr<T>(*mut T);
+unsafe impl<T> Send for SyncPtr<T> {}
+unsafe impl<T> Sync for SyncPtr<T> {}
+
+impl<T> SyncPtr<T> {
+    #[inline(always)]
+    fn at(self, i: usize) -> *mut T {
+        // SAFETY: callers keep `i` inside the allocation.
+        unsafe { self.0.add(i) }
+    }
+}
+
+/// Per-phase timings of one application, seconds.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PhaseTimes {
+    pub upward: f64,
+    pub m2l: f64,
+    pub downward: f64,
+}
+
+/// The FMM on the CPU.
+pub struct CpuFmm<'a> {
+    pub basis: &'a Basis,
+    pub tree: &'a Tree,
+    pub points: &'a Points,
+    pub plan: &'a Plan,
+}
+
+impl CpuFmm<'_> {
+    /// Upward pass: multipole moments of every node (P2M at leaves, M2M upward).
+    pub fn upward(&self, q: &[Coef]) -> Vec<Coef> {
+        let (b, t, p) = (self.basis, self.tree, self.points);
+        let np = b.len();
+        let mut m = vec![[0.0f32; 9]; t.nodes.len() * np];
+        let mp = SyncPtr(m.as_mut_ptr());
+        t.leaves.par_iter().for_each_init(
+            || Scratch::new(b),
+            |s, &leaf| {
+                let ci = t.compact[leaf as usize] as usize;
+                // SAFETY: each leaf writes its own expansion block.
+                let out = unsafe { std::slice::from_raw_parts_mut(mp.at(ci * np), np) };
+                let c = t.center[leaf as usize];
+                for j in t.lo[leaf as usize]..t.hi[leaf as usize] {
+                    if p.active[j as usize] {
+                        ex::p2m(b, &q[j as usize], sub(p.pos[j as usize], c), &mut s.pow, out);
+                    }
+                }
+            },
+        );
+        for level in t.levels.iter().rev() {
+            level.par_iter().for_each_init(
+                || Scratch::new(b),
+                |s, &slot| {
+                    if t.first_child[slot as usize] == NONE {
+                        return;
+                    }
+                    let ci = t.compact[slot as usize] as usize;
+                    let c = t.center[slot as usize];
+                    // SAFETY: a parent writes its own block and reads its children's, which
+                    // were finished by the previous level.
+                    let out = unsafe { std::slice::from_raw_parts_mut(mp.at(ci * np), np) };
+                    for k in t.children(slot) {
+                        let kc = t.compact[k as usize] as usize;
+                        let child =
+                            unsafe { std::slice::from_raw_parts(mp.at(kc * np) as *const Coef, np) };
+                        ex::m2m(b, child, sub(t.center[k as usize], c), &mut s.pow, out);
+                    }
+                },
+            );
+        }
+        m
+    }
+
+    /// M2L and P2L into every receiving node's local expansion.
+    pub fn interact(&self, m: &[Coef], q: &[Coef]) -> Vec<Coef> {
+        let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
+        let np = b.len();
+        let mut l = vec![[0.0f32; 9]; t.nodes.len() * np];
+        l.par_chunks_mut(np).enumerate().for_each_init(
+            || Scratch::new(b),
+            |s, (ci, local)| {
+                let (lo, hi) = (plan.node_offsets[ci] as usize, plan.node_offsets[ci + 1] as usize);
+                if lo == hi {
+                    return;
+                }
+                let ca = t.center[t.nodes[ci] as usize];
+                for task in &plan.node_tasks[lo..hi] {
+                    if task.src & POINT == 0 {
+                        let src = task.src as usize;
+                        let r = sub(t.center[src], ca);
+                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
+                        let sc = t.compact[src] as usize;
+                        ex::m2l(b, &s.g, &m[sc * np..(sc + 1) * np], task.fraction, local);
+                    } else {
+                        let j = (task.src & !POINT) as usize;
+                        let r = sub(p.pos[j], ca);
+                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
+                        for (i, g) in s.g.iter().enumerate() {
+                            let sign = if b.degree[i] % 2 == 1 { -1.0 } else { 1.0 };
+                            ex::sym_apply_add(g, &q[j], sign * task.fraction, &mut local[i]);
+                        }
+                    }
+                }
+            },
+        );
+        l
+    }
+
+    /// Downward pass (L2L) and the leaf phase (L2P, M2P, P2P): the operator's output per splat.
+    pub fn downward(&self, mut l: Vec<Coef>, m: &[Coef], w: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
+        let np = b.len();
+        let lp = SyncPtr(l.as_mut_ptr());
+        for level in t.levels.iter().skip(1) {
+            level.par_iter().for_each_init(
+                || Scratch::new(b),
+                |s, &slot| {
+                    let parent = t.parent[slot as usize] as usize;
+                    let pc = t.compact[parent] as usize;
+                    let ci = t.compact[slot as usize] as usize;
+                    // SAFETY: each node writes its own block; parents are finished.
+                    let src =
+                        unsafe { std::slice::from_raw_parts(lp.at(pc * np) as *const Coef, np) };
+                    let dst = unsafe { std::slice::from_raw_parts_mut(lp.at(ci * np), np) };
+                    ex::l2l(b, src, sub(t.center[slot as usize], t.center[parent]), &mut s.pow, dst);
+                },
+            );
+        }
+        let op = SyncPtr(out.as_mut_ptr());
+        t.leaves.par_iter().enumerate().for_each_init(
+            || Scratch::new(b),
+            |s, (li, &leaf)| {
+                let ci = t.compact[leaf as usize] as usize;
+                let local = &l[ci * np..(ci + 1) * np];
+                let c = t.center[leaf as usize];
+                let (lo, hi) = (t.lo[leaf as usize], t.hi[leaf as usize]);
+                // SAFETY: a leaf writes only its own splats' outputs.
+                let o = unsafe {
+                    std::slice::from_raw_parts_mut(op.at(lo as usize), (hi - lo) as usize)
+                };
+                for i in lo..hi {
+                    let iu = i as usize;
+                    let mut v = [0.0f32; 3];
+                    if p.active[iu] {
+                        let f = ex::l2p(b, local, sub(p.pos[iu], c), &mut s.pow);
+                        let n = p.normal[iu];
+                        for (k, vk) in v.iter_mut().enumerate() {
+                            *vk = -INV_PI
+                                * (n[0] * f[k * 3] + n[1] * f[k * 3 + 1] + n[2] * f[k * 3 + 2]);
+                        }
+                    }
+                    o[(i - lo) as usize] = v;
+                }
+                let (tl, th) = (plan.leaf_offsets[li] as usize, plan.leaf_offsets[li + 1] as usize);
+                for task in &plan.leaf_tasks[tl..th] {
+                    if task.is_m2p() {
+                        let i = task.recv_lo as usize;
+                        let src = task.src_lo as usize;
+                        let r = sub(t.center[src], p.pos[i]);
+                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
+                        let sc = t.compact[src] as usize;
+                        let mut f = [0.0f32; 9];
+                        for (k, mk) in m[sc * np..(sc + 1) * np].iter().enumerate() {
+                            ex::sym_apply_add(&s.g[k], mk, 1.0, &mut f);
+                        }
+                        let n = p.normal[i];
+                        let v = &mut o[i - lo as usize];
+                        for (k, vk) in v.iter_mut().enumerate() {
+                            *vk -= task.fraction
+                                * INV_PI
+                                * (n[0] * f[k * 3] + n[1] * f[k * 3 + 1] + n[2] * f[k * 3 + 2]);
+                        }
+                    } else {
+                        for i in task.recv_lo..task.recv_hi {
+                            let iu = i as usize;
+                            if !p.active[iu] {
+                                continue;
+                            }
+                            let (xi, ni) = (p.pos[iu], p.normal[iu]);
+                            let mut acc = [0.0f32; 3];
+                            for j in task.src_lo..task.src_hi {
+                                let ju = j as usize;
+                                if j == i || !p.active[ju] {
+                                    continue;
+                                }
+                                let k = kernel(xi, ni, p.pos[ju], p.normal[ju]);
+                                if k > 0.0 {
+                                    for (c, a) in acc.iter_mut().enumerate() {
+                                        *a += k * w[ju][c];
+                                    }
+                                }
+                            }
+                            let v = &mut o[(i - lo) as usize];
+                            for c in 0..3 {
+                                v[c] += task.fraction * acc[c];
+                            }
+                        }
+                    }
+                }
+            },
+        );
+    }
+
+    /// One application: `out_i = Σ_j f K(i, j) A_j L_j` for the radiance `L`.
+    pub fn apply(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]], times: &mut PhaseTimes) {
+        let t0 = std::time::Instant::now();
+        let w = weights(self.points, radiance);
+        let q = charges(self.points, &w);
+        let m = self.upward(&q);
+        let t1 = std::time::Instant::now();
+        let l = self.interact(&m, &q);
+        let t2 = std::time::Instant::now();
+        self.downward(l, &m, &w, out);
+        times.upward += (t1 - t0).as_secs_f64();
+        times.m2l += (t2 - t1).as_secs_f64();
+        times.downward += t2.elapsed().as_secs_f64();
+    }
+}
+
+/// The direct sum over the V-map's links (no expansion): for each splat, every link of its
+/// leaf and of the leaf's ancestors, every source splat of the linked node. O(N²); tests only.
+pub fn direct(
+    tree: &Tree,
+    pts: &Points,
+    link_offsets: &[u32],
+    links: &[pc_artifact::vmap::Link],
+    radiance: &[[f32; 3]],
+) -> Vec<[f32; 3]> {
+    (0..pts.pos.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut acc = [0.0f64; 3];
+            if !pts.active[i] {
+                return [0.0; 3];
+            }
+            let mut slot = pts.leaf[i];
+            while slot != NONE {
+                let (s, e) = (link_offsets[slot as usize], link_offsets[slot as usize + 1]);
+                for l in &links[s as usize..e as usize] {
+                    let b = l.slot() as usize;
+                    for j in tree.lo[b]..tree.hi[b] {
+                        let ju = j as usize;
+                        if ju == i || !pts.active[ju] {
+                            continue;
+                        }
+                        let k = kernel(pts.pos[i], pts.normal[i], pts.pos[ju], pts.normal[ju])
+                            as f64
+                            * l.fraction as f64
+                            * pts.area[ju] as f64;
+                        for c in 0..3 {
+                            acc[c] += k * radiance[ju][c] as f64;
+                        }
+                    }
+                }
+                slot = tree.parent[slot as usize];
+            }
+            [acc[0] as f32, acc[1] as f32, acc[2] as f32]
+        })
+        .collect()
+}
+
+/// Sum of a vector's squares, f64.
+pub fn norm2(v: &[[f32; 3]]) -> f64 {
+    v.iter()
+        .map(|x| x.iter().map(|&y| (y as f64) * (y as f64)).sum::<f64>())
+        .sum()
+}
+

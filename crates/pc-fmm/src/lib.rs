@@ -1,0 +1,42 @@
+//! pc-fmm: diffuse global illumination of point models by the Fast Multipole Method (seed §7.1,
+//! §7.3, §8.1, §8.5.15; docs/fmm.md).
+//!
+//! Radiance of every diffuse splat, `L = E + ρ ∘ T L` with
+//! `(T L)_i = Σ_j f_ij K(i, j) A_j L_j` over the pairs the V-map links, the point-to-point form
+//! factor kernel `K = cos θ_i cos θ_j / (π r²)` and each link's visible fraction `f`. Each
+//! product `T L` is an FMM over the octree with Cartesian Taylor expansions of the kernel's
+//! tensor form ([`expansion`]), on an interaction plan refined from the V-map's links
+//! ([`plan`]); [`cpu`] runs it with rayon and [`gpu`] with WGSL compute shaders.
+
+pub mod cpu;
+pub mod expansion;
+pub mod gpu;
+
+pub mod plan;
+pub mod solve;
+pub mod stage;
+pub mod tree;
+
+pub use cpu::CpuFmm;
+pub use expansion::Basis;
+pub use plan::{Plan, PlanParams};
+pub use solve::{Operator, Solution, System};
+pub use tree::{Points, Tree};
+
+/// The CPU operator as a solver [`Operator`], with accumulated phase timings.
+pub struct CpuOperator<'a> {
+    pub fmm: CpuFmm<'a>,
+    pub times: cpu::PhaseTimes,
+    pub applications: u32,
+}
+
+impl Operator for CpuOperator<'_> {
+    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String> {
+        self.fmm.apply(radiance, out, &mut self.times);
+        self.applications += 1;
+        Ok(())
+    }
+    fn device(&self) -> String {
+        format!("CPU ({} threads)", rayon::current_num_threads())
+    }
+}

@@ -1,0 +1,379 @@
+//! The interaction plan: the V-map's links, refined until every directed interaction is one
+//! the expansions can carry within the error targets (docs/fmm.md, "Interaction plan").
+//!
+//! A cluster is a node-pool slot or a single splat. For a directed pair (receiver A, source B)
+//! with the link's visible fraction f:
+//! - A and B are well separated when `(r_A + r_B) < θ |c_B − c_A|`; then the Taylor series
+//!   converges and its truncation error is about `(1/θ)^{−(p+1)}` relative.
+//! - The kernel's cosine clamps are smooth only while no pair changes side. From the normal
+//!   cones and the cone of directions between the two bounding spheres, each side's cosine lies
+//!   in `[lo, hi]`. `hi ≤ 0` on either side: every pair faces away, the interaction is exactly
+//!   zero. `lo ≥ 0` on both sides: the clamps are inactive, the expansion is exact up to
+//!   truncation. Otherwise the clamp error is bounded by `clamp_err` (a form factor bound) and
+//!   accepted below `clamp_tol`; else the straddling side is split (a leaf into its splats).
+//! - Pairs that are not well separated split the larger internal node; two leaves (or splats)
+//!   that are not separated interact point to point.
+//!
+//! Accepted pairs become M2L (node ← node), P2L (node ← splat), M2P (splat ← node) or P2P
+//! (splat range ← splat range) tasks, grouped by receiver so each is applied without atomics.
+
+use glam::Vec3;
+use pc_artifact::vmap::Link;
+use rayon::prelude::*;
+
+use crate::tree::{Points, Tree, NONE};
+
+/// Flag of a cluster that is a single splat.
+pub const POINT: u32 = 1 << 31;
+
+/// Plan parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct PlanParams {
+    /// Expansion separation: well separated when (r_A + r_B) < theta · distance.
+    pub theta: f32,
+    /// Largest accepted clamp error of one interaction, as a form factor.
+    pub clamp_tol: f32,
+}
+
+/// A node-receiver task: M2L when `src` is a slot, P2L when it carries [`POINT`].
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct NodeTask {
+    pub src: u32,
+    pub fraction: f32,
+}
+
+/// A leaf-receiver task: M2P (`recv_hi == 0`: splat `recv_lo` from node `src_lo`) or P2P
+/// (splats `[recv_lo, recv_hi)` from splats `[src_lo, src_hi)`, a splat never from itself).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LeafTask {
+    pub recv_lo: u32,
+    pub recv_hi: u32,
+    pub src_lo: u32,
+    pub src_hi: u32,
+    pub fraction: f32,
+    pub _pad: [u32; 3],
+}
+
+impl LeafTask {
+    pub fn is_m2p(&self) -> bool {
+        self.recv_hi == 0
+    }
+}
+
+/// The tasks, grouped by receiver.
+#[derive(Clone, Debug, Default)]
+pub struct Plan {
+    /// CSR over compact node indices.
+    pub node_offsets: Vec<u32>,
+    pub node_tasks: Vec<NodeTask>,
+    /// CSR over compact leaf indices.
+    pub leaf_offsets: Vec<u32>,
+    pub leaf_tasks: Vec<LeafTask>,
+    pub counts: TaskCounts,
+}
+
+/// How many tasks of each kind the plan holds, and how many splat pairs P2P covers.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct TaskCounts {
+    pub m2l: u64,
+    pub p2l: u64,
+    pub m2p: u64,
+    pub p2p: u64,
+    pub p2p_pairs: u64,
+    pub dropped_facing_away: u64,
+}
+
+struct Geo {
+    c: Vec3,
+    r: f32,
+    axis: Vec3,
+    cone_cos: f32,
+    area: f32,
+    /// Internal node (splits into children).
+    internal: bool,
+    point: bool,
+}
+
+#[inline]
+fn geo(t: &Tree, p: &Points, x: u32) -> Geo {
+    if x & POINT != 0 {
+        let i = (x & !POINT) as usize;
+        Geo {
+            c: Vec3::from(p.pos[i]),
+            r: 0.0,
+            axis: Vec3::from(p.normal[i]),
+            cone_cos: 1.0,
+            area: if p.active[i] { p.area[i] } else { 0.0 },
+            internal: false,
+            point: true,
+        }
+    } else {
+        let s = x as usize;
+        Geo {
+            c: Vec3::from(t.center[s]),
+            r: t.radius[s],
+            axis: Vec3::from(t.axis[s]),
+            cone_cos: t.cone_cos[s],
+            area: t.area[s],
+            internal: t.first_child[s] != NONE,
+            point: false,
+        }
+    }
+}
+
+/// Range of splats of a cluster.
+#[inline]
+fn range(t: &Tree, x: u32) -> (u32, u32) {
+    if x & POINT != 0 {
+        let i = x & !POINT;
+        (i, i + 1)
+    } else {
+        (t.lo[x as usize], t.hi[x as usize])
+    }
+}
+
+/// Bounds `[lo, hi]` of `n · d̂` over a normal cone and a direction cone (axis `dir`, half-angle
+/// `spread`).
+#[inline]
+fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread: f32) -> (f32, f32) {
+    if cone_cos <= -1.0 || axis == Vec3::ZERO {
+        return (-1.0, 1.0);
+    }
+    let ang = axis.dot(dir).clamp(-1.0, 1.0).acos();
+    let half = cone_cos.clamp(-1.0, 1.0).acos();
+    let hi = (ang - half - spread).max(0.0).cos();
+    let lo = (ang + half + spread).min(std::f32::consts::PI).cos();
+    (lo, hi)
+}
+
+enum Out {
+    Node(u32, NodeTask),
+    Leaf(u32, LeafTask),
+    Dropped,
+}
+
+struct Refiner<'a> {
+    t: &'a Tree,
+    p: &'a Points,
+    params: PlanParams,
+}
+
+impl Refiner<'_> {
+    /// Receiving splats of a cluster that take part (a cluster with none is skipped).
+    fn receives(&self, x: u32) -> bool {
+        if x & POINT != 0 {
+            self.p.active[(x & !POINT) as usize]
+        } else {
+            self.t.active[x as usize] > 0
+        }
+    }
+
+    fn split(&self, x: u32, out: &mut Vec<u32>) {
+        out.clear();
+        if x & POINT != 0 {
+            return;
+        }
+        if self.t.first_child[x as usize] != NONE {
+            out.extend(self.t.children(x));
+        } else {
+            let (lo, hi) = range(self.t, x);
+            out.extend((lo..hi).map(|i| i | POINT));
+        }
+    }
+
+    fn p2p(&self, a: u32, b: u32, f: f32, out: &mut Vec<Out>) {
+        let (rlo, rhi) = range(self.t, a);
+        let (slo, shi) = range(self.t, b);
+        let leaf = self.p.leaf[rlo as usize];
+        out.push(Out::Leaf(
+            leaf,
+            LeafTask {
+                recv_lo: rlo,
+                recv_hi: rhi,
+                src_lo: slo,
+                src_hi: shi,
+                fraction: f,
+                _pad: [0; 3],
+            },
+        ));
+    }
+
+    fn accept(&self, a: u32, b: u32, f: f32, out: &mut Vec<Out>) {
+        match (a & POINT != 0, b & POINT != 0) {
+            (false, _) => out.push(Out::Node(a, NodeTask { src: b, fraction: f })),
+            (true, false) => {
+                let i = a & !POINT;
+                out.push(Out::Leaf(
+                    self.p.leaf[i as usize],
+                    LeafTask {
+                        recv_lo: i,
+                        recv_hi: 0,
+                        src_lo: b,
+                        src_hi: 0,
+                        fraction: f,
+                        _pad: [0; 3],
+                    },
+                ))
+            }
+            (true, true) => self.p2p(a, b, f, out),
+        }
+    }
+
+    fn refine(&self, a0: u32, b0: u32, f: f32, out: &mut Vec<Out>, stack: &mut Vec<(u32, u32)>) {
+        let mut kids_a = Vec::new();
+        let mut kids_b = Vec::new();
+        stack.clear();
+        stack.push((a0, b0));
+        while let Some((a, b)) = stack.pop() {
+            if !self.receives(a) || geo(self.t, self.p, b).area <= 0.0 {
+                continue;
+            }
+            let (ga, gb) = (geo(self.t, self.p, a), geo(self.t, self.p, b));
+            if a == b {
+                if ga.internal {
+                    self.split(a, &mut kids_a);
+                    for &x in &kids_a {
+                        for &y in &kids_a {
+                            stack.push((x, y));
+                        }
+                    }
+                } else {
+                    self.p2p(a, b, f, out);
+                }
+                continue;
+            }
+            let d = gb.c - ga.c;
+            let dist = d.length();
+            let sum_r = ga.r + gb.r;
+            if sum_r >= self.params.theta * dist || dist <= 0.0 {
+                // Not separated: split the larger internal node, else point to point.
+                let split_a = ga.internal && (!gb.internal || ga.r >= gb.r);
+                if split_a {
+                    self.split(a, &mut kids_a);
+                    stack.extend(kids_a.iter().map(|&x| (x, b)));
+                } else if gb.internal {
+                    self.split(b, &mut kids_b);
+                    stack.extend(kids_b.iter().map(|&y| (a, y)));
+                } else {
+                    self.p2p(a, b, f, out);
+                }
+                continue;
+            }
+            let dir = d / dist;
+            let spread = (sum_r / dist).min(1.0).asin();
+            let (lo_a, hi_a) = cos_bounds(ga.axis, ga.cone_cos, dir, spread);
+            let (lo_b, hi_b) = cos_bounds(gb.axis, gb.cone_cos, -dir, spread);
+            if hi_a <= 0.0 || hi_b <= 0.0 {
+                out.push(Out::Dropped);
+                continue;
+            }
+            if lo_a >= 0.0 && lo_b >= 0.0 {
+                self.accept(a, b, f, out);
+                continue;
+            }
+            let gap = (dist - sum_r).max(1e-30);
+            let err = ((-lo_a).max(0.0) * hi_b + (-lo_b).max(0.0) * hi_a) * gb.area
+                / (std::f32::consts::PI * gap * gap);
+            if err <= self.params.clamp_tol {
+                self.accept(a, b, f, out);
+                continue;
+            }
+            // Split the straddling side (the more straddling one first), else the other.
+            let a_straddles = lo_a < 0.0 && !ga.point;
+            let b_straddles = lo_b < 0.0 && !gb.point;
+            let split_a = if a_straddles && b_straddles {
+                -lo_a * hi_b >= -lo_b * hi_a
+            } else if a_straddles || b_straddles {
+                a_straddles
+            } else {
+                !ga.point && (gb.point || ga.r >= gb.r)
+            };
+            if split_a && !ga.point {
+                self.split(a, &mut kids_a);
+                stack.extend(kids_a.iter().map(|&x| (x, b)));
+            } else if !gb.point {
+                self.split(b, &mut kids_b);
+                stack.extend(kids_b.iter().map(|&y| (a, y)));
+            } else {
+                self.p2p(a, b, f, out);
+            }
+        }
+    }
+}
+
+/// Build the plan from the V-map's links (CSR per node-pool slot, both directions stored).
+pub fn build(
+    t: &Tree,
+    p: &Points,
+    link_offsets: &[u32],
+    links: &[Link],
+    params: PlanParams,
+) -> Plan {
+    let r = Refiner { t, p, params };
+    let outs: Vec<Out> = (0..t.slots)
+        .into_par_iter()
+        .fold(
+            || (Vec::new(), Vec::new()),
+            |(mut out, mut stack): (Vec<Out>, Vec<(u32, u32)>), a| {
+                let (s, e) = (link_offsets[a] as usize, link_offsets[a + 1] as usize);
+                for l in &links[s..e] {
+                    r.refine(a as u32, l.slot(), l.fraction, &mut out, &mut stack);
+                }
+                (out, stack)
+            },
+        )
+        .map(|(o, _)| o)
+        .reduce(Vec::new, |mut a, mut b| {
+            a.append(&mut b);
+            a
+        });
+    let mut counts = TaskCounts::default();
+    let mut node: Vec<(u32, NodeTask)> = Vec::new();
+    let mut leaf: Vec<(u32, LeafTask)> = Vec::new();
+    for o in outs {
+        match o {
+            Out::Node(a, task) => {
+                if task.src & POINT != 0 {
+                    counts.p2l += 1;
+                } else {
+                    counts.m2l += 1;
+                }
+                node.push((t.compact[a as usize], task));
+            }
+            Out::Leaf(l, task) => {
+                if task.is_m2p() {
+                    counts.m2p += 1;
+                } else {
+                    counts.p2p += 1;
+                    counts.p2p_pairs +=
+                        (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
+                }
+                leaf.push((t.leaf_index[l as usize], task));
+            }
+            Out::Dropped => counts.dropped_facing_away += 1,
+        }
+    }
+    node.par_sort_unstable_by_key(|x| (x.0, x.1.src));
+    leaf.par_sort_unstable_by_key(|x| (x.0, x.1.recv_lo, x.1.src_lo));
+    let csr = |n: usize, keys: &mut dyn Iterator<Item = u32>| {
+        let mut o = vec![0u32; n + 1];
+        for k in keys {
+            o[k as usize + 1] += 1;
+        }
+        for i in 0..n {
+            o[i + 1] += o[i];
+        }
+        o
+    };
+    let node_offsets = csr(t.nodes.len(), &mut node.iter().map(|x| x.0));
+    let leaf_offsets = csr(t.leaves.len(), &mut leaf.iter().map(|x| x.0));
+    Plan {
+        node_offsets,
+        node_tasks: node.into_iter().map(|x| x.1).collect(),
+        leaf_offsets,
+        leaf_tasks: leaf.into_iter().map(|x| x.1).collect(),
+        counts,
+    }
+}

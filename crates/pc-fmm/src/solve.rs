@@ -1,0 +1,193 @@
+//! The radiosity solve: Jacobi iteration `L ← E + ρ ∘ T L` until the relative residual
+//! `‖L_{k+1} − L_k‖_A / ‖L_{k+1}‖_A` (area-weighted L2 over RGB) falls below the tolerance.
+//!
+//! Jacobi with an FMM product: every iteration is one application of the operator `T`, which is
+//! what the FMM makes O(N). The error left after stopping is about `r λ / (1 − λ)` with `λ`
+//! the convergence rate (`r_k / r_{k−1}`), which [`Solution::error_estimate`] reports.
+
+use glam::Vec3;
+use pc_artifact::octree::{class, MaterialRecord};
+use pc_artifact::vmap::Link;
+use pc_tree::{OctreeView, Ray};
+
+use crate::tree::Points;
+
+/// Anything that applies the transport operator `out_i = Σ_j f K(i, j) A_j L_j`.
+pub trait Operator {
+    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String>;
+    /// What runs it, for reports.
+    fn device(&self) -> String;
+}
+
+/// The per-splat terms of the equation `L = E + ρ ∘ T L`.
+#[derive(Clone, Debug, Default)]
+pub struct System {
+    /// Source term E: emitted radiance plus reflected direct light of the point lights (and of
+    /// caustic photons when given).
+    pub source: Vec<[f32; 3]>,
+    /// Diffuse reflectance ρ per splat (zero for specular splats).
+    pub albedo: Vec<[f32; 3]>,
+}
+
+/// A point light: position (world) and intensity (W/sr per channel).
+#[derive(Clone, Copy, Debug)]
+pub struct PointLight {
+    pub position: Vec3,
+    pub intensity: Vec3,
+}
+
+/// Which splats see a light: for each V-map light list (vleaf slot, visible fraction), the
+/// splats of the vleaf; partly visible vleaves resolve each splat with a shadow ray.
+pub trait ShadowTester {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
+}
+
+/// Build the system: albedo from the materials, E from emission and point lights.
+///
+/// `light_lists[l]` is the V-map's list of light `l`: `(slot, fraction)` for each V-map leaf
+/// that sees the light; `ranges[slot]` its splat range. A splat outside every listed node is in
+/// shadow; one in a node seen whole is lit; one in a partly seen node casts its own shadow ray
+/// (from its centre, ignoring hits within `self_hit` radii).
+#[allow(clippy::too_many_arguments)]
+pub fn system(
+    view: &OctreeView,
+    materials: &[MaterialRecord],
+    pts: &Points,
+    lights: &[PointLight],
+    light_lists: &[&[Link]],
+    ranges: &dyn Fn(u32) -> (u32, u32),
+    self_hit: f32,
+    tester: &dyn ShadowTester,
+) -> Result<System, String> {
+    let n = view.splats.len();
+    let mut sys = System {
+        source: vec![[0.0; 3]; n],
+        albedo: vec![[0.0; 3]; n],
+    };
+    for (i, s) in view.splats.iter().enumerate() {
+        if !pts.active[i] {
+            continue;
+        }
+        let m = &materials[s.material as usize];
+        let rho = Vec3::from(m.color) * Vec3::from(s.albedo);
+        sys.albedo[i] = rho.into();
+        if m.class == class::EMITTER {
+            sys.source[i] = m.radiance;
+        }
+    }
+    for (l, light) in lights.iter().enumerate() {
+        let list = light_lists.get(l).copied().unwrap_or(&[]);
+        let mut partial: Vec<u32> = Vec::new();
+        let mut lit: Vec<u32> = Vec::new();
+        for link in list {
+            let (lo, hi) = ranges(link.slot());
+            if link.fraction >= 1.0 {
+                lit.extend(lo..hi);
+            } else if link.fraction > 0.0 {
+                partial.extend(lo..hi);
+            }
+        }
+        let mut rays = Vec::with_capacity(partial.len());
+        let mut who = Vec::with_capacity(partial.len());
+        for &i in &partial {
+            let s = &view.splats[i as usize];
+            let x = Vec3::from(s.position);
+            let d = light.position - x;
+            let len = d.length();
+            if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
+                continue;
+            }
+            rays.push(Ray {
+                origin: x,
+                dir: d / len,
+                t_min: self_hit * s.radius,
+                t_max: len * (1.0 - 1e-4),
+            });
+            who.push(i);
+        }
+        let vis = tester.visible(&rays)?;
+        lit.extend(who.iter().zip(&vis).filter(|(_, &v)| v).map(|(&i, _)| i));
+        for i in lit {
+            let iu = i as usize;
+            if !pts.active[iu] {
+                continue;
+            }
+            let s = &view.splats[iu];
+            let d = light.position - Vec3::from(s.position);
+            let r2 = d.length_squared();
+            let cos = Vec3::from(s.normal).dot(d) / r2.sqrt();
+            if cos <= 0.0 || r2 <= 0.0 {
+                continue;
+            }
+            // Reflected radiance ρ E / π with irradiance E = I cos / r².
+            let e = light.intensity * (cos / r2) * std::f32::consts::FRAC_1_PI;
+            let add = Vec3::from(sys.albedo[iu]) * e;
+            sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
+        }
+    }
+    Ok(sys)
+}
+
+/// Result of a solve.
+#[derive(Clone, Debug, Default)]
+pub struct Solution {
+    pub radiance: Vec<[f32; 3]>,
+    /// Relative residual after each iteration.
+    pub residuals: Vec<f64>,
+    pub converged: bool,
+}
+
+impl Solution {
+    /// Estimated relative error left: `r λ / (1 − λ)` with `λ` the last residual ratio.
+    pub fn error_estimate(&self) -> f64 {
+        let n = self.residuals.len();
+        if n < 2 {
+            return self.residuals.last().copied().unwrap_or(0.0);
+        }
+        let (a, b) = (self.residuals[n - 2], self.residuals[n - 1]);
+        let lambda = (b / a.max(1e-300)).min(0.99);
+        b * lambda / (1.0 - lambda)
+    }
+}
+
+/// Jacobi iteration. `progress(iteration, residual)` is called after each iteration.
+pub fn solve(
+    op: &mut dyn Operator,
+    sys: &System,
+    pts: &Points,
+    tolerance: f64,
+    max_iterations: u32,
+    progress: &mut dyn FnMut(u32, f64),
+) -> Result<Solution, String> {
+    let n = sys.source.len();
+    let mut l = sys.source.clone();
+    let mut t = vec![[0.0f32; 3]; n];
+    let mut sol = Solution::default();
+    for it in 1..=max_iterations {
+        op.apply(&l, &mut t)?;
+        let (mut dn, mut nn) = (0.0f64, 0.0f64);
+        for i in 0..n {
+            if !pts.active[i] {
+                continue;
+            }
+            let a = pts.area[i] as f64;
+            let mut new = [0.0f32; 3];
+            for c in 0..3 {
+                new[c] = sys.source[i][c] + sys.albedo[i][c] * t[i][c];
+                let d = (new[c] - l[i][c]) as f64;
+                dn += a * d * d;
+                nn += a * (new[c] as f64) * (new[c] as f64);
+            }
+            l[i] = new;
+        }
+        let r = if nn > 0.0 { (dn / nn).sqrt() } else { 0.0 };
+        sol.residuals.push(r);
+        progress(it, r);
+        if r < tolerance {
+            sol.converged = true;
+            break;
+        }
+    }
+    sol.radiance = l;
+    Ok(sol)
+}

@@ -1,0 +1,234 @@
+//! The octree as the FMM sees it: per node-pool slot its own-splat range, expansion centre,
+//! radius, normal cone and source area, and the splats in the octree's normalised frame
+//! (positions in the unit root cube, areas over size²: form factors are scale-free, and the
+//! expansions stay well inside f32 range whatever the scan's units).
+
+use glam::Vec3;
+use pc_artifact::octree::{class, node, MaterialRecord};
+use pc_tree::OctreeView;
+use rayon::prelude::*;
+
+pub const NONE: u32 = u32::MAX;
+
+/// Splats in the normalised frame.
+#[derive(Clone, Debug, Default)]
+pub struct Points {
+    pub pos: Vec<[f32; 3]>,
+    pub normal: Vec<[f32; 3]>,
+    /// Splat area over size².
+    pub area: Vec<f32>,
+    /// Diffuse and emitting splats take part in the solve; specular ones neither send nor
+    /// receive (§8.5.15).
+    pub active: Vec<bool>,
+    /// Node-pool slot of the leaf that owns each splat.
+    pub leaf: Vec<u32>,
+}
+
+/// Per node-pool slot geometry and the level structure of the passes.
+#[derive(Clone, Debug, Default)]
+pub struct Tree {
+    pub slots: usize,
+    /// Own-splat range `[lo, hi)` of the subtree (empty: lo == hi).
+    pub lo: Vec<u32>,
+    pub hi: Vec<u32>,
+    /// First child slot of an internal node, `NONE` for leaves and empty slots.
+    pub first_child: Vec<u32>,
+    pub parent: Vec<u32>,
+    /// Expansion centre (the node's area-weighted centroid).
+    pub center: Vec<[f32; 3]>,
+    /// Largest distance of a splat centre from `center`.
+    pub radius: Vec<f32>,
+    /// Normal cone: axis and cosine of the half-angle (-1: any direction).
+    pub axis: Vec<[f32; 3]>,
+    pub cone_cos: Vec<f32>,
+    /// Area of the active splats (the sources) in the subtree.
+    pub area: Vec<f32>,
+    /// Number of active splats (the receivers) in the subtree.
+    pub active: Vec<u32>,
+    /// Compact expansion index per slot (`NONE` for empty slots), and back.
+    pub compact: Vec<u32>,
+    pub nodes: Vec<u32>,
+    /// Slots per depth, root first.
+    pub levels: Vec<Vec<u32>>,
+    /// Leaf slots that own splats.
+    pub leaves: Vec<u32>,
+    /// Compact leaf index per slot (`NONE` elsewhere).
+    pub leaf_index: Vec<u32>,
+}
+
+impl Tree {
+    #[inline]
+    pub fn is_leaf(&self, slot: u32) -> bool {
+        self.first_child[slot as usize] == NONE
+    }
+
+    #[inline]
+    pub fn count(&self, slot: u32) -> u32 {
+        self.hi[slot as usize] - self.lo[slot as usize]
+    }
+
+    /// Non-empty children of an internal node.
+    pub fn children(&self, slot: u32) -> impl Iterator<Item = u32> + '_ {
+        let first = self.first_child[slot as usize];
+        let n = if first == NONE { 0 } else { 8 };
+        (0..n)
+            .map(move |k| first + k)
+            .filter(move |&c| self.hi[c as usize] > self.lo[c as usize])
+    }
+}
+
+/// Whether a material class takes part in the radiosity solve.
+pub fn is_active(materials: &[MaterialRecord], material: u32) -> bool {
+    materials
+        .get(material as usize)
+        .is_some_and(|m| m.class == class::DIFFUSE || m.class == class::EMITTER)
+}
+
+/// Build the FMM's view of an octree.
+pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) {
+    let f = &view.frame;
+    let origin = Vec3::from(f.origin);
+    let inv = f.inv_size;
+    let n = view.splats.len();
+    let mut pts = Points {
+        pos: Vec::with_capacity(n),
+        normal: Vec::with_capacity(n),
+        area: Vec::with_capacity(n),
+        active: Vec::with_capacity(n),
+        leaf: view.splat_leaf.to_vec(),
+    };
+    for (s, &a) in view.splats.iter().zip(view.splat_area) {
+        pts.pos.push(((Vec3::from(s.position) - origin) * inv).into());
+        pts.normal.push(s.normal);
+        pts.area.push(a * inv * inv);
+        pts.active.push(is_active(materials, s.material));
+    }
+    let slots = view.nodes.len();
+    let mut t = Tree {
+        slots,
+        lo: vec![0; slots],
+        hi: vec![0; slots],
+        first_child: vec![NONE; slots],
+        parent: vec![NONE; slots],
+        center: vec![[0.0; 3]; slots],
+        radius: vec![0.0; slots],
+        axis: vec![[0.0; 3]; slots],
+        cone_cos: vec![-1.0; slots],
+        area: vec![0.0; slots],
+        active: vec![0; slots],
+        compact: vec![NONE; slots],
+        ..Default::default()
+    };
+    // Structure, top-down (children always follow their parent in the pool).
+    let mut depth = vec![0u32; slots];
+    for slot in 0..slots {
+        let w = view.nodes[slot];
+        if !node::is_leaf(w) && !node::is_empty(w) {
+            let c = node::ptr(w);
+            t.first_child[slot] = c;
+            for k in 0..8 {
+                t.parent[(c + k) as usize] = slot as u32;
+                depth[(c + k) as usize] = depth[slot] + 1;
+            }
+        }
+    }
+    // Ranges, area and active counts bottom-up.
+    for slot in (0..slots).rev() {
+        let w = view.nodes[slot];
+        if node::is_empty(w) {
+            continue;
+        }
+        if node::is_leaf(w) {
+            let (r, _) = view.leaf(w);
+            t.lo[slot] = r.start;
+            t.hi[slot] = r.end;
+            for i in r {
+                if pts.active[i as usize] {
+                    t.area[slot] += pts.area[i as usize];
+                    t.active[slot] += 1;
+                }
+            }
+        } else {
+            let c = t.first_child[slot] as usize;
+            let (mut lo, mut hi) = (u32::MAX, 0u32);
+            for k in c..c + 8 {
+                if t.hi[k] > t.lo[k] {
+                    lo = lo.min(t.lo[k]);
+                    hi = hi.max(t.hi[k]);
+                    t.area[slot] += t.area[k];
+                    t.active[slot] += t.active[k];
+                }
+            }
+            if lo < hi {
+                t.lo[slot] = lo;
+                t.hi[slot] = hi;
+            }
+        }
+    }
+    // Centres and exact normal cones in parallel (a subtree's range is contiguous).
+    let geo: Vec<([f32; 3], [f32; 3], f32)> = (0..slots)
+        .into_par_iter()
+        .map(|slot| {
+            let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
+            if lo >= hi {
+                return ([0.0; 3], [0.0; 3], -1.0);
+            }
+            let info = &view.node_info[slot];
+            let c = (Vec3::from(info.centroid) - origin) * inv;
+            let axis = Vec3::from(info.normal);
+            let cone = if axis == Vec3::ZERO {
+                -1.0
+            } else {
+                pts.normal[lo..hi]
+                    .iter()
+                    .map(|&m| axis.dot(Vec3::from(m)))
+                    .fold(1.0f32, f32::min)
+            };
+            (c.into(), axis.into(), cone)
+        })
+        .collect();
+    for (slot, (c, a, k)) in geo.into_iter().enumerate() {
+        t.center[slot] = c;
+        t.axis[slot] = a;
+        t.cone_cos[slot] = k;
+    }
+    // Radii: exact at leaves, bounded through the children above.
+    for slot in (0..slots).rev() {
+        let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
+        if lo >= hi {
+            continue;
+        }
+        let c = Vec3::from(t.center[slot]);
+        t.radius[slot] = if t.first_child[slot] == NONE {
+            pts.pos[lo..hi]
+                .iter()
+                .map(|&p| (Vec3::from(p) - c).length())
+                .fold(0.0f32, f32::max)
+        } else {
+            let fc = t.first_child[slot] as usize;
+            (fc..fc + 8)
+                .filter(|&k| t.hi[k] > t.lo[k])
+                .map(|k| (Vec3::from(t.center[k]) - c).length() + t.radius[k])
+                .fold(0.0f32, f32::max)
+        };
+    }
+    // Compact indices, levels and leaves.
+    let max_depth = depth.iter().copied().max().unwrap_or(0) as usize;
+    t.levels = vec![Vec::new(); max_depth + 1];
+    t.leaf_index = vec![NONE; slots];
+    for slot in 0..slots {
+        if t.hi[slot] > t.lo[slot] {
+            t.compact[slot] = t.nodes.len() as u32;
+            t.nodes.push(slot as u32);
+            t.levels[depth[slot] as usize].push(slot as u32);
+            if t.first_child[slot] == NONE {
+                t.leaf_index[slot] = t.leaves.len() as u32;
+                t.leaves.push(slot as u32);
+            }
+        }
+    }
+    while t.levels.last().is_some_and(|l| l.is_empty()) {
+        t.levels.pop();
+    }
+    (t, pts)
+}

@@ -1,0 +1,195 @@
+//! pc-fmm tests: the FMM against the direct O(N²) sum over the same links, error falling with
+//! the order, the closed-sphere furnace, CPU against GPU.
+
+use glam::Vec3;
+use pc_artifact::octree::{class, MaterialRecord};
+use pc_artifact::vmap::{Link, VmapParams};
+use pc_fmm::cpu::{direct, PhaseTimes};
+use pc_fmm::plan::{self, PlanParams};
+use pc_fmm::solve::{self, Operator};
+use pc_fmm::{tree, Basis, CpuFmm, CpuOperator};
+use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_vmap::build::{build_links, csr, vnodes, CpuCaster};
+use rand::SeedableRng;
+use rand_pcg::Pcg64;
+
+pub use pc_testkit::Soa;
+
+mod gpu;
+
+/// An octree with its V-map links.
+pub struct Scene {
+    pub octree: Octree,
+    pub offsets: Vec<u32>,
+    pub links: Vec<Link>,
+    pub materials: Vec<MaterialRecord>,
+}
+
+pub fn diffuse(albedo: f32) -> MaterialRecord {
+    MaterialRecord {
+        color: [albedo; 3],
+        class: class::DIFFUSE,
+        ior: 1.0,
+        ..Default::default()
+    }
+}
+
+pub fn emitter(radiance: f32, albedo: f32) -> MaterialRecord {
+    MaterialRecord {
+        color: [albedo; 3],
+        class: class::EMITTER,
+        radiance: [radiance; 3],
+        ior: 1.0,
+        ..Default::default()
+    }
+}
+
+pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
+    let albedo = soa.ones();
+    let classes: Vec<u32> = materials.iter().map(|m| m.class).collect();
+    let input = BuildInput {
+        positions: &soa.p,
+        normals: &soa.n,
+        radii: &soa.r,
+        albedo: &albedo,
+        material: &soa.m,
+        material_class: &classes,
+    };
+    let params = BuildParams {
+        max_leaf_points: k,
+        area_samples: 16,
+        ..Default::default()
+    };
+    let octree = build(&input, &params, &mut |_| {}).unwrap();
+    let view = octree.view();
+    let p = VmapParams {
+        theta: 0.5,
+        rays: 16,
+        near_rays: 256,
+        leaf_splats: 64,
+        self_hit: 0.5,
+        refine_form_factor: 1e-3,
+        seed: 1,
+    };
+    let vn = vnodes(&view, p.leaf_splats);
+    let caster = CpuCaster::new(&view);
+    let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let (offsets, links) = csr(view.nodes.len(), l.pairs);
+    Scene {
+        octree,
+        offsets,
+        links,
+        materials,
+    }
+}
+
+/// A closed box [-1, 1]³ seen from inside (normals inward) with a smaller box on the floor.
+pub fn box_scene(h: f32) -> Soa {
+    let mut rng = Pcg64::seed_from_u64(7);
+    let mut s = Soa::default();
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    // Walls: normal u × v must point inward.
+    s.rect(-y, z, x, h, 0, &mut rng); // floor, normal +y
+    s.rect(y, x, z, h, 0, &mut rng); // ceiling, normal -y
+    s.rect(-z, x, y, h, 1, &mut rng); // back, +z
+    s.rect(z, y, x, h, 0, &mut rng); // front, -z
+    s.rect(-x, y, z, h, 2, &mut rng); // left, +x
+    s.rect(x, z, y, h, 0, &mut rng); // right, -x
+    s.cube(Vec3::new(0.3, -0.7, 0.2), Vec3::splat(0.3), h, 0, &mut rng);
+    s
+}
+
+/// Relative L2 error of one FMM product against the direct sum.
+fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) -> (f64, f64) {
+    let view = sc.octree.view();
+    let (t, p) = tree::build(&view, &sc.materials);
+    let plan = plan::build(&t, &p, &sc.offsets, &sc.links, PlanParams { theta, clamp_tol: 1e-5 });
+    let basis = Basis::new(order);
+    let fmm = CpuFmm {
+        basis: &basis,
+        tree: &t,
+        points: &p,
+        plan: &plan,
+    };
+    let mut out = vec![[0.0f32; 3]; radiance.len()];
+    fmm.apply(radiance, &mut out, &mut PhaseTimes::default());
+    let exact = direct(&t, &p, &sc.offsets, &sc.links, radiance);
+    let (mut e, mut n) = (0.0f64, 0.0f64);
+    for (a, b) in out.iter().zip(&exact) {
+        for c in 0..3 {
+            e += ((a[c] - b[c]) as f64).powi(2);
+            n += (b[c] as f64).powi(2);
+        }
+    }
+    ((e / n).sqrt(), n.sqrt())
+}
+
+fn varied_radiance(n: usize) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|i| {
+            let x = i as f32 * 0.618;
+            [1.0 + 0.5 * x.sin(), 0.5 + 0.4 * (1.3 * x).cos(), 0.2]
+        })
+        .collect()
+}
+
+#[test]
+fn fmm_matches_the_direct_sum_and_improves_with_order() {
+    let soa = box_scene(0.03);
+    println!("{} splats", soa.len());
+    let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
+    let radiance = varied_radiance(soa.len());
+    let mut errs = Vec::new();
+    for order in [1usize, 2, 3, 4, 5, 6] {
+        let (e, _) = product_error(&sc, order, 0.5, &radiance);
+        println!("order {order}: relative L2 error {e:.3e}");
+        errs.push(e);
+    }
+    assert!(errs[3] < 1e-3, "order 4: {}", errs[3]);
+    for w in errs.windows(2) {
+        assert!(w[1] < w[0], "error must fall with the order: {errs:?}");
+    }
+}
+
+#[test]
+fn furnace_sphere_converges_to_e_over_one_minus_rho() {
+    for &(count, rho) in &[(3000usize, 0.5f32), (3000, 0.8), (12000, 0.8)] {
+        let mut soa = Soa::default();
+        soa.sphere(Vec3::ZERO, 1.0, count, 0);
+        for n in soa.n.iter_mut() {
+            *n = -*n;
+        }
+        let e = 1.0f32;
+        let sc = scene(&soa, vec![emitter(e, rho)], 16);
+        let view = sc.octree.view();
+        let (t, p) = tree::build(&view, &sc.materials);
+        let plan = plan::build(&t, &p, &sc.offsets, &sc.links, PlanParams { theta: 0.5, clamp_tol: 1e-4 });
+        let basis = Basis::new(4);
+        let mut op = CpuOperator {
+            fmm: CpuFmm { basis: &basis, tree: &t, points: &p, plan: &plan },
+            times: Default::default(),
+            applications: 0,
+        };
+        let sys = solve::System {
+            source: vec![[e; 3]; soa.len()],
+            albedo: vec![[rho; 3]; soa.len()],
+        };
+        let sol = solve::solve(&mut op, &sys, &p, 1e-7, 500, &mut |_, _| {}).unwrap();
+        let want = e / (1.0 - rho);
+        let worst = sol
+            .radiance
+            .iter()
+            .map(|l| ((l[0] - want) / want).abs())
+            .fold(0.0f32, f32::max);
+        let mean = sol.radiance.iter().map(|l| l[0] as f64).sum::<f64>() / soa.len() as f64;
+        let area: f64 = p.area.iter().map(|&a| a as f64).sum::<f64>() * (view.frame.size as f64).powi(2);
+        println!(
+            "furnace {count} splats, rho {rho}: {} iterations, mean {mean:.5} (want {want}), worst {worst:.4}, area {area:.4} (4π = {:.4}), device {}",
+            sol.residuals.len(),
+            4.0 * std::f64::consts::PI,
+            op.device()
+        );
+        assert!(sol.converged);
+        assert!(worst < 0.005, "{count} splats, rho {rho}: worst relative error {worst}");
+    }
+}
