@@ -41,7 +41,9 @@ struct Params {
     seed: u32,
     row_offset: u32,
     rows: u32,
-    _pad: vec2<u32>,
+    // 1: diffuse hits show the per-splat radiance of `radiance` (pc-fmm's artifact).
+    stored_radiance: u32,
+    _pad: u32,
 }
 
 struct PixelOut {
@@ -66,6 +68,8 @@ struct PixelOut {
 @group(0) @binding(9) var<storage, read> emitters: array<vec2<u32>>;
 @group(0) @binding(10) var<uniform> params: Params;
 @group(0) @binding(11) var<storage, read_write> out_pixels: array<PixelOut>;
+// Per splat outgoing diffuse radiance (xyz) when params.stored_radiance == 1.
+@group(0) @binding(12) var<storage, read> radiance: array<vec4<f32>>;
 
 const PI: f32 = 3.14159265358979;
 const CLASS_EMITTER: u32 = 1u;
@@ -338,7 +342,9 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
                 let mj = materials[sj.material];
                 wsum = wsum + wgt;
                 albedo = albedo + wgt * mj.color * sj.albedo;
-                if mj.class_id == CLASS_EMITTER {
+                if params.stored_radiance == 1u {
+                    emit = emit + wgt * radiance[j].xyz;
+                } else if mj.class_id == CLASS_EMITTER {
                     emit = emit + wgt * mj.radiance;
                 }
                 nsum = nsum + wgt * sj.normal;
@@ -348,7 +354,9 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             wsum = 1.0;
             albedo = m.color * s.albedo;
             emit = vec3<f32>(0.0);
-            if m.class_id == CLASS_EMITTER {
+            if params.stored_radiance == 1u {
+                emit = radiance[hit.splat].xyz;
+            } else if m.class_id == CLASS_EMITTER {
                 emit = m.radiance;
             }
             nsum = ns;

@@ -3,6 +3,7 @@
 //! Helpers (binary paths, temporary scenes, running commands) are in tests/src/lib.rs.
 
 mod bad_input;
+mod fmm_cli;
 mod inspect;
 mod octree_cli;
 mod raytrace_cli;

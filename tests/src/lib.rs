@@ -28,12 +28,13 @@ macro_rules! args {
 }
 
 /// The packages whose binaries the tests run, and the binaries.
-const BIN_PACKAGES: [&str; 5] = [
+const BIN_PACKAGES: [&str; 6] = [
     "pc-octree",
     "pc-inspect",
     "pc-scene",
     "pc-raytrace",
     "pc-vmap",
+    "pc-fmm",
 ];
 
 /// The workspace root (the folder of the root Cargo.toml).

@@ -15,13 +15,16 @@ commands:
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
   reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
+  compare [--set KEY=VALUE]...               render ../shared/reference/cornell's points through the
+                                             whole chain and compare with Mitsuba's image (region
+                                             means, relative RMSE, out/reference/image.diff.png)
   bench [--sizes 1M,4M] [--runs N] [--only octree|rays] [--write]
                                              octree build and ray traversal benchmarks
                                              (writes BENCHMARKS.md with --write)
 ";
 
-/// The stages in dependency order. Later issues add pc-caustics and pc-fmm before pc-raytrace.
-const STAGES: &[&str] = &["pc-octree", "pc-vmap", "pc-raytrace"];
+/// The stages in dependency order. pc-caustics (a later issue) goes before pc-fmm.
+const STAGES: &[&str] = &["pc-octree", "pc-vmap", "pc-fmm", "pc-raytrace"];
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -39,6 +42,7 @@ fn dispatch(args: &[String]) -> Result<()> {
         Some("run") => run(&args[1..]),
         Some("sample") => sample(&args[1..]),
         Some("reference-config") => reference_config(&args[1..]),
+        Some("compare") => compare(&args[1..]),
         Some("bench") => bench(&args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");
@@ -114,6 +118,33 @@ fn run(args: &[String]) -> Result<()> {
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The reference comparison: reference config, every stage, then pc-compare.
+fn compare(args: &[String]) -> Result<()> {
+    let mut sets = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--set" => sets.push(it.next().context("--set needs KEY=VALUE")?.clone()),
+            other => bail!("compare: unknown option `{other}`"),
+        }
+    }
+    let config = root().join("out/reference/cornell.toml");
+    reference_config(&["--out".to_string(), config.display().to_string()])?;
+    let mut run_args = vec!["--config".to_string(), config.display().to_string()];
+    for s in &sets {
+        run_args.extend(["--set".to_string(), s.clone()]);
+    }
+    run(&run_args)?;
+    let bin = build_release(&["pc-compare"])?;
+    run_checked(
+        Command::new(bin.join("pc-compare"))
+            .arg(root().join("out/reference/image.exr"))
+            .arg("--reference")
+            .arg(root().join("../shared/reference/cornell")),
+        "pc-compare",
+    )
 }
 
 fn sample(args: &[String]) -> Result<()> {

@@ -30,6 +30,8 @@ pub struct FmmParams {
     /// The solve stops once the relative residual falls below this.
     pub tolerance: f32,
     pub max_iterations: u32,
+    /// Shadow rays per splat for the emitting splats' direct light.
+    pub emitter_samples: u32,
 }
 
 /// Metadata of a radiosity artifact.

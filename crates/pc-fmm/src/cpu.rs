@@ -46,7 +46,8 @@ pub fn charges(pts: &Points, w: &[[f32; 3]]) -> Vec<Coef> {
         .collect()
 }
 
-/// Clamped point-to-point kernel `K(i, j) = max(0, n_i·d) max(0, −n_j·d) / (π |d|⁴)`.
+/// Clamped point-to-point kernel of the far field,
+/// `K(i, j) = max(0, n_i·d) max(0, −n_j·d) / (π |d|⁴)`.
 #[inline(always)]
 pub fn kernel(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
     let d = [xj[0] - xi[0], xj[1] - xi[1], xj[2] - xi[2]];
@@ -57,6 +58,22 @@ pub fn kernel(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
     }
     let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
     ci * cj * INV_PI / (r2 * r2)
+}
+
+/// Near-field kernel: the form factor of source disk j (area `A_j`) seen from point i,
+/// `cos θ_i cos θ_j / (π r² + A_j)` per unit source area, the exact value for a coaxial disk and
+/// the point kernel when `r² ≫ A_j`. It stays bounded where two surfaces meet (a crease), where
+/// the point kernel's `1/r²` would let a handful of neighbours exchange more than all the light.
+#[inline(always)]
+pub fn kernel_near(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3], aj: f32) -> f32 {
+    let d = [xj[0] - xi[0], xj[1] - xi[1], xj[2] - xi[2]];
+    let ci = ni[0] * d[0] + ni[1] * d[1] + ni[2] * d[2];
+    let cj = -(nj[0] * d[0] + nj[1] * d[1] + nj[2] * d[2]);
+    if ci <= 0.0 || cj <= 0.0 {
+        return 0.0;
+    }
+    let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    ci * cj / (r2 * (std::f32::consts::PI * r2 + aj))
 }
 
 /// Scratch of one worker.
@@ -126,7 +143,13 @@ impl CpuFmm<'_> {
                 let c = t.center[leaf as usize];
                 for j in t.lo[leaf as usize]..t.hi[leaf as usize] {
                     if p.active[j as usize] {
-                        ex::p2m(b, &q[j as usize], sub(p.pos[j as usize], c), &mut s.pow, out);
+                        ex::p2m(
+                            b,
+                            &q[j as usize],
+                            sub(p.pos[j as usize], c),
+                            &mut s.pow,
+                            out,
+                        );
                     }
                 }
             },
@@ -145,8 +168,9 @@ impl CpuFmm<'_> {
                     let out = unsafe { std::slice::from_raw_parts_mut(mp.at(ci * np), np) };
                     for k in t.children(slot) {
                         let kc = t.compact[k as usize] as usize;
-                        let child =
-                            unsafe { std::slice::from_raw_parts(mp.at(kc * np) as *const Coef, np) };
+                        let child = unsafe {
+                            std::slice::from_raw_parts(mp.at(kc * np) as *const Coef, np)
+                        };
                         ex::m2m(b, child, sub(t.center[k as usize], c), &mut s.pow, out);
                     }
                 },
@@ -163,7 +187,10 @@ impl CpuFmm<'_> {
         l.par_chunks_mut(np).enumerate().for_each_init(
             || Scratch::new(b),
             |s, (ci, local)| {
-                let (lo, hi) = (plan.node_offsets[ci] as usize, plan.node_offsets[ci + 1] as usize);
+                let (lo, hi) = (
+                    plan.node_offsets[ci] as usize,
+                    plan.node_offsets[ci + 1] as usize,
+                );
                 if lo == hi {
                     return;
                 }
@@ -206,7 +233,13 @@ impl CpuFmm<'_> {
                     let src =
                         unsafe { std::slice::from_raw_parts(lp.at(pc * np) as *const Coef, np) };
                     let dst = unsafe { std::slice::from_raw_parts_mut(lp.at(ci * np), np) };
-                    ex::l2l(b, src, sub(t.center[slot as usize], t.center[parent]), &mut s.pow, dst);
+                    ex::l2l(
+                        b,
+                        src,
+                        sub(t.center[slot as usize], t.center[parent]),
+                        &mut s.pow,
+                        dst,
+                    );
                 },
             );
         }
@@ -235,7 +268,10 @@ impl CpuFmm<'_> {
                     }
                     o[(i - lo) as usize] = v;
                 }
-                let (tl, th) = (plan.leaf_offsets[li] as usize, plan.leaf_offsets[li + 1] as usize);
+                let (tl, th) = (
+                    plan.leaf_offsets[li] as usize,
+                    plan.leaf_offsets[li + 1] as usize,
+                );
                 for task in &plan.leaf_tasks[tl..th] {
                     if task.is_m2p() {
                         let i = task.recv_lo as usize;
@@ -267,7 +303,7 @@ impl CpuFmm<'_> {
                                 if j == i || !p.active[ju] {
                                     continue;
                                 }
-                                let k = kernel(xi, ni, p.pos[ju], p.normal[ju]);
+                                let k = kernel_near(xi, ni, p.pos[ju], p.normal[ju], p.area[ju]);
                                 if k > 0.0 {
                                     for (c, a) in acc.iter_mut().enumerate() {
                                         *a += k * w[ju][c];
@@ -301,42 +337,82 @@ impl CpuFmm<'_> {
     }
 }
 
-/// The direct sum over the V-map's links (no expansion): for each splat, every link of its
-/// leaf and of the leaf's ancestors, every source splat of the linked node. O(N²); tests only.
-pub fn direct(
-    tree: &Tree,
-    pts: &Points,
-    link_offsets: &[u32],
-    links: &[pc_artifact::vmap::Link],
-    radiance: &[[f32; 3]],
-) -> Vec<[f32; 3]> {
-    (0..pts.pos.len())
+/// The direct sum of the same operator: every task of the plan evaluated exactly, pair by pair
+/// (far-field tasks with the point kernel instead of expansions, near-field ones as in P2P).
+/// What the FMM approximates, so the difference is the expansions' error alone. O(N²); tests
+/// only.
+pub fn direct(tree: &Tree, pts: &Points, plan: &Plan, radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let w = weights(pts, radiance);
+    let n = pts.pos.len();
+    let range = |x: u32| {
+        if x & POINT != 0 {
+            (x & !POINT, (x & !POINT) + 1)
+        } else {
+            (tree.lo[x as usize], tree.hi[x as usize])
+        }
+    };
+    // (receivers, sources, fraction, near) of every task.
+    let mut tasks: Vec<((u32, u32), (u32, u32), f32, bool)> = Vec::new();
+    for (ci, win) in plan.node_offsets.windows(2).enumerate() {
+        let a = tree.nodes[ci];
+        for t in &plan.node_tasks[win[0] as usize..win[1] as usize] {
+            tasks.push((range(a), range(t.src), t.fraction, false));
+        }
+    }
+    for t in &plan.leaf_tasks {
+        if t.is_m2p() {
+            tasks.push((
+                (t.recv_lo, t.recv_lo + 1),
+                range(t.src_lo),
+                t.fraction,
+                false,
+            ));
+        } else {
+            tasks.push((
+                (t.recv_lo, t.recv_hi),
+                (t.src_lo, t.src_hi),
+                t.fraction,
+                true,
+            ));
+        }
+    }
+    // Receiver-major for parallel accumulation: per splat, the tasks that cover it.
+    let mut by_recv: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (k, t) in tasks.iter().enumerate() {
+        for i in t.0 .0..t.0 .1 {
+            by_recv[i as usize].push(k);
+        }
+    }
+    (0..n)
         .into_par_iter()
         .map(|i| {
             let mut acc = [0.0f64; 3];
             if !pts.active[i] {
                 return [0.0; 3];
             }
-            let mut slot = pts.leaf[i];
-            while slot != NONE {
-                let (s, e) = (link_offsets[slot as usize], link_offsets[slot as usize + 1]);
-                for l in &links[s as usize..e as usize] {
-                    let b = l.slot() as usize;
-                    for j in tree.lo[b]..tree.hi[b] {
-                        let ju = j as usize;
-                        if ju == i || !pts.active[ju] {
-                            continue;
-                        }
-                        let k = kernel(pts.pos[i], pts.normal[i], pts.pos[ju], pts.normal[ju])
-                            as f64
-                            * l.fraction as f64
-                            * pts.area[ju] as f64;
-                        for c in 0..3 {
-                            acc[c] += k * radiance[ju][c] as f64;
-                        }
+            for &k in &by_recv[i] {
+                let (_, (lo, hi), f, near) = tasks[k];
+                for j in lo..hi {
+                    let ju = j as usize;
+                    if ju == i || !pts.active[ju] {
+                        continue;
+                    }
+                    let kk = if near {
+                        kernel_near(
+                            pts.pos[i],
+                            pts.normal[i],
+                            pts.pos[ju],
+                            pts.normal[ju],
+                            pts.area[ju],
+                        )
+                    } else {
+                        kernel(pts.pos[i], pts.normal[i], pts.pos[ju], pts.normal[ju])
+                    } as f64
+                        * f as f64;
+                    for c in 0..3 {
+                        acc[c] += kk * w[ju][c] as f64;
                     }
                 }
-                slot = tree.parent[slot as usize];
             }
             [acc[0] as f32, acc[1] as f32, acc[2] as f32]
         })
@@ -349,4 +425,3 @@ pub fn norm2(v: &[[f32; 3]]) -> f64 {
         .map(|x| x.iter().map(|&y| (y as f64) * (y as f64)).sum::<f64>())
         .sum()
 }
-

@@ -223,10 +223,8 @@ pub fn kernel_coeffs(basis: &Basis, r: [f32; 3], a: &mut [f32], g: &mut [Sym]) {
         let ai = a[i];
         let mut out = [0.0f32; 6];
         for (c, &(p, q)) in SYM_IJ.iter().enumerate() {
-            out[c] = r[p] * r[q] * ai
-                + r[p] * get(a, m1[q])
-                + r[q] * get(a, m1[p])
-                + get(a, mij[c]);
+            out[c] =
+                r[p] * r[q] * ai + r[p] * get(a, m1[q]) + r[q] * get(a, m1[p]) + get(a, mij[c]);
         }
         g[i] = out;
     }
@@ -247,7 +245,12 @@ pub fn sym_apply_add(g: &Sym, q: &Coef, w: f32, out: &mut Coef) {
 #[inline]
 pub fn m2l(basis: &Basis, g: &[Sym], m: &[Coef], f: f32, local: &mut [Coef]) {
     for &(a, b, gi, c) in &basis.m2l {
-        sym_apply_add(&g[gi as usize], &m[a as usize], c * f, &mut local[b as usize]);
+        sym_apply_add(
+            &g[gi as usize],
+            &m[a as usize],
+            c * f,
+            &mut local[b as usize],
+        );
     }
 }
 
@@ -408,7 +411,13 @@ mod tests {
         let mut mc = vec![[0.0f32; 9]; b.len()];
         let mut mp = vec![[0.0f32; 9]; b.len()];
         for s in srcs {
-            p2m(&b, &q, [s[0] - child_c[0], s[1] - child_c[1], s[2] - child_c[2]], &mut pow, &mut mc);
+            p2m(
+                &b,
+                &q,
+                [s[0] - child_c[0], s[1] - child_c[1], s[2] - child_c[2]],
+                &mut pow,
+                &mut mc,
+            );
             p2m(&b, &q, s, &mut pow, &mut mp);
         }
         let mut shifted = vec![[0.0f32; 9]; b.len()];
@@ -432,9 +441,19 @@ mod tests {
         l2l(&b, &local, child_c, &mut pow, &mut lc);
         let x = [0.13f32, 0.17, -0.08];
         let a = l2p(&b, &local, x, &mut pow);
-        let c = l2p(&b, &lc, [x[0] - child_c[0], x[1] - child_c[1], x[2] - child_c[2]], &mut pow);
+        let c = l2p(
+            &b,
+            &lc,
+            [x[0] - child_c[0], x[1] - child_c[1], x[2] - child_c[2]],
+            &mut pow,
+        );
         for k in 0..9 {
-            assert!((a[k] - c[k]).abs() < 1e-4 * (1.0 + a[k].abs()), "{k}: {} {}", a[k], c[k]);
+            assert!(
+                (a[k] - c[k]).abs() < 1e-4 * (1.0 + a[k].abs()),
+                "{k}: {} {}",
+                a[k],
+                c[k]
+            );
         }
     }
 }

@@ -63,7 +63,9 @@ fn run(args: &Args) -> anyhow::Result<()> {
     } else {
         ProgressBar::new_spinner()
     };
-    bar.set_style(ProgressStyle::with_template("{spinner} fmm {msg} {elapsed}")?);
+    bar.set_style(ProgressStyle::with_template(
+        "{spinner} fmm {msg} {elapsed}",
+    )?);
     bar.enable_steady_tick(Duration::from_millis(100));
     let mut progress = Bar {
         bar,
@@ -79,7 +81,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .find(|t| t.0 == "per iteration")
         .map_or(0.0, |t| t.1);
     println!(
-        "pc-fmm: wrote {} ({} splats, {} iterations{}, residual {:.2e}, {:.3} s per iteration; {} M2L, {} P2P tasks) in {:.2} s on {}",
+        "pc-fmm: wrote {} ({} splats, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs) in {:.2} s on {}",
         s.path.display(),
         m.active_splats,
         m.iterations,
@@ -87,7 +89,10 @@ fn run(args: &Args) -> anyhow::Result<()> {
         m.residuals.last().copied().unwrap_or(0.0),
         per_it,
         m.m2l,
+        m.p2l,
+        m.m2p,
         m.p2p,
+        m.p2p_pairs,
         s.seconds,
         m.device
     );

@@ -26,6 +26,9 @@ use crate::tree::{Points, Tree, NONE};
 /// Flag of a cluster that is a single splat.
 pub const POINT: u32 = 1 << 31;
 
+/// Pairs closer than this many area-equivalent disk radii are always near field.
+pub const NEAR_DISKS: f32 = 4.0;
+
 /// Plan parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct PlanParams {
@@ -88,6 +91,10 @@ pub struct TaskCounts {
 struct Geo {
     c: Vec3,
     r: f32,
+    /// Largest area-equivalent disk radius of the active splats.
+    disk: f32,
+    bmin: Vec3,
+    bmax: Vec3,
     axis: Vec3,
     cone_cos: f32,
     area: f32,
@@ -103,6 +110,9 @@ fn geo(t: &Tree, p: &Points, x: u32) -> Geo {
         Geo {
             c: Vec3::from(p.pos[i]),
             r: 0.0,
+            disk: (p.area[i] * std::f32::consts::FRAC_1_PI).sqrt(),
+            bmin: Vec3::from(p.pos[i]),
+            bmax: Vec3::from(p.pos[i]),
             axis: Vec3::from(p.normal[i]),
             cone_cos: 1.0,
             area: if p.active[i] { p.area[i] } else { 0.0 },
@@ -114,6 +124,9 @@ fn geo(t: &Tree, p: &Points, x: u32) -> Geo {
         Geo {
             c: Vec3::from(t.center[s]),
             r: t.radius[s],
+            disk: t.disk[s],
+            bmin: Vec3::from(t.bmin[s]),
+            bmax: Vec3::from(t.bmax[s]),
             axis: Vec3::from(t.axis[s]),
             cone_cos: t.cone_cos[s],
             area: t.area[s],
@@ -146,6 +159,38 @@ fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread: f32) -> (f32, f32) {
     let hi = (ang - half - spread).max(0.0).cos();
     let lo = (ang + half + spread).min(std::f32::consts::PI).cos();
     (lo, hi)
+}
+
+/// Tighter bounds of `n · d̂` from the bounding boxes: `d = x_j − x_i` with `x_i` in `from`'s box
+/// and `x_j` in `to`'s, `n` within `half`-angle (cosine `cone_cos`) of `axis`, and
+/// `dmin ≤ |d| ≤ dmax`. The box difference `[to.min − from.max, to.max − from.min]` bounds
+/// `axis · d` exactly; the cone adds at most `sin(half) |d|`.
+#[inline]
+fn box_cos_bounds(
+    axis: Vec3,
+    cone_cos: f32,
+    from: (Vec3, Vec3),
+    to: (Vec3, Vec3),
+    dmin: f32,
+    dmax: f32,
+) -> (f32, f32) {
+    // A cone wider than a hemisphere (c < 0) gives no bound this way.
+    if cone_cos <= 0.0 || axis == Vec3::ZERO || dmin <= 0.0 {
+        return (-1.0, 1.0);
+    }
+    let lo_d = to.0 - from.1;
+    let hi_d = to.1 - from.0;
+    let a = axis * lo_d;
+    let b = axis * hi_d;
+    let smin = a.min(b).element_sum();
+    let smax = a.max(b).element_sum();
+    let c = cone_cos.clamp(-1.0, 1.0);
+    let s = (1.0 - c * c).max(0.0).sqrt();
+    let nlo = c * smin - s * dmax;
+    let nhi = c * smax + s * dmax;
+    let lo = if nlo >= 0.0 { nlo / dmax } else { nlo / dmin };
+    let hi = if nhi >= 0.0 { nhi / dmin } else { nhi / dmax };
+    (lo.max(-1.0), hi.min(1.0))
 }
 
 enum Out {
@@ -202,7 +247,13 @@ impl Refiner<'_> {
 
     fn accept(&self, a: u32, b: u32, f: f32, out: &mut Vec<Out>) {
         match (a & POINT != 0, b & POINT != 0) {
-            (false, _) => out.push(Out::Node(a, NodeTask { src: b, fraction: f })),
+            (false, _) => out.push(Out::Node(
+                a,
+                NodeTask {
+                    src: b,
+                    fraction: f,
+                },
+            )),
             (true, false) => {
                 let i = a & !POINT;
                 out.push(Out::Leaf(
@@ -247,7 +298,11 @@ impl Refiner<'_> {
             let d = gb.c - ga.c;
             let dist = d.length();
             let sum_r = ga.r + gb.r;
-            if sum_r >= self.params.theta * dist || dist <= 0.0 {
+            // Separated for the expansion, and far enough from every source disk that the point
+            // kernel stands for the disk (the near field uses the disk form factor).
+            let far = sum_r < self.params.theta * dist
+                && dist - sum_r >= NEAR_DISKS * ga.disk.max(gb.disk);
+            if !far || dist <= 0.0 {
                 // Not separated: split the larger internal node, else point to point.
                 let split_a = ga.internal && (!gb.internal || ga.r >= gb.r);
                 if split_a {
@@ -263,8 +318,14 @@ impl Refiner<'_> {
             }
             let dir = d / dist;
             let spread = (sum_r / dist).min(1.0).asin();
+            let (dmin, dmax) = (dist - sum_r, dist + sum_r);
+            let (ba, bb) = ((ga.bmin, ga.bmax), (gb.bmin, gb.bmax));
             let (lo_a, hi_a) = cos_bounds(ga.axis, ga.cone_cos, dir, spread);
+            let (lo_a2, hi_a2) = box_cos_bounds(ga.axis, ga.cone_cos, ba, bb, dmin, dmax);
+            let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
             let (lo_b, hi_b) = cos_bounds(gb.axis, gb.cone_cos, -dir, spread);
+            let (lo_b2, hi_b2) = box_cos_bounds(gb.axis, gb.cone_cos, bb, ba, dmin, dmax);
+            let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
             if hi_a <= 0.0 || hi_b <= 0.0 {
                 out.push(Out::Dropped);
                 continue;

@@ -1,4 +1,4 @@
-//! The radiosity solve: Jacobi iteration `L ← E + ρ ∘ T L` until the relative residual
+//! The radiosity solve: Jacobi iteration `L ← E + ρ ∘ T (L − Lₑ)` until the relative residual
 //! `‖L_{k+1} − L_k‖_A / ‖L_{k+1}‖_A` (area-weighted L2 over RGB) falls below the tolerance.
 //!
 //! Jacobi with an FMM product: every iteration is one application of the operator `T`, which is
@@ -19,12 +19,19 @@ pub trait Operator {
     fn device(&self) -> String;
 }
 
-/// The per-splat terms of the equation `L = E + ρ ∘ T L`.
+/// The per-splat terms of the equation `L = E + ρ ∘ T (L − Lₑ)`.
+///
+/// `E = Lₑ + D`: the emitted radiance and the reflected direct light `D` of the point lights
+/// and of the emitting splats (shadow rays), and of caustic photons when given. The operator
+/// transports only the reflected part `L − Lₑ`: the first bounce off the emitters is already
+/// in `D`, resolved per splat by rays rather than by the V-map's node-level fractions. With
+/// `D = ρ T Lₑ` exactly, this is `L = Lₑ + ρ T L`.
 #[derive(Clone, Debug, Default)]
 pub struct System {
-    /// Source term E: emitted radiance plus reflected direct light of the point lights (and of
-    /// caustic photons when given).
+    /// Source term E.
     pub source: Vec<[f32; 3]>,
+    /// Emitted radiance Lₑ.
+    pub emission: Vec<[f32; 3]>,
     /// Diffuse reflectance ρ per splat (zero for specular splats).
     pub albedo: Vec<[f32; 3]>,
 }
@@ -62,6 +69,7 @@ pub fn system(
     let n = view.splats.len();
     let mut sys = System {
         source: vec![[0.0; 3]; n],
+        emission: vec![[0.0; 3]; n],
         albedo: vec![[0.0; 3]; n],
     };
     for (i, s) in view.splats.iter().enumerate() {
@@ -73,6 +81,7 @@ pub fn system(
         sys.albedo[i] = rho.into();
         if m.class == class::EMITTER {
             sys.source[i] = m.radiance;
+            sys.emission[i] = m.radiance;
         }
     }
     for (l, light) in lights.iter().enumerate() {
@@ -128,6 +137,100 @@ pub fn system(
     Ok(sys)
 }
 
+/// Reflected direct light of the emitting splats, `D_i = ρ_i/π ∫ Lₑ cos θ_i cos θ_j / r² V dA`,
+/// by `samples` shadow rays per receiving splat to emitting splats drawn in proportion to
+/// their area (stratified over the area CDF). Near pairs use the disk form factor
+/// (docs/fmm.md). Added to `sys.source`.
+pub fn emitter_direct(
+    view: &OctreeView,
+    pts: &Points,
+    sys: &mut System,
+    samples: u32,
+    self_hit: f32,
+    tester: &dyn ShadowTester,
+) -> Result<(), String> {
+    use rayon::prelude::*;
+    let emitters: Vec<u32> = (0..view.splats.len() as u32)
+        .filter(|&j| sys.emission[j as usize] != [0.0; 3] && pts.active[j as usize])
+        .collect();
+    if emitters.is_empty() || samples == 0 {
+        return Ok(());
+    }
+    let mut cdf = Vec::with_capacity(emitters.len());
+    let mut total = 0.0f64;
+    for &j in &emitters {
+        total += view.splat_area[j as usize] as f64;
+        cdf.push(total);
+    }
+    let receivers: Vec<u32> = (0..view.splats.len() as u32)
+        .filter(|&i| pts.active[i as usize] && sys.albedo[i as usize] != [0.0; 3])
+        .collect();
+    // Bounded batches of rays.
+    for chunk in receivers.chunks((1 << 22) / samples as usize + 1) {
+        let per: Vec<Vec<(Ray, u32, f32)>> = chunk
+            .par_iter()
+            .map(|&i| {
+                let si = &view.splats[i as usize];
+                let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
+                let mut out = Vec::with_capacity(samples as usize);
+                for k in 0..samples {
+                    let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
+                    let e = cdf
+                        .partition_point(|&c| c < u * total)
+                        .min(emitters.len() - 1);
+                    let j = emitters[e];
+                    if j == i {
+                        continue;
+                    }
+                    let sj = &view.splats[j as usize];
+                    let d = Vec3::from(sj.position) - xi;
+                    let r2 = d.length_squared();
+                    let len = r2.sqrt();
+                    if len <= 0.0 {
+                        continue;
+                    }
+                    let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
+                    if ci <= 0.0 || cj <= 0.0 {
+                        continue;
+                    }
+                    // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
+                    let aj = view.splat_area[j as usize];
+                    let w =
+                        ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
+                    let t_min = self_hit * si.radius;
+                    out.push((
+                        Ray {
+                            origin: xi,
+                            dir: d / len,
+                            t_min,
+                            t_max: (len - self_hit * sj.radius).max(t_min),
+                        },
+                        j,
+                        w,
+                    ));
+                }
+                out
+            })
+            .collect();
+        let rays: Vec<Ray> = per.iter().flatten().map(|r| r.0).collect();
+        let vis = tester.visible(&rays)?;
+        let mut at = 0;
+        for (&i, p) in chunk.iter().zip(&per) {
+            let mut e = Vec3::ZERO;
+            for (k, &(_, j, w)) in p.iter().enumerate() {
+                if vis[at + k] {
+                    e += Vec3::from(sys.emission[j as usize]) * w;
+                }
+            }
+            at += p.len();
+            let iu = i as usize;
+            let add = Vec3::from(sys.albedo[iu]) * e;
+            sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
+        }
+    }
+    Ok(())
+}
+
 /// Result of a solve.
 #[derive(Clone, Debug, Default)]
 pub struct Solution {
@@ -162,9 +265,15 @@ pub fn solve(
     let n = sys.source.len();
     let mut l = sys.source.clone();
     let mut t = vec![[0.0f32; 3]; n];
+    let mut reflected = vec![[0.0f32; 3]; n];
     let mut sol = Solution::default();
     for it in 1..=max_iterations {
-        op.apply(&l, &mut t)?;
+        for i in 0..n {
+            for c in 0..3 {
+                reflected[i][c] = l[i][c] - sys.emission.get(i).map_or(0.0, |e| e[c]);
+            }
+        }
+        op.apply(&reflected, &mut t)?;
         let (mut dn, mut nn) = (0.0f64, 0.0f64);
         for i in 0..n {
             if !pts.active[i] {

@@ -27,6 +27,7 @@ pub fn params(cfg: &LoadedConfig) -> FmmParams {
         clamp_tol: f.clamp_tol,
         tolerance: f.tolerance,
         max_iterations: f.max_iterations,
+        emitter_samples: f.emitter_samples,
     }
 }
 
@@ -37,12 +38,15 @@ pub struct Summary {
     pub seconds: f64,
 }
 
-struct Caster<'a>(pc_vmap::build::CpuCaster<'a>);
+/// Shadow rays on the CPU, through the renderer's packed leaf lists.
+struct Caster<'a> {
+    view: &'a OctreeView<'a>,
+    accel: pc_tree::accel::Accel,
+}
 
 impl ShadowTester for Caster<'_> {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        use pc_vmap::build::Caster as _;
-        self.0.visible(rays)
+        Ok(self.accel.visible(self.view, rays))
     }
 }
 
@@ -101,7 +105,10 @@ pub fn run(
         || *link_offsets.last().unwrap_or(&0) as usize != links.len()
         || light_offsets.len() != lights.len() + 1
         || *light_offsets.last().unwrap_or(&0) as usize != light_links.len()
-        || links.iter().chain(light_links).any(|l| l.slot() as usize >= view.nodes.len())
+        || links
+            .iter()
+            .chain(light_links)
+            .any(|l| l.slot() as usize >= view.nodes.len())
         || link_offsets.windows(2).any(|w| w[0] > w[1])
         || light_offsets.windows(2).any(|w| w[0] > w[1])
     {
@@ -147,7 +154,10 @@ pub fn run(
         .map(|w| &light_links[w[0] as usize..w[1] as usize])
         .collect();
     let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
-    let caster = Caster(pc_vmap::build::CpuCaster::new(&view));
+    let caster = Caster {
+        view: &view,
+        accel: pc_tree::accel::Accel::new(&view),
+    };
     let sys = solve::system(
         &view,
         &materials,
@@ -159,6 +169,16 @@ pub fn run(
         &caster,
     )
     .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))?;
+    let mut sys = sys;
+    solve::emitter_direct(
+        &view,
+        &pts,
+        &mut sys,
+        cfg.config.fmm.emitter_samples,
+        vmeta.params.self_hit,
+        &caster,
+    )
+    .map_err(|e| anyhow::anyhow!("emitter shadow rays: {e}"))?;
     timings.push(("source term".to_string(), t.elapsed().as_secs_f64()));
 
     let basis = Basis::new(p.order as usize);

@@ -38,6 +38,11 @@ pub struct Tree {
     pub center: Vec<[f32; 3]>,
     /// Largest distance of a splat centre from `center`.
     pub radius: Vec<f32>,
+    /// Largest area-equivalent disk radius `sqrt(A/π)` of the subtree's active splats.
+    pub disk: Vec<f32>,
+    /// Bounding box of the splat centres: min and max corners.
+    pub bmin: Vec<[f32; 3]>,
+    pub bmax: Vec<[f32; 3]>,
     /// Normal cone: axis and cosine of the half-angle (-1: any direction).
     pub axis: Vec<[f32; 3]>,
     pub cone_cos: Vec<f32>,
@@ -98,7 +103,8 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
         leaf: view.splat_leaf.to_vec(),
     };
     for (s, &a) in view.splats.iter().zip(view.splat_area) {
-        pts.pos.push(((Vec3::from(s.position) - origin) * inv).into());
+        pts.pos
+            .push(((Vec3::from(s.position) - origin) * inv).into());
         pts.normal.push(s.normal);
         pts.area.push(a * inv * inv);
         pts.active.push(is_active(materials, s.material));
@@ -112,6 +118,9 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
         parent: vec![NONE; slots],
         center: vec![[0.0; 3]; slots],
         radius: vec![0.0; slots],
+        disk: vec![0.0; slots],
+        bmin: vec![[0.0; 3]; slots],
+        bmax: vec![[0.0; 3]; slots],
         axis: vec![[0.0; 3]; slots],
         cone_cos: vec![-1.0; slots],
         area: vec![0.0; slots],
@@ -192,12 +201,33 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
         t.axis[slot] = a;
         t.cone_cos[slot] = k;
     }
-    // Radii: exact at leaves, bounded through the children above.
+    // Radii: exact at leaves, bounded through the children above; boxes exact.
     for slot in (0..slots).rev() {
         let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
         if lo >= hi {
             continue;
         }
+        let (mut bmin, mut bmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        let mut disk = 0.0f32;
+        if t.first_child[slot] == NONE {
+            for i in lo..hi {
+                bmin = bmin.min(Vec3::from(pts.pos[i]));
+                bmax = bmax.max(Vec3::from(pts.pos[i]));
+                if pts.active[i] {
+                    disk = disk.max((pts.area[i] * std::f32::consts::FRAC_1_PI).sqrt());
+                }
+            }
+        } else {
+            let fc = t.first_child[slot] as usize;
+            for k in (fc..fc + 8).filter(|&k| t.hi[k] > t.lo[k]) {
+                bmin = bmin.min(Vec3::from(t.bmin[k]));
+                bmax = bmax.max(Vec3::from(t.bmax[k]));
+                disk = disk.max(t.disk[k]);
+            }
+        }
+        t.disk[slot] = disk;
+        t.bmin[slot] = bmin.into();
+        t.bmax[slot] = bmax.into();
         let c = Vec3::from(t.center[slot]);
         t.radius[slot] = if t.first_child[slot] == NONE {
             pts.pos[lo..hi]

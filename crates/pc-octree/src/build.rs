@@ -114,10 +114,13 @@ struct Span {
     depth: u32,
 }
 
-/// Purity key: 0 for every non-specular material, 1 + material index for specular ones, so a
-/// leaf never mixes diffuse and specular splats, nor two different specular materials.
+/// Purity key: 0 for every diffuse material, 1 + material index for specular and emitting ones,
+/// so a leaf never mixes diffuse and specular splats, nor two different specular materials, nor
+/// an emitter with anything else (a light mounted on a ceiling stays apart from the ceiling
+/// behind it, which the V-map's visibility fractions need: docs/fmm.md).
 fn purity_key(material: u32, material_class: &[u32]) -> u32 {
-    if class::is_specular(material_class[material as usize]) {
+    let c = material_class[material as usize];
+    if class::is_specular(c) || c == class::EMITTER {
         1 + material
     } else {
         0

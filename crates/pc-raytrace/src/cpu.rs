@@ -187,7 +187,9 @@ pub fn trace_sample(
             let mj = &sc.materials[sj.material as usize];
             wsum += w;
             albedo += w * Vec3::from(mj.color) * Vec3::from(sj.albedo);
-            if mj.class == class::EMITTER {
+            if let Some(rad) = &sc.radiance {
+                emit += w * Vec3::from_slice(&rad[j as usize][..3]);
+            } else if mj.class == class::EMITTER {
                 emit += w * Vec3::from(mj.radiance);
             }
             nsum += w * Vec3::from(sj.normal);
@@ -196,7 +198,9 @@ pub fn trace_sample(
             // Only possible exactly at the hit disk's rim: fall back to the hit splat.
             wsum = 1.0;
             albedo = Vec3::from(m.color) * Vec3::from(s.albedo);
-            emit = if m.class == class::EMITTER {
+            emit = if let Some(rad) = &sc.radiance {
+                Vec3::from_slice(&rad[hit.splat as usize][..3])
+            } else if m.class == class::EMITTER {
                 Vec3::from(m.radiance)
             } else {
                 Vec3::ZERO

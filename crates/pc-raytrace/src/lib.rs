@@ -7,6 +7,7 @@
 pub mod cpu;
 pub mod gpu;
 pub mod image;
+pub mod reference;
 pub mod sample;
 pub mod scene;
 pub mod stage;

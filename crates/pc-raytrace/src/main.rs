@@ -21,6 +21,10 @@ struct Args {
     /// The octree artifact (default: <output.dir>/<octree.file>).
     #[arg(long)]
     octree: Option<PathBuf>,
+    /// The radiosity artifact (default: <output.dir>/<fmm.file>); shown at diffuse hits in
+    /// `stored` mode, and what `auto` mode looks for.
+    #[arg(long)]
+    radiosity: Option<PathBuf>,
     /// The EXR to write (default: <output.dir>/<raytrace.image>); a PNG preview goes beside it.
     #[arg(long, short)]
     output: Option<PathBuf>,
@@ -34,6 +38,10 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let cfg = args.stage.load()?;
     let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
     let exr = args.output.clone().unwrap_or_else(|| cfg.image_path());
+    let radiosity = args
+        .radiosity
+        .clone()
+        .unwrap_or_else(|| cfg.radiosity_path());
     let backend = args.backend.unwrap_or(cfg.config.raytrace.backend);
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
@@ -47,8 +55,16 @@ fn run(args: &Args) -> anyhow::Result<()> {
     bar.enable_steady_tick(Duration::from_millis(100));
     let tick = || bar.inc(1);
     let mut set_len = |n: u64| bar.set_length(n);
-    let s = pc_raytrace::stage::run(&cfg, &octree, &exr, backend, &tick, &mut set_len)
-        .with_context(|| format!("rendering {}", args.stage.config.display()))?;
+    let s = pc_raytrace::stage::run(
+        &cfg,
+        &octree,
+        &radiosity,
+        &exr,
+        backend,
+        &tick,
+        &mut set_len,
+    )
+    .with_context(|| format!("rendering {}", args.stage.config.display()))?;
     bar.finish_and_clear();
     let p = &cfg.config.raytrace;
     let (w, h) = (s.image.width, s.image.height);
@@ -57,11 +73,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .map(|r| format!(", {:.2} M rays/s", r as f64 / s.seconds / 1e6))
         .unwrap_or_default();
     println!(
-        "pc-raytrace: wrote {} and {} ({w}x{h}, {} spp, {:?} mode) in {:.2} s on {}{}",
+        "pc-raytrace: wrote {} and {} ({w}x{h}, {} spp, {} shading) in {:.2} s on {}{}",
         s.exr.display(),
         s.png.display(),
         p.spp,
-        p.mode,
+        format!("{:?}", s.mode).to_lowercase(),
         s.seconds,
         s.device_name,
         rate

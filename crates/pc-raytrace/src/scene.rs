@@ -109,7 +109,9 @@ pub struct Params {
     /// First image row this dispatch renders (the GPU renders in bands).
     pub row_offset: u32,
     pub rows: u32,
-    pub _pad: [u32; 2],
+    /// 1 when diffuse hits show [`RenderScene::radiance`].
+    pub stored_radiance: u32,
+    pub _pad: u32,
 }
 
 /// Everything a render reads.
@@ -121,6 +123,9 @@ pub struct RenderScene<'a> {
     pub lights: Vec<PointLight>,
     pub emitters: EmitterTable,
     pub params: Params,
+    /// Per-splat outgoing diffuse radiance (pc-fmm's radiosity artifact), xyz and a pad; when
+    /// present, diffuse hits show it instead of the materials' emission.
+    pub radiance: Option<Vec<[f32; 4]>>,
 }
 
 impl<'a> RenderScene<'a> {
@@ -151,7 +156,7 @@ impl<'a> RenderScene<'a> {
             max_bounces: cfg.max_bounces,
             background: cfg.background,
             mode: match cfg.mode {
-                ShadingMode::Stored => 0,
+                ShadingMode::Stored | ShadingMode::Auto => 0,
                 ShadingMode::Direct => 1,
             },
             tan_half: [camera.tan_half.0, camera.tan_half.1],
@@ -163,7 +168,8 @@ impl<'a> RenderScene<'a> {
             seed: cfg.seed,
             row_offset: 0,
             rows: camera.height,
-            _pad: [0; 2],
+            stored_radiance: 0,
+            _pad: 0,
         };
         RenderScene {
             view,
@@ -172,7 +178,14 @@ impl<'a> RenderScene<'a> {
             lights,
             emitters,
             params,
+            radiance: None,
         }
+    }
+
+    /// Show this per-splat radiance at diffuse hits (one RGB per data-pool splat).
+    pub fn set_radiance(&mut self, radiance: &[[f32; 3]]) {
+        self.radiance = Some(radiance.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect());
+        self.params.stored_radiance = 1;
     }
 
     /// Build the packed leaf lists the CPU renderer walks (same hits, faster).

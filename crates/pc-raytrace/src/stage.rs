@@ -4,11 +4,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use pc_artifact::octree::{MaterialRecord, OctreeMeta};
+use pc_artifact::radiosity::{sections as rs, RadiosityMeta};
 use pc_artifact::{Artifact, ArtifactKind};
 use pc_scene::camera::Camera;
+use pc_scene::config::ShadingMode;
 use pc_scene::config::{Backend, LoadedConfig};
-use pc_scene::load::material_table;
 use pc_tree::OctreeView;
 
 use crate::cpu::RayCounts;
@@ -26,6 +26,8 @@ pub enum Device {
 
 /// What one render made.
 pub struct Summary {
+    /// The shading mode used (`auto` resolved).
+    pub mode: ShadingMode,
     pub image: Image,
     pub device: Device,
     pub device_name: String,
@@ -35,10 +37,47 @@ pub struct Summary {
     pub png: PathBuf,
 }
 
+/// The per-splat radiance of a radiosity artifact, checked against the octree it must match.
+pub fn load_radiosity(path: &Path, octree: &Artifact) -> anyhow::Result<Vec<[f32; 3]>> {
+    let a = Artifact::open_kind(path, ArtifactKind::Radiosity)?;
+    let meta: RadiosityMeta = a.metadata()?;
+    if meta.octree_key != octree.header().key.to_string() {
+        bail!(
+            "{}: stale radiosity: it was solved for another octree than {}: rerun pc-vmap and pc-fmm",
+            path.display(),
+            octree.path().display()
+        );
+    }
+    let radiance: &[[f32; 3]] = a.section(rs::RADIANCE)?;
+    let splats = octree
+        .section::<pc_artifact::octree::Splat>("splats")?
+        .len();
+    if radiance.len() != splats {
+        bail!(
+            "{}: the radiosity holds {} splats but the octree {} has {splats}: rerun pc-fmm",
+            path.display(),
+            radiance.len(),
+            octree.path().display()
+        );
+    }
+    if let Some(i) = radiance
+        .iter()
+        .position(|c| c.iter().any(|x| !x.is_finite()))
+    {
+        bail!("{}: splat {i} has a non-finite radiance", path.display());
+    }
+    Ok(radiance.to_vec())
+}
+
 /// Render the config's camera view of the octree at `octree_path` and write the images.
+///
+/// Shading: `stored` shows the radiosity artifact at `radiosity_path` when it exists (else the
+/// materials' emission alone); `auto` is `stored` when it exists and `direct` otherwise.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     cfg: &LoadedConfig,
     octree_path: &Path,
+    radiosity_path: &Path,
     exr: &Path,
     backend: Backend,
     tile_done: &(dyn Fn() + Sync),
@@ -50,7 +89,25 @@ pub fn run(
     let materials = current_materials(cfg, &art)?;
     let c = &cfg.config;
     let camera = Camera::new(&c.camera);
-    let mut sc = RenderScene::new(view, materials, &c.lights, &camera, &c.raytrace);
+    let mut rt = c.raytrace.clone();
+    let radiance = match rt.mode {
+        ShadingMode::Direct => None,
+        ShadingMode::Stored | ShadingMode::Auto if radiosity_path.exists() => {
+            Some(load_radiosity(radiosity_path, &art)?)
+        }
+        ShadingMode::Stored | ShadingMode::Auto => None,
+    };
+    if rt.mode == ShadingMode::Auto {
+        rt.mode = if radiance.is_some() {
+            ShadingMode::Stored
+        } else {
+            ShadingMode::Direct
+        };
+    }
+    let mut sc = RenderScene::new(view, materials, &c.lights, &camera, &rt);
+    if let Some(r) = &radiance {
+        sc.set_radiance(r);
+    }
     let gpu = match backend {
         Backend::Cpu => None,
         Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
@@ -96,6 +153,7 @@ pub fn run(
     let png = exr.with_extension("png");
     write_png(&png, &image, c.raytrace.exposure)?;
     Ok(Summary {
+        mode: rt.mode,
         image,
         device,
         device_name,

@@ -75,4 +75,3 @@ pub fn current_materials(
     }
     Ok(table)
 }
-

@@ -322,6 +322,8 @@ pub struct FmmConfig {
     pub tolerance: f32,
     /// The solve stops after this many iterations even if not converged.
     pub max_iterations: u32,
+    /// Shadow rays per splat for the direct light of the emitting splats (0: none).
+    pub emitter_samples: u32,
     /// Where the FMM passes run.
     pub backend: Backend,
     /// Artifact file name inside `output.dir`.
@@ -331,11 +333,12 @@ pub struct FmmConfig {
 impl Default for FmmConfig {
     fn default() -> Self {
         FmmConfig {
-            order: 4,
+            order: 3,
             theta: 0.5,
             clamp_tol: 1e-4,
-            tolerance: 1e-4,
+            tolerance: 1e-3,
             max_iterations: 200,
+            emitter_samples: 64,
             backend: Backend::Auto,
             file: PathBuf::from("radiosity.pcgi"),
         }

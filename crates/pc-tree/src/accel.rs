@@ -142,6 +142,13 @@ impl Accel {
         })
     }
 
+    /// Visibility of many rays (rayon across rays): `true` where nothing blocks the ray.
+    pub fn visible(&self, view: &OctreeView, rays: &[Ray]) -> Vec<bool> {
+        rays.par_iter()
+            .map_init(TraversalStats::default, |st, r| !self.occluded(view, r, st))
+            .collect()
+    }
+
     /// Same as [`OctreeView::occluded`].
     pub fn occluded(&self, view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
         view.walk_with(ray, stats, |w, limit, st| {

@@ -36,12 +36,7 @@ impl<'a> CpuCaster<'a> {
 
 impl Caster for CpuCaster<'_> {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        Ok(rays
-            .par_iter()
-            .map_init(pc_tree::TraversalStats::default, |st, r| {
-                !self.accel.occluded(self.view, r, st)
-            })
-            .collect())
+        Ok(self.accel.visible(self.view, rays))
     }
     fn name(&self) -> String {
         format!("CPU, {} threads", rayon::current_num_threads())
@@ -148,7 +143,10 @@ pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
             radius: info.disk_radius,
             axis,
             cone_cos,
-            vleaf: node::is_leaf(view.nodes[slot]) || hi - lo <= leaf_splats,
+            // A V-map leaf's fraction applies to all its splats alike: never mix classes (a
+            // light and the ceiling just behind it are not equally visible).
+            vleaf: node::is_leaf(view.nodes[slot])
+                || (hi - lo <= leaf_splats && info.class != pc_artifact::octree::class::MIXED),
         };
     });
     out

@@ -35,6 +35,7 @@ pub struct PixelOut {
 pub struct GpuRenderer {
     kernel: Kernel,
     buffers: Vec<wgpu::Buffer>,
+    radiance: wgpu::Buffer,
 }
 
 /// Samples per dispatch; bands of rows are sized to stay under this.
@@ -46,12 +47,13 @@ impl GpuRenderer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
+        b.push(Binding::ReadOnly);
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
-        if limit < 10 {
+        if limit < 11 {
             return Err(GpuError::Device {
                 adapter: ctx.describe(),
                 msg: format!(
-                    "the renderer needs 10 storage buffers per stage, the adapter allows {limit}"
+                    "the renderer needs 11 storage buffers per stage, the adapter allows {limit}"
                 ),
             });
         }
@@ -76,7 +78,15 @@ impl GpuRenderer {
             ctx.storage("lights", bytemuck::cast_slice(&sc.lights))?,
             ctx.storage("emitters", bytemuck::cast_slice(&emitters))?,
         ];
-        Ok(GpuRenderer { kernel, buffers })
+        let radiance = match &sc.radiance {
+            Some(r) => ctx.storage("radiance", bytemuck::cast_slice(r))?,
+            None => ctx.storage("radiance", &[0u8; 16])?,
+        };
+        Ok(GpuRenderer {
+            kernel,
+            buffers,
+            radiance,
+        })
     }
 
     /// Render the image (bands of rows, each a dispatch of 8×8 pixel blocks).
@@ -110,6 +120,7 @@ impl GpuRenderer {
             let mut bind: Vec<&wgpu::Buffer> = self.buffers.iter().collect();
             bind.push(&uniform);
             bind.push(&out);
+            bind.push(&self.radiance);
             self.kernel
                 .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
             let bytes = ctx.read(
