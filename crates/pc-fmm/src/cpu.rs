@@ -50,14 +50,8 @@ pub fn charges(pts: &Points, w: &[[f32; 3]]) -> Vec<Coef> {
 /// `K(i, j) = max(0, n_i·d) max(0, −n_j·d) / (π |d|⁴)`.
 #[inline(always)]
 pub fn kernel(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
-    let d = [xj[0] - xi[0], xj[1] - xi[1], xj[2] - xi[2]];
-    let ci = ni[0] * d[0] + ni[1] * d[1] + ni[2] * d[2];
-    let cj = -(nj[0] * d[0] + nj[1] * d[1] + nj[2] * d[2]);
-    if ci <= 0.0 || cj <= 0.0 {
-        return 0.0;
-    }
-    let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    ci * cj * INV_PI / (r2 * r2)
+    // The near kernel of a source without area.
+    kernel_near(xi, ni, xj, nj, 0.0)
 }
 
 /// Near-field kernel: the form factor of source disk j (area `A_j`) seen from point i,

@@ -278,10 +278,14 @@ impl Refiner<'_> {
         stack.clear();
         stack.push((a0, b0));
         while let Some((a, b)) = stack.pop() {
-            if !self.receives(a) || geo(self.t, self.p, b).area <= 0.0 {
+            if !self.receives(a) {
                 continue;
             }
-            let (ga, gb) = (geo(self.t, self.p, a), geo(self.t, self.p, b));
+            let gb = geo(self.t, self.p, b);
+            if gb.area <= 0.0 {
+                continue;
+            }
+            let ga = geo(self.t, self.p, a);
             if a == b {
                 if ga.internal {
                     self.split(a, &mut kids_a);

@@ -81,15 +81,7 @@ pub fn run(
             octree_path.display()
         );
     }
-    let lights: Vec<[f32; 6]> = cfg
-        .config
-        .lights
-        .iter()
-        .map(|l| {
-            let (p, i) = (l.position, l.intensity);
-            [p[0], p[1], p[2], i[0], i[1], i[2]]
-        })
-        .collect();
+    let lights = cfg.light_records();
     if vmeta.lights != lights {
         bail!(
             "{}: stale V-map: its light lists are for other point lights than {} defines: rerun pc-vmap (it reuses the links)",

@@ -442,6 +442,17 @@ impl LoadedConfig {
     pub fn vmap_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.vmap.file)
     }
+    /// The point lights as stored in artifacts and keys: position then intensity.
+    pub fn light_records(&self) -> Vec<[f32; 6]> {
+        self.config
+            .lights
+            .iter()
+            .map(|l| {
+                let (p, i) = (l.position, l.intensity);
+                [p[0], p[1], p[2], i[0], i[1], i[2]]
+            })
+            .collect()
+    }
     /// The radiosity artifact path, resolved.
     pub fn radiosity_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.fmm.file)

@@ -99,21 +99,7 @@ pub fn run(
     let p = params(cfg);
     let octree_key = art.header().key;
     let lkey = links_key(&octree_key, &p);
-    let lights: Vec<[f32; 6]> = cfg
-        .config
-        .lights
-        .iter()
-        .map(|l| {
-            [
-                l.position[0],
-                l.position[1],
-                l.position[2],
-                l.intensity[0],
-                l.intensity[1],
-                l.intensity[2],
-            ]
-        })
-        .collect();
+    let lights = cfg.light_records();
     let key = vmap_key(&lkey, &lights);
     let mut timings = Vec::new();
     let t = Instant::now();
