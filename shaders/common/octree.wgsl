@@ -27,6 +27,21 @@ struct Splat {
     material: u32,
     albedo: vec3<f32>,
     source: u32,
+    // Border clip: the splat keeps the points x with dot(x - position, clip.xyz) <= clip.w.
+    clip: vec4<f32>,
+}
+
+fn within_clip(s: Splat, x: vec3<f32>) -> bool {
+    return dot(x - s.position, s.clip.xyz) <= s.clip.w;
+}
+
+// A point of the splat's plane mirrored across the clip line when beyond it (Splat::fold_into_clip).
+fn fold_into_clip(s: Splat, x: vec3<f32>) -> vec3<f32> {
+    let e = dot(x - s.position, s.clip.xyz) - s.clip.w;
+    if e <= 0.0 {
+        return x;
+    }
+    return x - 2.0 * e * s.clip.xyz;
 }
 
 struct NodeInfo {

@@ -3,7 +3,7 @@
 // octree walk with exact face stepping (docs/raytrace.md). A kernel that includes this file
 // declares `octree_frame`, `octree_nodes`, `begin_end: array<u32>` and `splats: array<Splat>`.
 
-// Ray parameter at which the ray crosses the splat inside its disk, or -1.
+// Ray parameter at which the ray crosses the splat inside its disk and its border clip, or -1.
 fn intersect_splat(o: vec3<f32>, d: vec3<f32>, s: Splat) -> f32 {
     let denom = dot(d, s.normal);
     if abs(denom) < 1e-8 {
@@ -12,7 +12,7 @@ fn intersect_splat(o: vec3<f32>, d: vec3<f32>, s: Splat) -> f32 {
     let t = dot(s.position - o, s.normal) / denom;
     let x = o + d * t;
     let e = x - s.position;
-    if dot(e, e) <= s.radius * s.radius {
+    if dot(e, e) <= s.radius * s.radius && within_clip(s, x) {
         return t;
     }
     return -1.0;

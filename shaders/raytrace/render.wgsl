@@ -196,7 +196,7 @@ fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u3
             let tv = cross(sj.normal, tu);
             let r = sqrt(u1) * sj.radius;
             let phi = 2.0 * PI * u2;
-            let y = sj.position + (tu * cos(phi) + tv * sin(phi)) * r;
+            let y = fold_into_clip(sj, sj.position + (tu * cos(phi) + tv * sin(phi)) * r);
             let to = y - x;
             let d2 = dot(to, to);
             let d = sqrt(d2);
@@ -336,7 +336,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             let h = dot(dd, sj.normal);
             let rho2 = dot(dd, dd) - h * h;
             let r2 = sj.radius * sj.radius;
-            if abs(h) <= params.blend_thickness * sj.radius && rho2 < r2 {
+            if abs(h) <= params.blend_thickness * sj.radius && rho2 < r2 && within_clip(sj, x - sj.normal * h) {
                 let uu = 1.0 - rho2 / r2;
                 let wgt = uu * uu;
                 let mj = materials[sj.material];

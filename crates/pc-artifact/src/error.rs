@@ -145,7 +145,7 @@ pub enum ArtifactError {
 
     /// The section's element size is not the size of the type the reader asked for.
     #[error(
-        "{}: section `{section}` holds {got}-byte elements, the reader expects {expected}-byte elements",
+        "{}: section `{section}` holds {got}-byte elements, the reader expects {expected}-byte elements (written by another version of pcgi? rerun the stage that made it)",
         .path.display()
     )]
     ElementSize {

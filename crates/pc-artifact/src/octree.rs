@@ -109,7 +109,8 @@ pub mod class {
     }
 }
 
-/// One splat of the data pool: 48 bytes, three `vec4`s (seed §8.5.12 packs 44 bytes in 3 texels).
+/// One splat of the data pool: 64 bytes, four `vec4`s (seed §8.5.12 packs 44 bytes in 3 texels;
+/// the fourth is the border clip, a departure described in ARCHITECTURE.md).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Splat {
@@ -125,6 +126,42 @@ pub struct Splat {
     pub albedo: [f32; 3],
     /// Index of the splat in the imported scene (models concatenated in config order).
     pub source: u32,
+    /// Border clip: the splat stands for the points x of its disk with
+    /// `(x − position) · clip.xyz ≤ clip.w`. At a surface's open border (a wall's edge, a box's
+    /// convex edge, the light's rim) `clip.xyz` is the unit outward direction in the splat's
+    /// plane and `clip.w` half the local sample spacing, so the disk no longer overhangs the
+    /// sampled surface; elsewhere it is all zero (the whole disk). docs/octree.md, "Splat area".
+    pub clip: [f32; 4],
+}
+
+impl Splat {
+    /// Whether the point `x` of the splat's plane lies on the splat's side of its border clip.
+    #[inline]
+    pub fn within_clip(&self, x: [f32; 3]) -> bool {
+        within_clip(self.position, self.clip, x)
+    }
+
+    /// A point of the disk's plane mirrored across the clip line when it lies beyond it: a point
+    /// sampled on the disk lands on the splat's kept part (the cut-off cap mirrors inside the
+    /// disk, since the line is at least as far out as the centre).
+    #[inline]
+    pub fn fold_into_clip(&self, x: [f32; 3]) -> [f32; 3] {
+        let c = self.position;
+        let e = (x[0] - c[0]) * self.clip[0]
+            + (x[1] - c[1]) * self.clip[1]
+            + (x[2] - c[2]) * self.clip[2]
+            - self.clip[3];
+        if e <= 0.0 {
+            return x;
+        }
+        std::array::from_fn(|k| x[k] - 2.0 * e * self.clip[k])
+    }
+}
+
+/// `(x − c) · clip.xyz ≤ clip.w`: the border clip test shared by every CPU intersection.
+#[inline(always)]
+pub fn within_clip(c: [f32; 3], clip: [f32; 4], x: [f32; 3]) -> bool {
+    (x[0] - c[0]) * clip[0] + (x[1] - c[1]) * clip[1] + (x[2] - c[2]) * clip[2] <= clip[3]
 }
 
 /// Per node-pool slot: the average disk of Fig. 13 and the normal field of §8.5.5.
@@ -249,7 +286,7 @@ mod tests {
 
     #[test]
     fn record_sizes_are_gpu_friendly() {
-        assert_eq!(std::mem::size_of::<Splat>(), 48);
+        assert_eq!(std::mem::size_of::<Splat>(), 64);
         assert_eq!(std::mem::size_of::<NodeInfo>(), 48);
         assert_eq!(std::mem::size_of::<MaterialRecord>(), 48);
         assert_eq!(std::mem::size_of::<Frame>(), 48);

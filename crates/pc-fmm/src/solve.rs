@@ -1,5 +1,8 @@
 //! The radiosity solve: Jacobi iteration `L ← E + ρ ∘ T (L − Lₑ)` until the relative residual
-//! `‖L_{k+1} − L_k‖_A / ‖L_{k+1}‖_A` (area-weighted L2 over RGB) falls below the tolerance.
+//! `‖L_{k+1} − L_k‖_A / ‖L_{k+1} − Lₑ‖_A` (area-weighted L2 over RGB) falls below the
+//! tolerance. The norm leaves out the emitters' own radiance `Lₑ`: a light 100 times brighter
+//! than the room would otherwise make the residual look converged long before the
+//! inter-reflections are.
 //!
 //! Jacobi with an FMM product: every iteration is one application of the operator `T`, which is
 //! what the FMM makes O(N). The error left after stopping is about `r λ / (1 − λ)` with `λ`
@@ -284,8 +287,9 @@ pub fn solve(
             for c in 0..3 {
                 new[c] = sys.source[i][c] + sys.albedo[i][c] * t[i][c];
                 let d = (new[c] - l[i][c]) as f64;
+                let lit = (new[c] - sys.emission.get(i).map_or(0.0, |e| e[c])) as f64;
                 dn += a * d * d;
-                nn += a * (new[c] as f64) * (new[c] as f64);
+                nn += a * lit * lit;
             }
             l[i] = new;
         }

@@ -275,6 +275,7 @@ pub fn direct(
             let phi = 2.0 * PI * u2;
             let y = Vec3::from(sj.position)
                 + (Vec3::from(tu) * phi.cos() + Vec3::from(tv) * phi.sin()) * r;
+            let y = Vec3::from(sj.fold_into_clip(y.into()));
             let to = y - x;
             let d2 = to.length_squared();
             let d = d2.sqrt();

@@ -1,29 +1,31 @@
 //! A render-time packed copy of the leaf lists for faster traversal on the CPU.
 //!
 //! The artifact's leaves reach their splats through the begin/end table: own splats are a
-//! contiguous run of 48-byte records, referenced ones are scattered across the data pool, and a
+//! contiguous run of 64-byte records, referenced ones are scattered across the data pool, and a
 //! record straddles two cache lines half the time. Traversal is bound by those loads (about 60
 //! splat tests per primary ray). `Accel` copies, for every leaf, the intersection data of its
 //! listed splats (own, then referenced, the same order as the table) into one contiguous run of
-//! 32-byte records: each leaf's tests then stream through consecutive cache lines. Hits are
+//! 48-byte records (centre, radius², normal, index, border clip): each leaf's tests then stream
+//! through consecutive cache lines. Hits are
 //! identical to [`OctreeView::intersect`] (same splats, same order, same arithmetic).
-//! Memory: 32 bytes per listed splat (about 3 listings per splat on scans), built in parallel.
+//! Memory: 48 bytes per listed splat (about 3 listings per splat on scans), built in parallel.
 
 use glam::Vec3;
-use pc_artifact::octree::node;
+use pc_artifact::octree::{node, within_clip};
 use rayon::prelude::*;
 
 use crate::ray::{Hit, Ray, TraversalStats};
 use crate::OctreeView;
 
-/// One listed splat: centre, squared radius, normal, data-pool index.
-#[repr(C, align(32))]
+/// One listed splat: centre, squared radius, normal, data-pool index, border clip.
+#[repr(C, align(16))]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Packed {
     pub position: [f32; 3],
     pub radius2: f32,
     pub normal: [f32; 3],
     pub splat: u32,
+    pub clip: [f32; 4],
 }
 
 /// Packed leaf lists, indexed through the begin/end offset a leaf's node word holds.
@@ -79,6 +81,7 @@ impl Accel {
                         radius2: s.radius * s.radius,
                         normal: s.normal,
                         splat: i,
+                        clip: s.clip,
                     };
                 }
             });
@@ -115,7 +118,9 @@ impl Accel {
             let th = (c - ray.origin).dot(nrm) / denom;
             if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
                 let x = ray.origin + ray.dir * th;
-                if (x - c).length_squared() <= p.radius2 {
+                if (x - c).length_squared() <= p.radius2
+                    && within_clip(p.position, p.clip, x.into())
+                {
                     best = Some(Hit {
                         t: th,
                         splat: p.splat,

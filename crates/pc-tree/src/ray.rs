@@ -61,8 +61,8 @@ pub struct TraversalStats {
     pub splat_tests: u64,
 }
 
-/// Ray parameter at which the ray crosses the splat's plane inside its disk, if any.
-/// Rays parallel to the plane miss.
+/// Ray parameter at which the ray crosses the splat's plane inside its disk and on the kept
+/// side of its border clip (`Splat::clip`), if any. Rays parallel to the plane miss.
 #[inline]
 pub fn intersect_splat(origin: Vec3, dir: Vec3, s: &Splat) -> Option<f32> {
     let n = Vec3::from(s.normal);
@@ -73,7 +73,7 @@ pub fn intersect_splat(origin: Vec3, dir: Vec3, s: &Splat) -> Option<f32> {
     let c = Vec3::from(s.position);
     let t = (c - origin).dot(n) / denom;
     let x = origin + dir * t;
-    ((x - c).length_squared() <= s.radius * s.radius).then_some(t)
+    ((x - c).length_squared() <= s.radius * s.radius && s.within_clip(x.into())).then_some(t)
 }
 
 /// Entry and exit parameters of the ray in the box `[lo, hi]`, if it meets it.
@@ -230,8 +230,8 @@ impl<'a> OctreeView<'a> {
     }
 
     /// Every splat of the leaf `leaf` (own and referenced) whose disk covers the point `x` of a
-    /// surface with normal `n`: within its radius in its plane, within `thickness · radius` of
-    /// its plane, facing the same way. Used to blend overlapping splats at a hit (§8.5.8's open
+    /// surface with normal `n`: within its radius in its plane and inside its border clip,
+    /// within `thickness · radius` of its plane, facing the same way. Used to blend overlapping splats at a hit (§8.5.8's open
     /// issue). Returns (data-pool index, weight) with the weight `(1 − (ρ/r)²)²` of the in-plane
     /// distance ρ, which falls smoothly to zero at the rim.
     pub fn covering(&self, leaf: u32, x: Vec3, n: Vec3, thickness: f32, out: &mut Vec<(u32, f32)>) {
@@ -247,7 +247,7 @@ impl<'a> OctreeView<'a> {
             let h = d.dot(sn);
             let rho2 = d.length_squared() - h * h;
             let r2 = s.radius * s.radius;
-            if h.abs() <= thickness * s.radius && rho2 < r2 {
+            if h.abs() <= thickness * s.radius && rho2 < r2 && s.within_clip((x - sn * h).into()) {
                 let u = 1.0 - rho2 / r2;
                 out.push((i, u * u));
             }

@@ -235,3 +235,72 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
         );
     }
 }
+
+#[test]
+fn form_factor_rows_of_a_closed_room_sum_to_one() {
+    // Inside a closed room every splat's form factors to everything it sees add up to 1
+    // (Σ_j K_ij A_j = 1), whatever blocks the view: a floating cube hides parts of the walls
+    // but shows its own faces instead. This holds the V-map fractions, the near-field kernel
+    // and the splat areas together. The cube's convex edges are the hard part: unclipped disks
+    // overhang each edge and block the neighbouring face's grazing view while facing away
+    // (their light never arrives); the border clip (docs/octree.md) removes that lip.
+    let h = 0.035f32;
+    let mut rng = Pcg64::seed_from_u64(7);
+    let mut s = Soa::default();
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    s.rect(-y, z, x, h, 0, &mut rng);
+    s.rect(y, x, z, h, 0, &mut rng);
+    s.rect(-z, x, y, h, 0, &mut rng);
+    s.rect(z, y, x, h, 0, &mut rng);
+    s.rect(-x, y, z, h, 0, &mut rng);
+    s.rect(x, z, y, h, 0, &mut rng);
+    let (centre, half) = (Vec3::new(0.3, -0.3, 0.2), 0.3f32);
+    s.cube(centre, Vec3::splat(half), h, 0, &mut rng);
+    let sc = scene(&s, vec![diffuse(0.7)], 16);
+    let view = sc.octree.view();
+    let (t, p) = tree::build(&view, &sc.materials);
+    let plan = plan::build(
+        &t,
+        &p,
+        &sc.offsets,
+        &sc.links,
+        PlanParams {
+            theta: 0.5,
+            clamp_tol: 1e-4,
+        },
+    );
+    let rows = direct(&t, &p, &plan, &vec![[1.0f32; 3]; s.len()]);
+    let (mut all, mut cube, mut edge) = ((0.0f64, 0usize), (0.0f64, 0usize), (0.0f64, 0usize));
+    for (sp, row) in sc.octree.splats.iter().zip(&rows) {
+        let r = row[0] as f64;
+        all = (all.0 + r, all.1 + 1);
+        let q = Vec3::from(sp.position) - centre;
+        if q.abs().max_element() <= half + 1e-3 {
+            cube = (cube.0 + r, cube.1 + 1);
+            // Distance to the face's nearest edge.
+            let n = Vec3::from(sp.normal);
+            let d = (0..3)
+                .filter(|&a| n[a].abs() < 0.5)
+                .map(|a| half - q[a].abs())
+                .fold(f32::MAX, f32::min);
+            if d < h {
+                edge = (edge.0 + r, edge.1 + 1);
+            }
+        }
+    }
+    let mean = |(s, n): (f64, usize)| s / n as f64;
+    println!(
+        "row sums: all {:.4}, cube {:.4}, cube edge rows {:.4} ({} splats)",
+        mean(all),
+        mean(cube),
+        mean(edge),
+        edge.1
+    );
+    assert!((mean(all) - 1.0).abs() < 0.005, "all: {}", mean(all));
+    assert!((mean(cube) - 1.0).abs() < 0.01, "cube: {}", mean(cube));
+    assert!(
+        (mean(edge) - 1.0).abs() < 0.015,
+        "cube edges: {}",
+        mean(edge)
+    );
+}

@@ -376,10 +376,11 @@ fn wgsl_records_match_rust_layouts() {
     let (size, members) = pc_gpu::wgsl_struct_layout(&module, "Splat").unwrap();
     assert_eq!(size as usize, std::mem::size_of::<Splat>());
     let offsets: Vec<u32> = members.iter().map(|m| m.1).collect();
-    assert_eq!(offsets, vec![0, 12, 16, 28, 32, 44]);
+    assert_eq!(offsets, vec![0, 12, 16, 28, 32, 44, 48]);
     assert_eq!(std::mem::offset_of!(Splat, radius), 12);
     assert_eq!(std::mem::offset_of!(Splat, material), 28);
     assert_eq!(std::mem::offset_of!(Splat, source), 44);
+    assert_eq!(std::mem::offset_of!(Splat, clip), 48);
     let (size, members) = pc_gpu::wgsl_struct_layout(&module, "NodeInfo").unwrap();
     assert_eq!(size as usize, std::mem::size_of::<NodeInfo>());
     let offsets: Vec<u32> = members.iter().map(|m| m.1).collect();
@@ -435,6 +436,88 @@ fn splat_areas_sum_to_the_surface_area() {
         assert!(disks > 2.0 * want);
         // Node areas add up.
         assert!((o.node_info[0].area - total).abs() < 1e-3 * total);
+    }
+}
+
+#[test]
+fn splat_areas_stop_half_a_spacing_beyond_a_border() {
+    // Open rectangles sampled as jittered grids (radius = one cell, so the disks overhang the
+    // border by up to a cell): the shares must add up to the rectangle, not to the union of
+    // the disks. Also two materials tiling one plane side by side (each has its own border at
+    // the seam), and a small emitter 0.6 radii below a large panel of the same orientation (the
+    // reference Cornell box's light under its ceiling: the panel is not the light's interior).
+    let mut rng = Pcg64::seed_from_u64(11);
+    let h = 0.02f32;
+    let cases: [(&str, Soa, Vec<f32>); 3] = [
+        (
+            "square",
+            {
+                let mut s = Soa::default();
+                s.rect(Vec3::ZERO, Vec3::X * 0.5, Vec3::Y * 0.5, h, 0, &mut rng);
+                s
+            },
+            vec![1.0],
+        ),
+        (
+            "two tiles",
+            {
+                let mut s = Soa::default();
+                s.rect(
+                    Vec3::new(-0.3, 0.0, 0.0),
+                    Vec3::X * 0.3,
+                    Vec3::Y * 0.4,
+                    h,
+                    0,
+                    &mut rng,
+                );
+                s.rect(
+                    Vec3::new(0.3, 0.0, 0.0),
+                    Vec3::X * 0.3,
+                    Vec3::Y * 0.4,
+                    h,
+                    1,
+                    &mut rng,
+                );
+                s
+            },
+            vec![0.48, 0.48],
+        ),
+        (
+            "light under a panel",
+            {
+                let mut s = Soa::default();
+                s.rect(Vec3::ZERO, Vec3::X * 0.6, Vec3::Y * 0.6, h, 0, &mut rng);
+                s.rect(
+                    Vec3::new(0.0, 0.0, 0.6 * h),
+                    Vec3::X * 0.2,
+                    Vec3::Y * 0.15,
+                    h,
+                    1,
+                    &mut rng,
+                );
+                s
+            },
+            vec![1.44, 0.12],
+        ),
+    ];
+    for (name, soa, want) in cases {
+        let o = soa
+            .build(&[class::DIFFUSE, class::EMITTER], BuildParams::default())
+            .unwrap();
+        for (m, &want) in want.iter().enumerate() {
+            let (mut area, mut disks) = (0.0f32, 0.0f32);
+            for (s, a) in o.splats.iter().zip(&o.splat_area) {
+                if s.material == m as u32 {
+                    area += a;
+                    disks += std::f32::consts::PI * s.radius * s.radius;
+                }
+            }
+            assert!(
+                (area / want - 1.0).abs() < 0.01,
+                "{name}, material {m}: areas sum to {area}, the surface is {want}"
+            );
+            assert!(disks > 2.5 * want, "{name}: the disks overlap");
+        }
     }
 }
 

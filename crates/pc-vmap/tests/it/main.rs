@@ -184,7 +184,10 @@ fn visible_form_factor_sums_per_leaf_match_brute_force() {
                 .sum::<f64>()
         };
         let (e, m) = (sum(&exact), sum(&vmap));
-        if e < 1e-4 * sum(&vec![1.0; view.splats.len()]) {
+        // Leaves hidden under the box (a mean form-factor sum under 1e-3: the floor beneath it
+        // and the box's bottom face, coplanar with the floor) exchange next to nothing; their
+        // relative error says nothing.
+        if e < 1e-3 * sum(&vec![1.0; view.splats.len()]) {
             continue;
         }
         let rel = (m - e).abs() / e;

@@ -1,0 +1,78 @@
+//! Times one FMM product against the exact sum over the same plan (every splat pair the
+//! V-map's links connect, O(N²) in the worst case) on artifacts already made by the chain.
+//!
+//! `cargo run --release -p pc-fmm --example direct_speedup -- CONFIG` (after pc-octree and
+//! pc-vmap ran on CONFIG). Prints both times, the speed-up and the relative L2 difference.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use pc_artifact::vmap::{sections as vs, Link};
+use pc_artifact::{Artifact, ArtifactKind};
+use pc_fmm::cpu::{direct, PhaseTimes};
+use pc_fmm::plan::{self, PlanParams};
+use pc_fmm::{tree, Basis, CpuFmm};
+use pc_tree::OctreeView;
+
+fn main() -> anyhow::Result<()> {
+    let config = PathBuf::from(
+        std::env::args()
+            .nth(1)
+            .context("usage: direct_speedup CONFIG")?,
+    );
+    let cfg = pc_scene::config::load_config(&config, &[])?;
+    let oct = Artifact::open_kind(&cfg.octree_path(), ArtifactKind::Octree)?;
+    let view = OctreeView::from_artifact(&oct)?;
+    let vm = Artifact::open_kind(&cfg.vmap_path(), ArtifactKind::Vmap)?;
+    let offsets: &[u32] = vm.section(vs::LINK_OFFSETS)?;
+    let links: &[Link] = vm.section(vs::LINKS)?;
+    let materials = pc_scene::cli::current_materials(&cfg, &oct)?;
+    let f = &cfg.config.fmm;
+    let (t, p) = tree::build(&view, &materials);
+    let plan = plan::build(
+        &t,
+        &p,
+        offsets,
+        links,
+        PlanParams {
+            theta: f.theta,
+            clamp_tol: f.clamp_tol,
+        },
+    );
+    let basis = Basis::new(f.order as usize);
+    let fmm = CpuFmm {
+        basis: &basis,
+        tree: &t,
+        points: &p,
+        plan: &plan,
+    };
+    let radiance: Vec<[f32; 3]> = (0..p.pos.len())
+        .map(|i| {
+            let x = i as f32 * 0.618;
+            [1.0 + 0.5 * x.sin(), 0.5 + 0.4 * (1.3 * x).cos(), 0.2]
+        })
+        .collect();
+    let mut out = vec![[0.0f32; 3]; radiance.len()];
+    let start = Instant::now();
+    fmm.apply(&radiance, &mut out, &mut PhaseTimes::default());
+    let t_fmm = start.elapsed().as_secs_f64();
+    let start = Instant::now();
+    let exact = direct(&t, &p, &plan, &radiance);
+    let t_direct = start.elapsed().as_secs_f64();
+    let (mut e, mut n) = (0.0f64, 0.0f64);
+    for (a, b) in out.iter().zip(&exact) {
+        for c in 0..3 {
+            e += ((a[c] - b[c]) as f64).powi(2);
+            n += (b[c] as f64).powi(2);
+        }
+    }
+    println!(
+        "{} splats, order {}: FMM product {t_fmm:.2} s, direct sum over the same links {t_direct:.2} s, speed-up {:.1}x, relative L2 difference {:.2e}",
+        p.pos.len(),
+        f.order,
+        t_direct / t_fmm,
+        (e / n).sqrt()
+    );
+    Ok(())
+}
