@@ -1,8 +1,8 @@
 //! Times one FMM product against the exact sum over the same plan (every splat pair the
 //! V-map's links connect, O(N²) in the worst case) on artifacts already made by the chain.
 //!
-//! `cargo run --release -p pc-fmm --example direct_speedup -- CONFIG` (after pc-octree and
-//! pc-vmap ran on CONFIG). Prints both times, the speed-up and the relative L2 difference.
+//! `cargo run --release -p pc-fmm --example direct_speedup -- CONFIG [KEY=VALUE ...]` (after
+//! pc-octree and pc-vmap ran on CONFIG; e.g. `fmm.order=5`). Prints both times, the speed-up and the relative L2 difference.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -16,12 +16,12 @@ use pc_fmm::{tree, Basis, CpuFmm};
 use pc_tree::OctreeView;
 
 fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
     let config = PathBuf::from(
-        std::env::args()
-            .nth(1)
-            .context("usage: direct_speedup CONFIG")?,
+        args.first()
+            .context("usage: direct_speedup CONFIG [KEY=VALUE ...]")?,
     );
-    let cfg = pc_scene::config::load_config(&config, &[])?;
+    let cfg = pc_scene::config::load_config(&config, &args[1..])?;
     let oct = Artifact::open_kind(&cfg.octree_path(), ArtifactKind::Octree)?;
     let view = OctreeView::from_artifact(&oct)?;
     let vm = Artifact::open_kind(&cfg.vmap_path(), ArtifactKind::Vmap)?;
