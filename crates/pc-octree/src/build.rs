@@ -575,20 +575,34 @@ pub fn overlapped_cells(
             }
             continue;
         }
-        let half_size = size * 0.5;
-        let first = node::ptr(w);
-        for child in 0..8u32 {
-            let off = Vec3::new(
-                (child & 1) as f32,
-                ((child >> 1) & 1) as f32,
-                ((child >> 2) & 1) as f32,
-            );
-            let clo = lo + off * half_size;
-            let chi = clo + Vec3::splat(half_size);
-            if (bmin.cmple(chi) & bmax.cmpge(clo)).all() {
-                stack[top] = (first + child, clo, half_size);
-                top += 1;
-            }
+        push_children_in_box(w, lo, size, bmin, bmax, &mut stack, &mut top);
+    }
+}
+
+/// Pushes the children of the internal node `w` (cell at `lo`, edge `size`) whose cells meet the
+/// box `[bmin, bmax]` onto a traversal stack.
+#[inline]
+fn push_children_in_box(
+    w: u32,
+    lo: Vec3,
+    size: f32,
+    bmin: Vec3,
+    bmax: Vec3,
+    stack: &mut [(u32, Vec3, f32)],
+    top: &mut usize,
+) {
+    let half = size * 0.5;
+    let first = node::ptr(w);
+    for child in 0..8u32 {
+        let off = Vec3::new(
+            (child & 1) as f32,
+            ((child >> 1) & 1) as f32,
+            ((child >> 2) & 1) as f32,
+        );
+        let clo = lo + off * half;
+        if (bmin.cmple(clo + Vec3::splat(half)) & bmax.cmpge(clo)).all() {
+            stack[*top] = (first + child, clo, half);
+            *top += 1;
         }
     }
 }
@@ -790,20 +804,7 @@ impl AreaPass<'_> {
                 }
                 continue;
             }
-            let half = size * 0.5;
-            let first = node::ptr(w);
-            for child in 0..8u32 {
-                let off = Vec3::new(
-                    (child & 1) as f32,
-                    ((child >> 1) & 1) as f32,
-                    ((child >> 2) & 1) as f32,
-                );
-                let clo = lo + off * half;
-                if (bmin.cmple(clo + Vec3::splat(half)) & bmax.cmpge(clo)).all() {
-                    stack[top] = (first + child, clo, half);
-                    top += 1;
-                }
-            }
+            push_children_in_box(w, lo, size, bmin, bmax, &mut stack, &mut top);
         }
     }
 

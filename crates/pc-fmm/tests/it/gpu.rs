@@ -30,18 +30,7 @@ struct Fixture {
 fn fixture() -> Fixture {
     let soa = box_scene(0.07);
     let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
-    let view = sc.octree.view();
-    let (tree, points) = tree::build(&view, &sc.materials);
-    let plan = plan::build(
-        &tree,
-        &points,
-        &sc.offsets,
-        &sc.links,
-        PlanParams {
-            theta: 0.5,
-            clamp_tol: 1e-5,
-        },
-    );
+    let (tree, points, plan) = super::tree_and_plan(&sc, 0.5, 1e-5);
     println!(
         "{} splats, {} nodes, {} leaves, {} levels, tasks {:?}",
         points.pos.len(),

@@ -99,8 +99,12 @@ pub fn box_scene(h: f32) -> Soa {
     s
 }
 
-/// Relative L2 error of one FMM product against the direct sum.
-fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) -> (f64, f64) {
+/// The FMM tree, points and interaction plan of a test scene.
+pub fn tree_and_plan(
+    sc: &Scene,
+    theta: f32,
+    clamp_tol: f32,
+) -> (tree::Tree, tree::Points, plan::Plan) {
     let view = sc.octree.view();
     let (t, p) = tree::build(&view, &sc.materials);
     let plan = plan::build(
@@ -108,11 +112,14 @@ fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) ->
         &p,
         &sc.offsets,
         &sc.links,
-        PlanParams {
-            theta,
-            clamp_tol: pc_scene::config::FmmConfig::default().clamp_tol,
-        },
+        PlanParams { theta, clamp_tol },
     );
+    (t, p, plan)
+}
+
+/// Relative L2 error of one FMM product against the direct sum.
+fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) -> (f64, f64) {
+    let (t, p, plan) = tree_and_plan(sc, theta, pc_scene::config::FmmConfig::default().clamp_tol);
     let basis = Basis::new(order);
     let fmm = CpuFmm {
         basis: &basis,
@@ -184,17 +191,7 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
         let e = 1.0f32;
         let sc = scene(&soa, vec![emitter(e, rho)], 16);
         let view = sc.octree.view();
-        let (t, p) = tree::build(&view, &sc.materials);
-        let plan = plan::build(
-            &t,
-            &p,
-            &sc.offsets,
-            &sc.links,
-            PlanParams {
-                theta: 0.5,
-                clamp_tol: 1e-4,
-            },
-        );
+        let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
         let basis = Basis::new(4);
         let mut op = CpuOperator {
             fmm: CpuFmm {
@@ -257,18 +254,7 @@ fn form_factor_rows_of_a_closed_room_sum_to_one() {
     let (centre, half) = (Vec3::new(0.3, -0.3, 0.2), 0.3f32);
     s.cube(centre, Vec3::splat(half), h, 0, &mut rng);
     let sc = scene(&s, vec![diffuse(0.7)], 16);
-    let view = sc.octree.view();
-    let (t, p) = tree::build(&view, &sc.materials);
-    let plan = plan::build(
-        &t,
-        &p,
-        &sc.offsets,
-        &sc.links,
-        PlanParams {
-            theta: 0.5,
-            clamp_tol: 1e-4,
-        },
-    );
+    let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
     let rows = direct(&t, &p, &plan, &vec![[1.0f32; 3]; s.len()]);
     let (mut all, mut cube, mut edge) = ((0.0f64, 0usize), (0.0f64, 0usize), (0.0f64, 0usize));
     for (sp, row) in sc.octree.splats.iter().zip(&rows) {
