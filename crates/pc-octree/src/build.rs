@@ -860,21 +860,15 @@ impl AreaPass<'_> {
             .collect()
     }
 
-    /// Whether splat i's share reaches x.
+    /// Whether a splat's share reaches the point at (p, q) in its own tangent frame.
     #[inline]
-    fn accepts(&self, border: Border, i: usize, x: Vec3) -> bool {
-        let inside = |d: (f32, f32), gap: f32| {
-            let o = &self.splats[i];
-            let (u, v) = tangent_frame(o.normal);
-            let off = x - Vec3::from(o.position);
-            off.dot(Vec3::from(u)) * d.0 + off.dot(Vec3::from(v)) * d.1 <= gap
-        };
+    fn accepts(&self, border: Border, p: f32, q: f32) -> bool {
         match border {
             Border::Interior => true,
-            Border::Edge { a, b, gap, .. } => inside((a, b), gap),
+            Border::Edge { a, b, gap, .. } => p * a + q * b <= gap,
             Border::Open { mask, gap } => (0..BORDER_DIRS)
                 .filter(|k| mask >> k & 1 != 0)
-                .all(|k| inside(self.dirs[k], gap)),
+                .all(|k| p * self.dirs[k].0 + q * self.dirs[k].1 <= gap),
         }
     }
 
@@ -899,7 +893,8 @@ impl AreaPass<'_> {
                 let mut acc = 0.0f32;
                 for &(a, b) in &self.pattern {
                     let x = c + (u * a + v * b) * s.radius;
-                    if !self.accepts(border, i, x) {
+                    // The sample's tangent coordinates are (a, b) · radius by construction.
+                    if !self.accepts(border, a * s.radius, b * s.radius) {
                         continue;
                     }
                     let q = (x - origin) * inv_size;
