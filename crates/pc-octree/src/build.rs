@@ -641,15 +641,7 @@ enum Border {
     Interior,
     /// On a straight stretch of border, or a corner: up to half a spacing beyond the splat
     /// along the outward direction (a, b) of its tangent frame.
-    Edge {
-        a: f32,
-        b: f32,
-        gap: f32,
-        /// How far the farthest neighbour lies out along (a, b) (under `gap`: the jitter of
-        /// the border row). Rays see the disk up to gap + spread, so that the clipped disks of
-        /// a border row leave no gaps between them (areas use gap alone).
-        spread: f32,
-    },
+    Edge { a: f32, b: f32, gap: f32 },
     /// Open in several separate arcs (a strip one or two samples wide): up to half a spacing
     /// beyond the splat in every open direction (bit k of the mask).
     Open { mask: u32, gap: f32 },
@@ -715,7 +707,7 @@ pub fn splat_areas(
         .map(|(b, s)| {
             let (a, b, gap) = match *b {
                 Border::Interior => return [0.0; 4],
-                Border::Edge { a, b, gap, .. } => (a, b, gap),
+                Border::Edge { a, b, gap } => (a, b, gap),
                 Border::Open { mask, gap } => match longest_arc(mask) {
                     Some(mid) => (mid.cos(), mid.sin(), gap),
                     None => return [0.0; 4],
@@ -845,17 +837,7 @@ impl AreaPass<'_> {
                     .enumerate()
                     .filter(|(_, &h)| h < g)
                     .fold(0u32, |m, (k, _)| m | 1 << k);
-                match border_from_mask(mask, g) {
-                    Border::Edge { a, b, gap, .. } => {
-                        let out = u * a + v * b;
-                        let spread = near
-                            .iter()
-                            .map(|&j| (Vec3::from(self.splats[j as usize].position) - c).dot(out))
-                            .fold(0.0f32, f32::max);
-                        Border::Edge { a, b, gap, spread }
-                    }
-                    other => other,
-                }
+                border_from_mask(mask, g)
             })
             .collect()
     }
@@ -865,7 +847,7 @@ impl AreaPass<'_> {
     fn accepts(&self, border: Border, p: f32, q: f32) -> bool {
         match border {
             Border::Interior => true,
-            Border::Edge { a, b, gap, .. } => p * a + q * b <= gap,
+            Border::Edge { a, b, gap } => p * a + q * b <= gap,
             Border::Open { mask, gap } => (0..BORDER_DIRS)
                 .filter(|k| mask >> k & 1 != 0)
                 .all(|k| p * self.dirs[k].0 + q * self.dirs[k].1 <= gap),
@@ -958,7 +940,6 @@ fn border_from_mask(mask: u32, gap: f32) -> Border {
             a: mid.cos(),
             b: mid.sin(),
             gap,
-            spread: 0.0,
         },
         // Several runs (a strip one or two samples wide) or all open (an isolated splat).
         _ => Border::Open { mask, gap },
