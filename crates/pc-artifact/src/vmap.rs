@@ -75,6 +75,12 @@ pub struct VmapParams {
     /// Partly visible pairs whose form factor (either way) is below this keep a partial link
     /// instead of being refined; 0 refines every partial pair down to V-map leaves.
     pub refine_form_factor: f32,
+    /// Far pairs whose form factor (either way, from the sample weights) is at least
+    /// `heavy_form_factor` get `heavy_rays` rays instead of `rays` (0 or ≤ `rays`: off).
+    #[serde(default)]
+    pub heavy_rays: u32,
+    #[serde(default)]
+    pub heavy_form_factor: f32,
     pub seed: u32,
 }
 

@@ -209,7 +209,7 @@ fn tmp_path(path: &Path) -> Result<PathBuf, ImageError> {
 
 /// Writes `bytes` to `<path>.tmp` and renames it onto `path`, creating the parent folder.
 /// The temporary file is removed on failure.
-fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
     let io_err = |source| ImageError::Io {
         path: path.to_path_buf(),
         source,

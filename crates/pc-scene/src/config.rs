@@ -284,6 +284,11 @@ pub struct VmapConfig {
     /// Partly visible node pairs exchanging a smaller form factor than this (either way) keep a
     /// partial link instead of being refined to V-map leaves; 0 always refines.
     pub refine_form_factor: f32,
+    /// Far-field pairs exchanging at least `heavy_form_factor` (either way) are tested with
+    /// `heavy_rays` rays instead of `rays`: a pair that all of a few rays find unoccluded is
+    /// linked whole, so the pairs that carry the most light get the most rays.
+    pub heavy_rays: u32,
+    pub heavy_form_factor: f32,
     /// Where the rays are cast.
     pub backend: Backend,
     pub seed: u32,
@@ -300,6 +305,8 @@ impl Default for VmapConfig {
             leaf_splats: 64,
             self_hit: 0.5,
             refine_form_factor: 1e-3,
+            heavy_rays: 64,
+            heavy_form_factor: 3e-3,
             backend: Backend::Auto,
             seed: 0,
             file: PathBuf::from("vmap.pcgi"),
@@ -778,6 +785,13 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
     }
     if !(v.self_hit.is_finite() && v.self_hit >= 0.0) {
         return err("vmap.self_hit must be finite and non-negative".into());
+    }
+    if v.heavy_rays > 4096 || !(v.heavy_form_factor.is_finite() && v.heavy_form_factor >= 0.0) {
+        return err(format!(
+            "vmap.heavy_rays must lie in 0..=4096 and vmap.heavy_form_factor be finite and \
+             non-negative, got {} and {}",
+            v.heavy_rays, v.heavy_form_factor
+        ));
     }
     let f = &c.fmm;
     if f.order > 12 {

@@ -26,6 +26,8 @@ pub fn params(cfg: &LoadedConfig) -> VmapParams {
         leaf_splats: v.leaf_splats,
         self_hit: v.self_hit,
         refine_form_factor: v.refine_form_factor,
+        heavy_rays: v.heavy_rays,
+        heavy_form_factor: v.heavy_form_factor,
         seed: v.seed,
     }
 }

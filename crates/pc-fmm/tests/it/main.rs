@@ -69,6 +69,8 @@ pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
         leaf_splats: 64,
         self_hit: 0.5,
         refine_form_factor: 1e-3,
+        heavy_rays: 64,
+        heavy_form_factor: 3e-3,
         seed: 1,
     };
     let vn = vnodes(&view, p.leaf_splats);

@@ -14,7 +14,8 @@ use pc_raytrace::image::{read_exr, write_diff_png};
 #[command(name = "pc-compare", version, about)]
 struct Args {
     /// Our render (linear EXR).
-    image: PathBuf,
+    #[arg(required_unless_present = "write_config")]
+    image: Option<PathBuf>,
     /// The reference folder.
     #[arg(long)]
     reference: PathBuf,
@@ -27,6 +28,10 @@ struct Args {
     /// Exit with an error when a region's error exceeds this (a fraction, e.g. 0.03).
     #[arg(long)]
     max_region_error: Option<f64>,
+    /// Write a pipeline config that renders the reference scene from its sampled points
+    /// (materials and camera from the reference's JSON), then compare IMAGE if given.
+    #[arg(long, value_name = "FILE")]
+    write_config: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -34,13 +39,21 @@ fn main() -> ExitCode {
 }
 
 fn run(a: &Args) -> anyhow::Result<()> {
-    let ours = read_exr(&a.image)?;
+    if let Some(out) = &a.write_config {
+        let text = pc_raytrace::reference::config_toml(&a.reference)?;
+        pc_raytrace::image::write_atomically(out, text.as_bytes())?;
+        println!("pc-compare: wrote {}", out.display());
+    }
+    let Some(image) = &a.image else {
+        return Ok(());
+    };
+    let ours = read_exr(image)?;
     let (report, reference) = pc_raytrace::reference::compare(&ours, &a.reference)
-        .with_context(|| format!("comparing {}", a.image.display()))?;
+        .with_context(|| format!("comparing {}", image.display()))?;
     let diff = a
         .diff
         .clone()
-        .unwrap_or_else(|| a.image.with_extension("diff.png"));
+        .unwrap_or_else(|| image.with_extension("diff.png"));
     write_diff_png(&diff, &ours, &reference, a.scale)?;
     print!("{}", report.table());
     let worst = report.worst();

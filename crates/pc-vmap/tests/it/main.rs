@@ -52,6 +52,8 @@ pub fn params(rays: u32, leaf: u32) -> VmapParams {
         leaf_splats: leaf,
         self_hit: 0.5,
         refine_form_factor,
+        heavy_rays: 0,
+        heavy_form_factor: 0.0,
         seed: 1,
     }
 }
