@@ -24,7 +24,13 @@ commands:
 ";
 
 /// The stages in dependency order. pc-caustics (a later issue) goes before pc-fmm.
-const STAGES: &[&str] = &["pc-octree", "pc-vmap", "pc-fmm", "pc-raytrace"];
+const STAGES: &[&str] = &[
+    "pc-octree",
+    "pc-vmap",
+    "pc-caustics",
+    "pc-fmm",
+    "pc-raytrace",
+];
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -390,6 +390,25 @@ impl ArtifactWriter {
         Ok(())
     }
 
+    /// Appends a byte section whose payload must start on a multiple of `align` bytes (a power
+    /// of two above [`SECTION_ALIGN`], e.g. an rkyv archive of cache-line-aligned arenas): the
+    /// section starts with zero bytes up to the first such offset, and
+    /// [`Artifact::section_aligned`] skips them. Files are mapped at page boundaries, so file
+    /// offsets and addresses agree modulo `align` (up to the page size).
+    pub fn section_aligned(
+        &mut self,
+        name: &str,
+        align: u64,
+        bytes: &[u8],
+    ) -> Result<(), ArtifactError> {
+        debug_assert!(align.is_power_of_two() && align <= 4096);
+        let start = align_up(self.pos);
+        let skip = (align - start % align) % align;
+        let mut data = vec![0u8; skip as usize];
+        data.extend_from_slice(bytes);
+        self.section_bytes(name, 1, &data)
+    }
+
     /// Sets the artifact's metadata, stored as MessagePack (struct fields by name) when the
     /// artifact is finished. A second call replaces the first.
     pub fn metadata<M: Serialize + ?Sized>(&mut self, metadata: &M) -> Result<(), ArtifactError> {
@@ -681,6 +700,18 @@ impl Artifact {
     pub fn section_bytes(&self, name: &str) -> Result<&[u8], ArtifactError> {
         let info = self.find(name)?;
         Ok(self.data(info))
+    }
+
+    /// The payload of a section written by [`ArtifactWriter::section_aligned`] with `align`:
+    /// its bytes from the first address that is a multiple of `align`.
+    pub fn section_aligned(&self, name: &str, align: usize) -> Result<&[u8], ArtifactError> {
+        let bytes = self.section_bytes(name)?;
+        let skip = (align - bytes.as_ptr() as usize % align) % align;
+        bytes.get(skip..).ok_or_else(|| ArtifactError::Cast {
+            path: self.path.clone(),
+            section: name.to_owned(),
+            msg: format!("shorter than its {skip}-byte alignment padding"),
+        })
     }
 
     /// Decodes the MessagePack metadata.

@@ -11,6 +11,7 @@ pub mod error;
 pub mod key;
 pub mod kind;
 pub mod octree;
+pub mod photons;
 pub mod radiosity;
 pub mod vmap;
 

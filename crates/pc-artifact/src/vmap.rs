@@ -118,3 +118,74 @@ mod tests {
         assert_eq!(std::mem::size_of::<Link>(), 8);
     }
 }
+
+/// The tables of a vmap artifact, checked against the octree they are used with.
+pub struct Tables<'a> {
+    pub meta: VmapMeta,
+    pub link_offsets: &'a [u32],
+    pub links: &'a [Link],
+    pub light_offsets: &'a [u32],
+    pub light_links: &'a [Link],
+    pub node_range: &'a [[u32; 2]],
+}
+
+impl<'a> Tables<'a> {
+    /// Open the tables of `vm`, made for the octree with key `octree_key` and `nodes` node-pool
+    /// slots and for the point lights `lights`. A V-map of another octree or other lights, or
+    /// tables that do not fit the octree, are errors that name the file and say what to rerun.
+    pub fn open(
+        vm: &'a crate::Artifact,
+        octree_key: &crate::Key,
+        nodes: usize,
+        splats: usize,
+        lights: &[[f32; 6]],
+    ) -> Result<Tables<'a>, String> {
+        let path = vm.path().display();
+        let meta: VmapMeta = vm.metadata().map_err(|e| e.to_string())?;
+        if meta.octree_key != octree_key.to_string() {
+            return Err(format!(
+                "{path}: stale V-map: it was computed for another octree: rerun pc-vmap"
+            ));
+        }
+        if meta.lights != lights {
+            return Err(format!(
+                "{path}: stale V-map: its light lists are for other point lights than the \
+                 config defines: rerun pc-vmap (it reuses the links)"
+            ));
+        }
+        let e = |x: crate::ArtifactError| x.to_string();
+        let t = Tables {
+            link_offsets: vm.section(sections::LINK_OFFSETS).map_err(e)?,
+            links: vm.section(sections::LINKS).map_err(e)?,
+            light_offsets: vm.section(sections::LIGHT_OFFSETS).map_err(e)?,
+            light_links: vm.section(sections::LIGHT_LINKS).map_err(e)?,
+            node_range: vm.section(sections::NODE_RANGE).map_err(e)?,
+            meta,
+        };
+        if t.link_offsets.len() != nodes + 1
+            || *t.link_offsets.last().unwrap_or(&0) as usize != t.links.len()
+            || t.light_offsets.len() != lights.len() + 1
+            || *t.light_offsets.last().unwrap_or(&0) as usize != t.light_links.len()
+            || t.node_range.len() != nodes
+            || t.node_range
+                .iter()
+                .any(|r| r[0] > r[1] || r[1] as usize > splats)
+            || t.links
+                .iter()
+                .chain(t.light_links)
+                .any(|l| l.slot() as usize >= nodes)
+            || t.link_offsets.windows(2).any(|w| w[0] > w[1])
+            || t.light_offsets.windows(2).any(|w| w[0] > w[1])
+        {
+            return Err(format!(
+                "{path}: the link tables do not fit the octree: rerun pc-vmap"
+            ));
+        }
+        Ok(t)
+    }
+
+    /// The light list of point light `l`.
+    pub fn light_list(&self, l: usize) -> &'a [Link] {
+        &self.light_links[self.light_offsets[l] as usize..self.light_offsets[l + 1] as usize]
+    }
+}

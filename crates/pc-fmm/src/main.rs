@@ -24,6 +24,10 @@ struct Args {
     /// The vmap artifact (default: <output.dir>/<vmap.file>).
     #[arg(long)]
     vmap: Option<PathBuf>,
+    /// The photons artifact whose caustic energy feeds the solve when it exists (default:
+    /// <output.dir>/<caustics.file>).
+    #[arg(long)]
+    photons: Option<PathBuf>,
     /// The radiosity artifact to write (default: <output.dir>/<fmm.file>).
     #[arg(long, short)]
     output: Option<PathBuf>,
@@ -57,6 +61,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
     let vmap = args.vmap.clone().unwrap_or_else(|| cfg.vmap_path());
     let out = args.output.clone().unwrap_or_else(|| cfg.radiosity_path());
+    let photons = args.photons.clone().unwrap_or_else(|| cfg.photons_path());
     let backend = args.backend.unwrap_or(cfg.config.fmm.backend);
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
@@ -71,7 +76,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         bar,
         quiet: args.stage.quiet,
     };
-    let s = pc_fmm::stage::run(&cfg, &octree, &vmap, &out, backend, &mut progress)
+    let s = pc_fmm::stage::run(&cfg, &octree, &vmap, &photons, &out, backend, &mut progress)
         .with_context(|| format!("solving the radiosity for {}", args.stage.config.display()))?;
     progress.bar.finish_and_clear();
     let m = &s.meta;

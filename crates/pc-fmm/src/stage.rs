@@ -3,10 +3,10 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use glam::Vec3;
 use pc_artifact::radiosity::{sections, FmmParams, RadiosityMeta};
-use pc_artifact::vmap::{sections as vs, Link, VmapMeta};
+use pc_artifact::vmap::{self as vs, Link};
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_scene::config::{Backend, LoadedConfig};
 use pc_tree::{OctreeView, Ray};
@@ -61,6 +61,7 @@ pub fn run(
     cfg: &LoadedConfig,
     octree_path: &Path,
     vmap_path: &Path,
+    photons_path: &Path,
     out: &Path,
     backend: Backend,
     progress: &mut dyn Progress,
@@ -72,44 +73,18 @@ pub fn run(
     let view = OctreeView::from_artifact(&oct)?;
     let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
         .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
-    let vmeta: VmapMeta = vm.metadata()?;
     let octree_key = oct.header().key;
-    if vmeta.octree_key != octree_key.to_string() {
-        bail!(
-            "{}: stale V-map: it was computed for another octree than {}: rerun pc-vmap",
-            vmap_path.display(),
-            octree_path.display()
-        );
-    }
     let lights = cfg.light_records();
-    if vmeta.lights != lights {
-        bail!(
-            "{}: stale V-map: its light lists are for other point lights than {} defines: rerun pc-vmap (it reuses the links)",
-            vmap_path.display(),
-            cfg.path.display()
-        );
-    }
-    let link_offsets: &[u32] = vm.section(vs::LINK_OFFSETS)?;
-    let links: &[Link] = vm.section(vs::LINKS)?;
-    let light_offsets: &[u32] = vm.section(vs::LIGHT_OFFSETS)?;
-    let light_links: &[Link] = vm.section(vs::LIGHT_LINKS)?;
-    if link_offsets.len() != view.nodes.len() + 1
-        || *link_offsets.last().unwrap_or(&0) as usize != links.len()
-        || light_offsets.len() != lights.len() + 1
-        || *light_offsets.last().unwrap_or(&0) as usize != light_links.len()
-        || links
-            .iter()
-            .chain(light_links)
-            .any(|l| l.slot() as usize >= view.nodes.len())
-        || link_offsets.windows(2).any(|w| w[0] > w[1])
-        || light_offsets.windows(2).any(|w| w[0] > w[1])
-    {
-        bail!(
-            "{}: the link tables do not fit the octree {}: rerun pc-vmap",
-            vmap_path.display(),
-            octree_path.display()
-        );
-    }
+    let tables = vs::Tables::open(
+        &vm,
+        &octree_key,
+        view.nodes.len(),
+        view.splats.len(),
+        &lights,
+    )
+    .map_err(|e| anyhow::anyhow!("{e} (octree {})", octree_path.display()))?;
+    let vmeta = &tables.meta;
+    let (link_offsets, links) = (tables.link_offsets, tables.links);
     let materials = pc_scene::cli::current_materials(cfg, &oct)?;
     let p = params(cfg);
 
@@ -141,10 +116,7 @@ pub fn run(
             intensity: Vec3::new(l[3], l[4], l[5]),
         })
         .collect();
-    let lists: Vec<&[Link]> = light_offsets
-        .windows(2)
-        .map(|w| &light_links[w[0] as usize..w[1] as usize])
-        .collect();
+    let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
     let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
     let caster = Caster {
         view: &view,
@@ -171,6 +143,45 @@ pub fn run(
         &caster,
     )
     .map_err(|e| anyhow::anyhow!("emitter shadow rays: {e}"))?;
+    // Caustic energy (LS⁺D, seed §8.1): the photon map's first diffuse bounce feeds the later
+    // ones. It is a source of the solve, and taken out of the stored radiance again, because
+    // the renderer shows it from the photon map itself.
+    let photons = if photons_path.exists() {
+        Some(Artifact::open_kind(photons_path, ArtifactKind::Photons)?)
+    } else {
+        None
+    };
+    let mut caustic = vec![[0.0f32; 3]; view.splats.len()];
+    if let Some(a) = &photons {
+        let meta: pc_artifact::photons::PhotonsMeta = a.metadata()?;
+        if meta.octree_key != octree_key.to_string() {
+            anyhow::bail!(
+                "{}: stale photon map: it was traced on another octree than {}: rerun pc-caustics",
+                photons_path.display(),
+                octree_path.display()
+            );
+        }
+        let deposit: &[[f32; 3]] = a.section(pc_artifact::photons::sections::DEPOSIT)?;
+        if deposit.len() != view.splats.len() || deposit.iter().flatten().any(|x| !x.is_finite()) {
+            anyhow::bail!(
+                "{}: the caustic deposit does not fit the octree {} ({} splats, {} deposits): rerun pc-caustics",
+                photons_path.display(),
+                octree_path.display(),
+                view.splats.len(),
+                deposit.len()
+            );
+        }
+        for (i, d) in deposit.iter().enumerate() {
+            let area = view.splat_area[i];
+            if !pts.active[i] || area <= 0.0 || *d == [0.0; 3] {
+                continue;
+            }
+            // Reflected radiance ρ E / π of the irradiance E = Φ / A.
+            let c = Vec3::from(sys.albedo[i]) * Vec3::from(*d) / (std::f32::consts::PI * area);
+            caustic[i] = c.into();
+            sys.source[i] = (Vec3::from(sys.source[i]) + c).into();
+        }
+    }
     timings.push(("source term".to_string(), t.elapsed().as_secs_f64()));
 
     let basis = Basis::new(p.order as usize);
@@ -221,18 +232,33 @@ pub fn run(
     ));
     drop(op);
 
-    let key = radiosity_key(&octree_key, &vm.header().key, &p, &materials, &lights);
+    let photons_key = photons.as_ref().map(|a| a.header().key);
+    let key = radiosity_key(
+        &octree_key,
+        &vm.header().key,
+        photons_key.as_ref(),
+        &p,
+        &materials,
+        &lights,
+    );
     let active = pts.active.iter().filter(|&&a| a).count() as u64;
     let radiance: Vec<[f32; 3]> = sol
         .radiance
         .iter()
         .zip(&pts.active)
-        .map(|(l, &a)| if a { *l } else { [0.0; 3] })
+        .zip(&caustic)
+        .map(|((l, &a), c)| {
+            if a {
+                std::array::from_fn(|k| (l[k] - c[k]).max(0.0))
+            } else {
+                [0.0; 3]
+            }
+        })
         .collect();
     let meta = RadiosityMeta {
         octree_key: octree_key.to_string(),
         vmap_key: vm.header().key.to_string(),
-        photons_key: None,
+        photons_key: photons_key.map(|k| k.to_string()),
         params: p,
         iterations: sol.residuals.len() as u32,
         converged: sol.converged,
@@ -263,6 +289,7 @@ pub fn run(
 pub fn radiosity_key(
     octree: &Key,
     vmap: &Key,
+    photons: Option<&Key>,
     p: &FmmParams,
     materials: &[pc_artifact::octree::MaterialRecord],
     lights: &[[f32; 6]],
@@ -272,8 +299,11 @@ pub fn radiosity_key(
         .update_str(STAGE_VERSION)
         .update_key(&pc_artifact::build_id())
         .update_key(octree)
-        .update_key(vmap)
-        .update_serialize(p)
+        .update_key(vmap);
+    if let Some(k) = photons {
+        h.update_key(k);
+    }
+    h.update_serialize(p)
         .update(bytemuck::cast_slice(materials))
         .update_serialize(&lights.to_vec());
     h.finish()

@@ -10,8 +10,8 @@ use std::f32::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::Vec3;
-use pc_artifact::octree::{class, tangent_frame};
-use pc_tree::{field_normal, Ray, TraversalStats};
+use pc_artifact::octree::class;
+use pc_tree::{Ray, TraversalStats};
 use rayon::prelude::*;
 
 use crate::image::{Aovs, Image};
@@ -41,55 +41,7 @@ pub struct RayCounts {
     pub traversal: TraversalStats,
 }
 
-/// Mirror reflection of `d` about `n`.
-#[inline]
-pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
-    d - 2.0 * d.dot(n) * n
-}
-
-/// Refraction of unit `d` through a surface with unit normal `n` facing the incoming side
-/// (`d·n < 0`), relative index `eta = n1 / n2` (§8.5.6). `None` on total internal reflection.
-#[inline]
-pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
-    let cos_i = -d.dot(n);
-    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
-    if sin2_t >= 1.0 {
-        return None;
-    }
-    Some(eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n)
-}
-
-/// Unpolarised Fresnel reflectance of a dielectric interface; 1 under total internal reflection.
-#[inline]
-pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
-    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
-    if sin2_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin2_t).sqrt();
-    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    0.5 * (rs * rs + rp * rp)
-}
-
-/// The normal at point `x` of specular splat `splat`: the normal field of the leaf that owns the
-/// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field or the
-/// field disagrees with the splat's side.
-#[inline]
-pub fn shading_normal(view: &pc_tree::OctreeView, splat: u32, x: Vec3) -> Vec3 {
-    let ns = Vec3::from(view.splats[splat as usize].normal);
-    let info = &view.node_info[view.splat_leaf[splat as usize] as usize];
-    let n = if info.normal != [0.0; 3] {
-        field_normal(info, x)
-    } else {
-        ns
-    };
-    if n.dot(ns) <= 0.0 {
-        ns
-    } else {
-        n
-    }
-}
+pub use pc_tree::optics::{fresnel, reflect, refract, shading_normal, specular_bounce};
 
 /// Trace one pixel sample.
 pub fn trace_sample(
@@ -141,26 +93,16 @@ pub fn trace_sample(
             if m.phong > 0.0 {
                 out.rgb += throughput * color * phong(sc, x, nf, -ray.dir, m.phong, delta, counts);
             }
-            let new_dir = if m.class == class::MIRROR {
-                throughput *= color;
-                reflect(ray.dir, nf)
+            let u = if m.class == class::MIRROR {
+                0.0
             } else {
-                let entering = ray.dir.dot(ns) < 0.0;
-                let eta = if entering { 1.0 / m.ior } else { m.ior };
-                let cos_i = (-ray.dir.dot(nf)).clamp(0.0, 1.0);
-                let f = fresnel(cos_i, eta);
-                let u = rand(p.seed, pixel, k, dim(bounce, 0));
-                match refract(ray.dir, nf, eta) {
-                    Some(t) if u >= f => {
-                        throughput *= color;
-                        t.normalize()
-                    }
-                    _ => reflect(ray.dir, nf),
-                }
+                rand(p.seed, pixel, k, dim(bounce, 0))
             };
+            let b = specular_bounce(view, m, hit.splat, x, ray.dir, u);
+            throughput *= b.tint;
             ray = Ray {
                 origin: x,
-                dir: new_dir,
+                dir: b.dir,
                 t_min: delta,
                 t_max: f32::INFINITY,
             };
@@ -217,6 +159,9 @@ pub fn trace_sample(
             out.splat = s.source;
         }
         out.rgb += throughput * emit;
+        if let Some(c) = &sc.caustics {
+            out.rgb += throughput * albedo / PI * c.irradiance(x, n);
+        }
         if p.mode == 1 {
             out.rgb += throughput * albedo / PI * direct(sc, x, n, delta, pixel, k, bounce, counts);
         }
@@ -270,12 +215,7 @@ pub fn direct(
             let ke = sc.emitters.pick(u0);
             let j = sc.emitters.splats[ke] as usize;
             let sj = &view.splats[j];
-            let (tu, tv) = tangent_frame(sj.normal);
-            let r = u1.sqrt() * sj.radius;
-            let phi = 2.0 * PI * u2;
-            let y = Vec3::from(sj.position)
-                + (Vec3::from(tu) * phi.cos() + Vec3::from(tv) * phi.sin()) * r;
-            let y = Vec3::from(sj.fold_into_clip(y.into()));
+            let y = pc_tree::disk_point(sj, u1, u2);
             let to = y - x;
             let d2 = to.length_squared();
             let d = d2.sqrt();

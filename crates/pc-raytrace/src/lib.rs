@@ -4,6 +4,7 @@
 //! `shaders/raytrace/`) follows it line by line with the same sample pattern (`sample`), and a
 //! test holds the two images together. See docs/raytrace.md.
 
+pub mod caustic;
 pub mod cpu;
 pub mod gpu;
 pub mod image;

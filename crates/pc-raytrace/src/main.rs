@@ -25,6 +25,10 @@ struct Args {
     /// `stored` mode, and what `auto` mode looks for.
     #[arg(long)]
     radiosity: Option<PathBuf>,
+    /// The photons artifact (default: <output.dir>/<caustics.file>); when it exists, diffuse
+    /// hits add its caustic density estimate.
+    #[arg(long)]
+    photons: Option<PathBuf>,
     /// The EXR to write (default: <output.dir>/<raytrace.image>); a PNG preview goes beside it.
     #[arg(long, short)]
     output: Option<PathBuf>,
@@ -42,6 +46,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .radiosity
         .clone()
         .unwrap_or_else(|| cfg.radiosity_path());
+    let photons = args.photons.clone().unwrap_or_else(|| cfg.photons_path());
     let backend = args.backend.unwrap_or(cfg.config.raytrace.backend);
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
@@ -59,6 +64,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         &cfg,
         &octree,
         &radiosity,
+        &photons,
         &exr,
         backend,
         &tick,
@@ -73,11 +79,12 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .map(|r| format!(", {:.2} M rays/s", r as f64 / s.seconds / 1e6))
         .unwrap_or_default();
     println!(
-        "pc-raytrace: wrote {} and {} ({w}x{h}, {} spp, {} shading) in {:.2} s on {}{}",
+        "pc-raytrace: wrote {} and {} ({w}x{h}, {} spp, {} shading{}) in {:.2} s on {}{}",
         s.exr.display(),
         s.png.display(),
         p.spp,
         format!("{:?}", s.mode).to_lowercase(),
+        if s.caustics { " with caustics" } else { "" },
         s.seconds,
         s.device_name,
         rate

@@ -126,6 +126,8 @@ pub struct RenderScene<'a> {
     /// Per-splat outgoing diffuse radiance (pc-fmm's radiosity artifact), xyz and a pad; when
     /// present, diffuse hits show it instead of the materials' emission.
     pub radiance: Option<Vec<[f32; 4]>>,
+    /// pc-caustics' photon map: diffuse hits add its density estimate (CPU renderer).
+    pub caustics: Option<crate::caustic::Caustics<'a>>,
 }
 
 impl<'a> RenderScene<'a> {
@@ -179,6 +181,7 @@ impl<'a> RenderScene<'a> {
             emitters,
             params,
             radiance: None,
+            caustics: None,
         }
     }
 

@@ -33,6 +33,8 @@ pub struct Summary {
     pub device_name: String,
     pub seconds: f64,
     pub counts: Option<RayCounts>,
+    /// Whether a photon map was shown.
+    pub caustics: bool,
     pub exr: PathBuf,
     pub png: PathBuf,
 }
@@ -69,6 +71,60 @@ pub fn load_radiosity(path: &Path, octree: &Artifact) -> anyhow::Result<Vec<[f32
     Ok(radiance.to_vec())
 }
 
+/// The photon map of a photons artifact, checked against the octree it must match: photons
+/// that land on the octree's splats with finite positions and powers, and a valid kd-tree
+/// over exactly those photons.
+pub fn load_photons<'a>(
+    a: &'a Artifact,
+    octree: &Artifact,
+    radius: f32,
+    k: u32,
+) -> anyhow::Result<crate::caustic::Caustics<'a>> {
+    use pc_artifact::photons::{archived_tree, sections as ps, Photon, PhotonsMeta};
+    let path = a.path();
+    let meta: PhotonsMeta = a.metadata()?;
+    if meta.octree_key != octree.header().key.to_string() {
+        bail!(
+            "{}: stale photon map: it was traced on another octree than {}: rerun pc-vmap and pc-caustics",
+            path.display(),
+            octree.path().display()
+        );
+    }
+    let photons: &[Photon] = a.section(ps::PHOTONS)?;
+    let splats = octree
+        .section::<pc_artifact::octree::Splat>("splats")?
+        .len();
+    if let Some(i) = photons.iter().position(|p| {
+        p.splat as usize >= splats
+            || p.position
+                .iter()
+                .chain(&p.power)
+                .chain(&p.dir)
+                .any(|x| !x.is_finite())
+    }) {
+        bail!(
+            "{}: photon {i} lies outside the octree {} or is not finite: rerun pc-caustics",
+            path.display(),
+            octree.path().display()
+        );
+    }
+    let tree = archived_tree(a)?;
+    if tree.size() as usize != photons.len() {
+        bail!(
+            "{}: the kd-tree holds {} photons but the map {}: rerun pc-caustics",
+            path.display(),
+            tree.size(),
+            photons.len()
+        );
+    }
+    Ok(crate::caustic::Caustics {
+        photons,
+        tree,
+        radius,
+        k,
+    })
+}
+
 /// Render the config's camera view of the octree at `octree_path` and write the images.
 ///
 /// Shading: `stored` shows the radiosity artifact at `radiosity_path` when it exists (else the
@@ -78,6 +134,7 @@ pub fn run(
     cfg: &LoadedConfig,
     octree_path: &Path,
     radiosity_path: &Path,
+    photons_path: &Path,
     exr: &Path,
     backend: Backend,
     tile_done: &(dyn Fn() + Sync),
@@ -104,11 +161,35 @@ pub fn run(
             ShadingMode::Direct
         };
     }
+    let photons_art = if photons_path.exists() {
+        Some(Artifact::open_kind(photons_path, ArtifactKind::Photons)?)
+    } else {
+        None
+    };
+    let radius = if rt.caustic_radius > 0.0 {
+        rt.caustic_radius
+    } else {
+        view.frame.size / 100.0
+    };
     let mut sc = RenderScene::new(view, materials, &c.lights, &camera, &rt);
     if let Some(r) = &radiance {
         sc.set_radiance(r);
     }
+    if let Some(a) = &photons_art {
+        let c = load_photons(a, &art, radius, rt.caustic_k)?;
+        // An empty map (a scene without specular surfaces) adds nothing.
+        if !c.photons.is_empty() {
+            sc.caustics = Some(c);
+        }
+    }
     let gpu = match backend {
+        // The WGSL renderer has no photon-map lookup yet: caustics render on the CPU.
+        _ if sc.caustics.is_some() && backend != Backend::Gpu => None,
+        Backend::Gpu if sc.caustics.is_some() => bail!(
+            "raytrace.backend = \"gpu\" cannot show the photon map {} (the GPU renderer has no \
+             caustic lookup yet): use cpu or auto",
+            photons_path.display()
+        ),
         Backend::Cpu => None,
         Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
         // `auto` means a real GPU: a software rasterizer (llvmpipe) is slower than the CPU path.
@@ -159,6 +240,7 @@ pub fn run(
         device_name,
         seconds,
         counts,
+        caustics: sc.caustics.is_some(),
         exr: exr.to_path_buf(),
         png,
     })

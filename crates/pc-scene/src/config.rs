@@ -37,6 +37,8 @@ pub struct PipelineConfig {
     #[serde(default)]
     pub fmm: FmmConfig,
     #[serde(default)]
+    pub caustics: CausticsConfig,
+    #[serde(default)]
     pub raytrace: RaytraceConfig,
 }
 
@@ -352,6 +354,37 @@ impl Default for FmmConfig {
     }
 }
 
+/// pc-caustics parameters (docs/caustics.md).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct CausticsConfig {
+    /// Photon budget n_e over the whole sphere of every light: each photon carries the lights'
+    /// power over n_e, and only those aimed at specular leaves are traced (§8.5.3).
+    pub photons: u32,
+    /// Most specular bounces a photon makes.
+    pub max_bounces: u32,
+    /// Self-hit distance Δ (§8.5.6) in radii of the splat a photon leaves.
+    pub self_hit: f32,
+    /// Where the photons are traced.
+    pub backend: Backend,
+    pub seed: u32,
+    /// Artifact file name inside `output.dir`.
+    pub file: PathBuf,
+}
+
+impl Default for CausticsConfig {
+    fn default() -> Self {
+        CausticsConfig {
+            photons: 1_000_000,
+            max_bounces: 8,
+            self_hit: 0.5,
+            backend: Backend::Auto,
+            seed: 0,
+            file: PathBuf::from("photons.pcgi"),
+        }
+    }
+}
+
 /// What a diffuse hit shows.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "lowercase")]
@@ -399,6 +432,12 @@ pub struct RaytraceConfig {
     pub exposure: f32,
     /// Write depth, normal, albedo and splat-id layers into the EXR.
     pub aovs: bool,
+    /// Radius of the caustic density estimate (§8.5.8), in scene units; 0 picks 1/100 of the
+    /// root cube's edge.
+    pub caustic_radius: f32,
+    /// With k > 0, the estimate takes the k nearest photons within `caustic_radius` and their
+    /// distance as the radius (k-nearest); 0: every photon within the fixed radius.
+    pub caustic_k: u32,
     /// Seed of the sample pattern.
     pub seed: u32,
     /// Image file name inside `output.dir` (an `.exr`; a `.png` preview is written beside it).
@@ -418,6 +457,8 @@ impl Default for RaytraceConfig {
             background: [0.0; 3],
             exposure: 1.0,
             aovs: false,
+            caustic_radius: 0.0,
+            caustic_k: 0,
             seed: 0,
             image: PathBuf::from("image.exr"),
         }
@@ -463,6 +504,10 @@ impl LoadedConfig {
     /// The radiosity artifact path, resolved.
     pub fn radiosity_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.fmm.file)
+    }
+    /// The photons artifact path, resolved.
+    pub fn photons_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.caustics.file)
     }
     /// The rendered image path, resolved.
     pub fn image_path(&self) -> PathBuf {
@@ -834,6 +879,21 @@ fn validate(c: &PipelineConfig, path: &Path) -> Result<(), SceneError> {
             "raytrace.exposure must be positive and raytrace.background finite and non-negative"
                 .into(),
         );
+    }
+    if !(r.caustic_radius.is_finite() && r.caustic_radius >= 0.0) || r.caustic_k > 4096 {
+        return err(format!(
+            "raytrace.caustic_radius must be finite and non-negative and raytrace.caustic_k at \
+             most 4096, got {} and {}",
+            r.caustic_radius, r.caustic_k
+        ));
+    }
+    let k = &c.caustics;
+    if k.max_bounces == 0 || k.max_bounces > 64 || !(k.self_hit.is_finite() && k.self_hit >= 0.0) {
+        return err(format!(
+            "caustics.max_bounces must lie in 1..=64 and caustics.self_hit be finite and \
+             non-negative, got {} and {}",
+            k.max_bounces, k.self_hit
+        ));
     }
     if r.light_samples == 0 || r.light_samples > 1024 {
         return err(format!(

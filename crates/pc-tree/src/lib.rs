@@ -13,6 +13,7 @@ use pc_artifact::{Artifact, ArtifactError};
 
 pub mod accel;
 pub mod gpu;
+pub mod optics;
 pub mod ray;
 pub mod rng;
 pub use ray::{intersect_splat, Hit, Ray, TraversalStats};
@@ -178,4 +179,15 @@ pub fn field_normal(info: &NodeInfo, x: Vec3) -> Vec3 {
     let (u, v) = (Vec3::from(u), Vec3::from(v));
     let d = x - Vec3::from(info.centroid);
     (n + u * (info.tilt[0] * d.dot(u)) + v * (info.tilt[1] * d.dot(v))).normalize_or(n)
+}
+
+/// A point uniform on splat `s`'s disk for the random numbers `u1`, `u2` ∈ [0, 1), folded into
+/// its border clip (so it lands on the part of the disk the splat stands for).
+#[inline]
+pub fn disk_point(s: &Splat, u1: f32, u2: f32) -> Vec3 {
+    let (tu, tv) = tangent_frame(s.normal);
+    let r = u1.sqrt() * s.radius;
+    let phi = std::f32::consts::TAU * u2;
+    let y = Vec3::from(s.position) + (Vec3::from(tu) * phi.cos() + Vec3::from(tv) * phi.sin()) * r;
+    Vec3::from(s.fold_into_clip(y.into()))
 }

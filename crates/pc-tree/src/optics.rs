@@ -1,0 +1,115 @@
+//! Specular interactions shared by the renderer and the photon tracer (seed §8.5.6): mirror
+//! reflection, refraction with Snell's law, total internal reflection, the Fresnel choice of a
+//! dielectric, and the normal at a point of a specular splat from its leaf's normal field
+//! (§8.5.5). The WGSL twin is in `shaders/raytrace/render.wgsl`.
+
+use glam::Vec3;
+use pc_artifact::octree::{class, MaterialRecord};
+
+use crate::{field_normal, OctreeView};
+
+/// Mirror reflection of `d` about `n`.
+#[inline]
+pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
+    d - 2.0 * d.dot(n) * n
+}
+
+/// Refraction of unit `d` through a surface with unit normal `n` facing the incoming side
+/// (`d·n < 0`), relative index `eta = n1 / n2` (§8.5.6). `None` on total internal reflection.
+#[inline]
+pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    let cos_i = -d.dot(n);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    Some(eta * d + (eta * cos_i - (1.0 - sin2_t).sqrt()) * n)
+}
+
+/// Unpolarised Fresnel reflectance of a dielectric interface; 1 under total internal reflection.
+#[inline]
+pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// The normal at point `x` of specular splat `splat`: the normal field of the leaf that owns the
+/// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field or the
+/// field disagrees with the splat's side.
+#[inline]
+pub fn shading_normal(view: &OctreeView, splat: u32, x: Vec3) -> Vec3 {
+    let ns = Vec3::from(view.splats[splat as usize].normal);
+    let info = &view.node_info[view.splat_leaf[splat as usize] as usize];
+    let n = if info.normal != [0.0; 3] {
+        field_normal(info, x)
+    } else {
+        ns
+    };
+    if n.dot(ns) <= 0.0 {
+        ns
+    } else {
+        n
+    }
+}
+
+/// What a specular splat does to a ray or photon arriving along unit `dir` at `x`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounce {
+    /// The new unit direction.
+    pub dir: Vec3,
+    /// The factor the throughput (or the photon's power) is multiplied by: the mirror's
+    /// reflectance, the dielectric's tint when transmitted, 1 when a dielectric reflects.
+    pub tint: Vec3,
+    /// Whether the path was transmitted (refracted).
+    pub transmitted: bool,
+}
+
+/// The specular bounce at `x` on splat `splat` of material `m` (mirror or dielectric): mirrors
+/// reflect and tint; dielectrics reflect with the Fresnel probability (always under total
+/// internal reflection) and otherwise refract, tinted, with `u` ∈ [0, 1) the random choice. The
+/// side comes from the splat's own normal (entering when `dir` opposes it), the direction from
+/// the normal field.
+#[inline]
+pub fn specular_bounce(
+    view: &OctreeView,
+    m: &MaterialRecord,
+    splat: u32,
+    x: Vec3,
+    dir: Vec3,
+    u: f32,
+) -> Bounce {
+    let s = &view.splats[splat as usize];
+    let ns = Vec3::from(s.normal);
+    let n = shading_normal(view, splat, x);
+    let nf = if dir.dot(n) < 0.0 { n } else { -n };
+    let color = Vec3::from(m.color) * Vec3::from(s.albedo);
+    if m.class == class::MIRROR {
+        return Bounce {
+            dir: reflect(dir, nf),
+            tint: color,
+            transmitted: false,
+        };
+    }
+    let entering = dir.dot(ns) < 0.0;
+    let eta = if entering { 1.0 / m.ior } else { m.ior };
+    let cos_i = (-dir.dot(nf)).clamp(0.0, 1.0);
+    let f = fresnel(cos_i, eta);
+    match refract(dir, nf, eta) {
+        Some(t) if u >= f => Bounce {
+            dir: t.normalize(),
+            tint: color,
+            transmitted: true,
+        },
+        _ => Bounce {
+            dir: reflect(dir, nf),
+            tint: Vec3::ONE,
+            transmitted: false,
+        },
+    }
+}
