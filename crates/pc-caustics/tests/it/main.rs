@@ -249,7 +249,6 @@ fn no_energy_is_created() {
 /// focus of a distant light (D → ∞) is f. The light is at D = 20 R (v = 1.08 f), close enough
 /// that the ball takes a fair share of a photon budget that fits in u32.
 #[test]
-#[ignore = "misses today: the brightest deposit lies at 1.53 R against 1.62 R (-5.7 %); docs/caustics.md"]
 fn a_glass_ball_focuses_a_distant_light_at_its_paraxial_focus() {
     let (n, radius) = (1.5f32, 1.0f32);
     let mut s = Soa::default();
@@ -270,7 +269,12 @@ fn a_glass_ball_focuses_a_distant_light_at_its_paraxial_focus() {
     let r = run(&s, &[diffuse(), glass(n)], light, 600_000_000);
     let photons: Vec<_> = r.traced.photons.iter().filter(|p| p.bounces == 2).collect();
     assert!(photons.len() > 200_000, "{} photons", photons.len());
-    let eps = 0.01f32;
+    // The disk must be small: with spherical aberration every ray of entry height h crosses
+    // the axis at z(h) ≈ f − c h², and a disk of radius ε catches the rays crossing within
+    // about ε f / h of its depth, so the brightest disk sits short of f by about c (ε f / c)^⅔.
+    // An exact ball traced analytically peaks at −5.6 % with ε = 0.01 R, −2.6 % with
+    // 0.003 R and −1.0 % with 0.001 R (docs/caustics.md).
+    let eps = 1e-3 * radius;
     let peak = |z: f32| -> f64 {
         photons
             .iter()
@@ -282,12 +286,16 @@ fn a_glass_ball_focuses_a_distant_light_at_its_paraxial_focus() {
             .sum()
     };
     let (best, _) = (0..=80)
-        .map(|i| 1.1 + i as f32 * 0.01)
+        .map(|i| 1.3 + i as f32 * 0.005)
         .map(|z| (z, peak(z)))
         .fold((0.0, -1.0), |a, b| if b.1 > a.1 { b } else { a });
     let f = n * radius / (2.0 * (n - 1.0));
     let focus = f * dist / (dist - f);
     let rel = best / focus - 1.0;
+    eprintln!(
+        "brightest at {best} R, paraxial focus {focus} R ({:+.2} %)",
+        rel * 100.0
+    );
     assert!(
         rel.abs() < 0.02,
         "brightest at {best} from the centre, paraxial focus {focus} ({:+.2} %)",
