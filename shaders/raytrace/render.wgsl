@@ -1,18 +1,8 @@
-// requires: common/octree.wgsl common/traverse.wgsl
+// requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
 // Ray tracing kernel: one thread per pixel of a band of rows, looping over the pixel's samples.
 // Line-by-line twin of crates/pc-raytrace/src/cpu.rs (trace_sample, direct, phong) and of the
 // traversal in crates/pc-tree/src/ray.rs; shares shaders/common/octree.wgsl. Threads run in
 // 8x8 pixel blocks, so neighbouring rays (coherent, §8.5.14) share a workgroup.
-
-struct Material {
-    color: vec3<f32>,
-    class_id: u32,
-    radiance: vec3<f32>,
-    ior: f32,
-    phong: f32,
-    per_point_color: u32,
-    _pad: vec2<u32>,
-}
 
 struct PointLight {
     position: vec3<f32>,
@@ -71,23 +61,12 @@ struct PixelOut {
 // Per splat outgoing diffuse radiance (xyz) when params.stored_radiance == 1.
 @group(0) @binding(12) var<storage, read> radiance: array<vec4<f32>>;
 
-const PI: f32 = 3.14159265358979;
-const CLASS_EMITTER: u32 = 1u;
-const CLASS_MIRROR: u32 = 2u;
-const CLASS_DIELECTRIC: u32 = 3u;
 const F32_MAX: f32 = 3.40282347e38;
 
 // ---- sample pattern (twin of sample.rs) -----------------------------------------------------
 
-fn pcg(v: u32) -> u32 {
-    let state = v * 747796405u + 2891336453u;
-    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
 fn rand(pixel: u32, k: u32, d: u32) -> f32 {
-    let h = pcg(pixel ^ pcg(k ^ pcg(d ^ pcg(params.seed))));
-    return f32(h >> 8u) * (1.0 / 16777216.0);
+    return rand4(params.seed, pixel, k, d);
 }
 
 fn dim(bounce: u32, i: u32) -> u32 {
@@ -105,44 +84,7 @@ fn pixel_offset(pixel: u32, k: u32) -> vec2<f32> {
     return vec2<f32>(jx, jy);
 }
 
-// ---- geometry (twins of pc-tree) ------------------------------------------------------------
-
-fn tangent_frame_u(n: vec3<f32>) -> vec3<f32> {
-    let s = select(-1.0, 1.0, n.z >= 0.0);
-    let a = -1.0 / (s + n.z);
-    let b = n.x * n.y * a;
-    return vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
-}
-
-fn field_normal(info: NodeInfo, x: vec3<f32>) -> vec3<f32> {
-    let n = info.normal;
-    let u = tangent_frame_u(n);
-    let v = cross(n, u);
-    let d = x - info.centroid;
-    let m = n + u * (info.tilt.x * dot(d, u)) + v * (info.tilt.y * dot(d, v));
-    let l = length(m);
-    if l > 0.0 {
-        return m / l;
-    }
-    return n;
-}
-
 // ---- shading (twins of cpu.rs) --------------------------------------------------------------
-
-fn reflect_dir(d: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    return d - 2.0 * dot(d, n) * n;
-}
-
-fn fresnel(cos_i: f32, eta: f32) -> f32 {
-    let sin2_t = eta * eta * max(1.0 - cos_i * cos_i, 0.0);
-    if sin2_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = sqrt(1.0 - sin2_t);
-    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
-}
 
 fn emitter_pick(u: f32) -> u32 {
     // First inclusive-CDF entry > u (binary search), clamped to the last.
@@ -192,11 +134,7 @@ fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u3
             let ke = emitter_pick(u0);
             let j = emitters[ke].x;
             let sj = splats[j];
-            let tu = tangent_frame_u(sj.normal);
-            let tv = cross(sj.normal, tu);
-            let r = sqrt(u1) * sj.radius;
-            let phi = 2.0 * PI * u2;
-            let y = fold_into_clip(sj, sj.position + (tu * cos(phi) + tv * sin(phi)) * r);
+            let y = disk_point(sj, u1, u2);
             let to = y - x;
             let d2 = dot(to, to);
             let d = sqrt(d2);
@@ -259,14 +197,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
         let delta = params.self_hit * s.radius;
         let ns = s.normal;
         if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
-            let info = node_info[splat_leaf[hit.splat]];
-            var n = ns;
-            if any(info.normal != vec3<f32>(0.0)) {
-                n = field_normal(info, x);
-            }
-            if dot(n, ns) <= 0.0 {
-                n = ns;
-            }
+            let n = shading_normal(hit.splat, x);
             let color = m.color * s.albedo;
             if bounce == 0u {
                 res.depth = hit.t;
@@ -281,27 +212,10 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             if m.phong > 0.0 {
                 res.rgb = res.rgb + throughput * color * phong(x, nf, -rd, m.phong, delta);
             }
-            var new_dir = reflect_dir(rd, nf);
-            if m.class_id == CLASS_MIRROR {
-                throughput = throughput * color;
-            } else {
-                let entering = dot(rd, ns) < 0.0;
-                var eta = m.ior;
-                if entering {
-                    eta = 1.0 / m.ior;
-                }
-                let cos_i = clamp(-dot(rd, nf), 0.0, 1.0);
-                let f = fresnel(cos_i, eta);
-                let u = rand(pixel, k, dim(bounce, 0u));
-                let ci = -dot(rd, nf);
-                let sin2_t = eta * eta * max(1.0 - ci * ci, 0.0);
-                if sin2_t < 1.0 && u >= f {
-                    throughput = throughput * color;
-                    new_dir = normalize(eta * rd + (eta * ci - sqrt(1.0 - sin2_t)) * nf);
-                }
-            }
+            let b = specular_bounce(m, color, ns, n, rd, rand(pixel, k, dim(bounce, 0u)));
+            throughput = throughput * b.tint;
             ro = x;
-            rd = new_dir;
+            rd = b.dir;
             t_min = delta;
             continue;
         }

@@ -3,6 +3,7 @@
 //! Helpers (binary paths, temporary scenes, running commands) are in tests/src/lib.rs.
 
 mod bad_input;
+mod caustics_cli;
 mod fmm_cli;
 mod inspect;
 mod octree_cli;

@@ -7,9 +7,11 @@
 //! 2. [`trace`]: each photon is traced through the octree with the renderer's traversal and
 //!    specular bounces (`pc_tree::optics`), and stored where it first lands on a diffuse splat
 //!    after at least one specular bounce (LS⁺D).
+//!    [`gpu`] is the same tracer as a WGSL kernel (`shaders/caustics/photons.wgsl`).
 //! 3. [`stage`]: the photons, a kiddo kd-tree over their positions and the power deposited per
 //!    splat go into the `photons` artifact.
 
 pub mod emit;
+pub mod gpu;
 pub mod stage;
 pub mod trace;

@@ -111,11 +111,6 @@ pub fn run(
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut timings = Vec::new();
-    if backend == Backend::Gpu {
-        anyhow::bail!(
-            "caustics.backend = \"gpu\": the GPU photon tracer is not written yet; use cpu or auto"
-        );
-    }
     let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
         .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
     let view = OctreeView::from_artifact(&oct)?;
@@ -156,21 +151,57 @@ pub fn run(
     timings.push(("emission".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
-    let accel = Accel::new(&view);
-    let tracer = Tracer {
-        view: &view,
-        accel: &accel,
-        materials: &materials,
-        leaves: &leaves,
-        max_bounces: p.max_bounces,
-        self_hit: p.self_hit,
-        seed: p.seed,
-    };
     let done = std::sync::atomic::AtomicU64::new(0);
-    let traced = trace_all(&tracer, &aims, &|n| {
+    let step = |n: u64| {
         let d = done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n;
         progress(d, total);
-    });
+    };
+    let gpu = match backend {
+        Backend::Cpu => None,
+        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
+        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
+    };
+    let gpu_traced = match &gpu {
+        None => None,
+        Some(ctx) => {
+            let traced = crate::gpu::GpuTracer::new(
+                ctx,
+                &view,
+                &materials,
+                &leaves,
+                p.max_bounces,
+                p.self_hit,
+                p.seed,
+            )
+            .and_then(|g| g.trace_all(ctx, &aims, &step));
+            match traced {
+                Ok(t) => Some((t, ctx.describe())),
+                Err(e) if backend == Backend::Auto => {
+                    eprintln!("pc-caustics: warning: tracing on the CPU: the GPU cannot: {e}");
+                    done.store(0, std::sync::atomic::Ordering::Relaxed);
+                    None
+                }
+                Err(e) => return Err(anyhow::anyhow!("{e}")),
+            }
+        }
+    };
+    let (traced, device) = match gpu_traced {
+        Some(t) => t,
+        None => {
+            let accel = Accel::new(&view);
+            let tracer = Tracer {
+                view: &view,
+                accel: &accel,
+                materials: &materials,
+                leaves: &leaves,
+                max_bounces: p.max_bounces,
+                self_hit: p.self_hit,
+                seed: p.seed,
+            };
+            let t = trace_all(&tracer, &aims, &step);
+            (t, format!("CPU ({} threads)", rayon::current_num_threads()))
+        }
+    };
     timings.push(("trace".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
@@ -193,7 +224,7 @@ pub fn run(
         stored: traced.photons.len() as u64,
         occluded: traced.occluded,
         lost: traced.lost,
-        device: format!("CPU ({} threads)", rayon::current_num_threads()),
+        device,
         timings,
     };
     let mut w = ArtifactWriter::create(out, ArtifactKind::Photons, STAGE, STAGE_VERSION, key)?;

@@ -58,8 +58,167 @@ pub fn statistics(a: &Artifact) -> anyhow::Result<String> {
     match a.header().kind {
         ArtifactKind::Octree => octree_statistics(a),
         ArtifactKind::Vmap => vmap_statistics(a),
-        other => Ok(format!("(no statistics for {other} artifacts yet)\n")),
+        ArtifactKind::Photons => photons_statistics(a),
+        ArtifactKind::Radiosity => radiosity_statistics(a),
     }
+}
+
+fn timings_line(t: &[(String, f64)]) -> String {
+    // Derived entries ("per iteration") are not part of the total.
+    let total: f64 = t
+        .iter()
+        .filter(|t| !t.0.starts_with("per "))
+        .map(|t| t.1)
+        .sum();
+    format!(
+        "time        {:.3} s: {}\n",
+        total,
+        t.iter()
+            .map(|(n, t)| format!("{n} {t:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+fn rgb(c: [f64; 3]) -> String {
+    format!("({:.4}, {:.4}, {:.4})", c[0], c[1], c[2])
+}
+
+fn photons_statistics(a: &Artifact) -> anyhow::Result<String> {
+    use pc_artifact::photons::{archived_tree, sections, Photon, PhotonsMeta};
+    let meta: PhotonsMeta = a.metadata()?;
+    let photons: &[Photon] = a.section(sections::PHOTONS)?;
+    let deposit: &[[f32; 3]] = a.section(sections::DEPOSIT)?;
+    let tree = archived_tree(a)?;
+    let mut s = String::new();
+    let mut stored = [0f64; 3];
+    let mut by_bounces = [0u64; 5];
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in photons {
+        for k in 0..3 {
+            stored[k] += p.power[k] as f64;
+        }
+        by_bounces[(p.bounces as usize).min(4)] += 1;
+        lo = lo.min(Vec3::from(p.position));
+        hi = hi.max(Vec3::from(p.position));
+    }
+    let _ = writeln!(
+        s,
+        "photons     {} stored of {} traced ({} hidden, {} lost); kd-tree of {}",
+        meta.stored,
+        meta.traced,
+        meta.occluded,
+        meta.lost,
+        tree.size()
+    );
+    let _ = writeln!(
+        s,
+        "bounces     1: {}, 2: {}, 3: {}, 4+: {}",
+        by_bounces[1], by_bounces[2], by_bounces[3], by_bounces[4]
+    );
+    if !photons.is_empty() {
+        let _ = writeln!(s, "extent      {:?} to {:?}", lo.to_array(), hi.to_array());
+    }
+    let _ = writeln!(
+        s,
+        "power       emitted {} W, aimed at specular leaves {} W, stored {} W",
+        rgb(meta.emitted_power),
+        rgb(meta.aimed_power),
+        rgb(stored)
+    );
+    let lit = deposit
+        .iter()
+        .filter(|d| d.iter().any(|&x| x > 0.0))
+        .count();
+    let _ = writeln!(
+        s,
+        "deposit     {} of {} splats receive photons",
+        lit,
+        deposit.len()
+    );
+    let _ = writeln!(
+        s,
+        "parameters  budget {}, max bounces {}, self-hit {}, seed {}; {} point lights",
+        meta.params.photons,
+        meta.params.max_bounces,
+        meta.params.self_hit,
+        meta.params.seed,
+        meta.lights.len()
+    );
+    let _ = writeln!(s, "device      {}", meta.device);
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    let _ = writeln!(s, "vmap        key {}", meta.vmap_key);
+    s.push_str(&timings_line(&meta.timings));
+    Ok(s)
+}
+
+fn radiosity_statistics(a: &Artifact) -> anyhow::Result<String> {
+    use pc_artifact::radiosity::{sections, RadiosityMeta};
+    let meta: RadiosityMeta = a.metadata()?;
+    let radiance: &[[f32; 3]] = a.section(sections::RADIANCE)?;
+    let source: &[[f32; 3]] = a.section(sections::SOURCE)?;
+    let mut s = String::new();
+    let stats = |v: &[[f32; 3]]| {
+        let mut mean = [0f64; 3];
+        let mut max = [0f64; 3];
+        for x in v {
+            for k in 0..3 {
+                mean[k] += x[k] as f64;
+                max[k] = max[k].max(x[k] as f64);
+            }
+        }
+        let n = v.len().max(1) as f64;
+        (mean.map(|m| m / n), max)
+    };
+    let _ = writeln!(
+        s,
+        "splats      {} ({} take part in the solve)",
+        radiance.len(),
+        meta.active_splats
+    );
+    let (m, x) = stats(radiance);
+    let _ = writeln!(s, "radiance    mean {}, max {}", rgb(m), rgb(x));
+    let (m, x) = stats(source);
+    let _ = writeln!(s, "source      mean {}, max {}", rgb(m), rgb(x));
+    let _ = writeln!(
+        s,
+        "solve       {} iterations, {}, last residual {:.3e} (tolerance {})",
+        meta.iterations,
+        if meta.converged {
+            "converged"
+        } else {
+            "NOT converged"
+        },
+        meta.residuals.last().copied().unwrap_or(f64::NAN),
+        meta.params.tolerance
+    );
+    let _ = writeln!(
+        s,
+        "residuals   {}",
+        meta.residuals
+            .iter()
+            .map(|r| format!("{r:.2e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let _ = writeln!(
+        s,
+        "operator    {} M2L, {} P2L, {} M2P, {} P2P ({} splat pairs)",
+        meta.m2l, meta.p2l, meta.m2p, meta.p2p, meta.p2p_pairs
+    );
+    let _ = writeln!(
+        s,
+        "parameters  order {}, theta {}, clamp tol {}, emitter samples {}",
+        meta.params.order, meta.params.theta, meta.params.clamp_tol, meta.params.emitter_samples
+    );
+    let _ = writeln!(s, "device      {}", meta.device);
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    let _ = writeln!(s, "vmap        key {}", meta.vmap_key);
+    if let Some(k) = &meta.photons_key {
+        let _ = writeln!(s, "photons     key {k} (caustic energy in the sources)");
+    }
+    s.push_str(&timings_line(&meta.timings));
+    Ok(s)
 }
 
 fn octree_statistics(a: &Artifact) -> anyhow::Result<String> {
@@ -288,17 +447,7 @@ fn vmap_statistics(a: &Artifact) -> anyhow::Result<String> {
         }
     );
     let _ = writeln!(s, "octree      key {}", meta.octree_key);
-    let total: f64 = meta.timings.iter().map(|t| t.1).sum();
-    let _ = writeln!(
-        s,
-        "time        {:.3} s: {}",
-        total,
-        meta.timings
-            .iter()
-            .map(|(n, t)| format!("{n} {t:.3}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    s.push_str(&timings_line(&meta.timings));
     Ok(s)
 }
 
@@ -342,7 +491,93 @@ pub fn verify(path: &Path) -> anyhow::Result<String> {
                 v.links.len()
             ))
         }
-        _ => Ok(format!("{}: ok (checksums)", path.display())),
+        ArtifactKind::Photons => {
+            use pc_artifact::photons::{archived_tree, sections, Photon};
+            let photons: &[Photon] = a.section(sections::PHOTONS)?;
+            let deposit: &[[f32; 3]] = a.section(sections::DEPOSIT)?;
+            let tree = archived_tree(&a)?;
+            if tree.size() as usize != photons.len() {
+                return Err(a
+                    .invalid(format!(
+                        "the kd-tree holds {} photons but the map {}",
+                        tree.size(),
+                        photons.len()
+                    ))
+                    .into());
+            }
+            // The deposit is the photons' power summed per splat.
+            let mut sum = vec![[0f64; 3]; deposit.len()];
+            for (i, p) in photons.iter().enumerate() {
+                let finite = p.position.iter().chain(&p.dir).chain(&p.power);
+                if p.splat as usize >= deposit.len() || !finite.clone().all(|x| x.is_finite()) {
+                    return Err(a
+                        .invalid(format!(
+                            "photon {i}: splat out of range or values not finite"
+                        ))
+                        .into());
+                }
+                for k in 0..3 {
+                    sum[p.splat as usize][k] += p.power[k] as f64;
+                }
+            }
+            if let Some(j) = (0..deposit.len()).find(|&j| {
+                (0..3).any(|k| {
+                    (deposit[j][k] as f64 - sum[j][k]).abs() > 1e-4 * sum[j][k].abs().max(1e-12)
+                })
+            }) {
+                return Err(a
+                    .invalid(format!(
+                        "splat {j}: deposit {:?} is not the power of its photons {:?}",
+                        deposit[j], sum[j]
+                    ))
+                    .into());
+            }
+            Ok(format!(
+                "{}: ok (checksums, kd-tree of {} photons, deposit on {} splats)",
+                path.display(),
+                photons.len(),
+                deposit.len()
+            ))
+        }
+        ArtifactKind::Radiosity => {
+            use pc_artifact::radiosity::{sections, RadiosityMeta};
+            let meta: RadiosityMeta = a.metadata()?;
+            let radiance: &[[f32; 3]] = a.section(sections::RADIANCE)?;
+            let source: &[[f32; 3]] = a.section(sections::SOURCE)?;
+            let residuals: &[f64] = a.section(sections::RESIDUALS)?;
+            if source.len() != radiance.len() {
+                return Err(a
+                    .invalid(format!(
+                        "{} source terms for {} splats",
+                        source.len(),
+                        radiance.len()
+                    ))
+                    .into());
+            }
+            if let Some(i) = radiance
+                .iter()
+                .chain(source)
+                .position(|c| c.iter().any(|x| !x.is_finite() || *x < 0.0))
+            {
+                return Err(a
+                    .invalid(format!(
+                        "splat {}: negative or non-finite radiance",
+                        i % radiance.len()
+                    ))
+                    .into());
+            }
+            if residuals != meta.residuals.as_slice() {
+                return Err(a
+                    .invalid("the residuals section and the metadata disagree")
+                    .into());
+            }
+            Ok(format!(
+                "{}: ok (checksums, {} splats finite and non-negative, {} residuals)",
+                path.display(),
+                radiance.len(),
+                residuals.len()
+            ))
+        }
     }
 }
 

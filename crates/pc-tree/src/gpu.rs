@@ -9,6 +9,9 @@ use crate::{OctreeView, Ray};
 /// Shared WGSL: octree records, point location, traversal.
 pub const COMMON_OCTREE_WGSL: &str = include_str!("../../../shaders/common/octree.wgsl");
 pub const COMMON_TRAVERSE_WGSL: &str = include_str!("../../../shaders/common/traverse.wgsl");
+/// Shared WGSL: materials, random numbers, disk sampling, normal fields, the specular bounce
+/// (twin of [`crate::optics`] and [`crate::rng`]).
+pub const COMMON_OPTICS_WGSL: &str = include_str!("../../../shaders/common/optics.wgsl");
 
 /// The cast kernel's source.
 pub fn cast_source() -> String {

@@ -1,7 +1,7 @@
 //! Specular interactions shared by the renderer and the photon tracer (seed §8.5.6): mirror
 //! reflection, refraction with Snell's law, total internal reflection, the Fresnel choice of a
 //! dielectric, and the normal at a point of a specular splat from its leaf's normal field
-//! (§8.5.5). The WGSL twin is in `shaders/raytrace/render.wgsl`.
+//! (§8.5.5). The WGSL twin is in `shaders/common/optics.wgsl`.
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};

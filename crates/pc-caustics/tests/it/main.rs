@@ -5,15 +5,18 @@
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::vmap::{Link, VmapParams};
-use pc_caustics::emit::{self, Leaves, VmapInput};
+use pc_caustics::emit::{self, Aim, Leaves, VmapInput};
 use pc_caustics::stage::{trace_all, Traced};
 use pc_caustics::trace::Tracer;
 use pc_octree::{build, BuildInput, BuildParams};
 use pc_testkit::Soa;
 use pc_tree::accel::Accel;
+use pc_tree::OctreeView;
 use pc_vmap::build::{build_links, csr, light_lists, vnodes, CpuCaster};
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
+
+mod gpu;
 
 fn diffuse() -> MaterialRecord {
     MaterialRecord {
@@ -49,7 +52,36 @@ struct Run {
     emitted: Vec3,
 }
 
+/// What the tracers need, built from a point set and one point light.
+pub struct Setup<'a> {
+    pub view: &'a OctreeView<'a>,
+    pub leaves: &'a Leaves,
+    pub aims: &'a [Aim],
+    pub tracer: &'a Tracer<'a>,
+    pub plan: &'a emit::Plan,
+}
+
 fn run(soa: &Soa, materials: &[MaterialRecord], light: (Vec3, Vec3), budget: u32) -> Run {
+    with_setup(soa, materials, light, budget, |s| Run {
+        traced: trace_all(s.tracer, s.aims, &|_| {}),
+        aimed: s
+            .aims
+            .iter()
+            .map(|a| Vec3::from(a.power) * a.photons as f32)
+            .sum(),
+        emitted: s.plan.emitted,
+    })
+}
+
+/// Build the octree, the V-map links and light list, the emission plan and the aims of
+/// `budget` photons (seed 3), and hand them to `f`.
+pub fn with_setup<R>(
+    soa: &Soa,
+    materials: &[MaterialRecord],
+    light: (Vec3, Vec3),
+    budget: u32,
+    f: impl FnOnce(&Setup) -> R,
+) -> R {
     let albedo = soa.ones();
     let classes: Vec<u32> = materials.iter().map(|m| m.class).collect();
     let input = BuildInput {
@@ -66,57 +98,50 @@ fn run(soa: &Soa, materials: &[MaterialRecord], light: (Vec3, Vec3), budget: u32
         ..Default::default()
     };
     let octree = build(&input, &params, &mut |_| {}).unwrap();
-    let traced;
-    let plan;
-    {
-        let view = octree.view();
-        let p = VmapParams {
-            theta: 0.5,
-            rays: 16,
-            near_rays: 64,
-            leaf_splats: 64,
-            self_hit: 0.5,
-            refine_form_factor: 1e-3,
-            heavy_rays: 64,
-            heavy_form_factor: 3e-3,
-            seed: 1,
-        };
-        let vn = vnodes(&view, p.leaf_splats);
-        let caster = CpuCaster::new(&view);
-        let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
-        let (offsets, links) = csr(view.nodes.len(), l.pairs);
-        let lists: Vec<Vec<Link>> = light_lists(&view, &vn, &[light.0], &p, &caster).unwrap();
-        let node_range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo.min(v.hi), v.hi]).collect();
-        let input = VmapInput {
-            node_range: &node_range,
-            link_offsets: &offsets,
-            links: &links,
-            light_lists: lists.iter().map(|l| l.as_slice()).collect(),
-        };
-        let leaves = Leaves::new(&view, materials);
-        plan = emit::plan(&view, materials, &leaves, &[light], &input);
-        let aims = emit::aims(&plan, budget, 3);
-        let accel = Accel::new(&view);
-        let tracer = Tracer {
-            view: &view,
-            accel: &accel,
-            materials,
-            leaves: &leaves,
-            max_bounces: 8,
-            self_hit: 0.5,
-            seed: 3,
-        };
-        traced = trace_all(&tracer, &aims, &|_| {});
-        let aimed = aims
-            .iter()
-            .map(|a| Vec3::from(a.power) * a.photons as f32)
-            .sum();
-        return Run {
-            traced,
-            aimed,
-            emitted: plan.emitted,
-        };
-    }
+    let view = octree.view();
+    let p = VmapParams {
+        theta: 0.5,
+        rays: 16,
+        near_rays: 64,
+        leaf_splats: 64,
+        self_hit: 0.5,
+        refine_form_factor: 1e-3,
+        heavy_rays: 64,
+        heavy_form_factor: 3e-3,
+        seed: 1,
+    };
+    let vn = vnodes(&view, p.leaf_splats);
+    let caster = CpuCaster::new(&view);
+    let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let (offsets, links) = csr(view.nodes.len(), l.pairs);
+    let lists: Vec<Vec<Link>> = light_lists(&view, &vn, &[light.0], &p, &caster).unwrap();
+    let node_range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo.min(v.hi), v.hi]).collect();
+    let input = VmapInput {
+        node_range: &node_range,
+        link_offsets: &offsets,
+        links: &links,
+        light_lists: lists.iter().map(|l| l.as_slice()).collect(),
+    };
+    let leaves = Leaves::new(&view, materials);
+    let plan = emit::plan(&view, materials, &leaves, &[light], &input);
+    let aims = emit::aims(&plan, budget, 3);
+    let accel = Accel::new(&view);
+    let tracer = Tracer {
+        view: &view,
+        accel: &accel,
+        materials,
+        leaves: &leaves,
+        max_bounces: 8,
+        self_hit: 0.5,
+        seed: 3,
+    };
+    f(&Setup {
+        view: &view,
+        leaves: &leaves,
+        aims: &aims,
+        tracer: &tracer,
+        plan: &plan,
+    })
 }
 
 /// Solid angle of a square of half-side `a` seen on its axis from distance `d`.

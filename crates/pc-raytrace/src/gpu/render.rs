@@ -15,6 +15,7 @@ pub fn source() -> String {
     compose(&[
         pc_tree::gpu::COMMON_OCTREE_WGSL,
         pc_tree::gpu::COMMON_TRAVERSE_WGSL,
+        pc_tree::gpu::COMMON_OPTICS_WGSL,
         include_str!("../../../../shaders/raytrace/render.wgsl"),
     ])
 }

@@ -1,0 +1,278 @@
+//! The GPU photon tracer: `shaders/caustics/photons.wgsl`, twin of [`crate::trace::Tracer`].
+//!
+//! One thread per photon id, in dispatches of [`PHOTONS_PER_DISPATCH`] ids (drivers reset devices
+//! whose dispatches run for seconds). Each thread writes its photon's fate into its own slot, and
+//! the host keeps the stored ones in id order, so the photon list comes out in the order of the
+//! CPU twin's [`crate::stage::trace_all`]. Both sides draw the same counter-based random numbers
+//! (`pc_tree::rng`), so a photon follows the same path on both up to floating-point rounding.
+
+use bytemuck::{Pod, Zeroable};
+use pc_artifact::octree::MaterialRecord;
+use pc_artifact::photons::Photon;
+use pc_gpu::{compose, grid, Binding, GpuContext, GpuError, Kernel};
+use pc_tree::OctreeView;
+
+use crate::emit::{Aim, Leaves, Source};
+use crate::stage::Traced;
+use crate::trace::Fate;
+
+/// The kernel's source: shared octree, traversal and optics code, then the kernel.
+pub fn source() -> String {
+    compose(&[
+        pc_tree::gpu::COMMON_OCTREE_WGSL,
+        pc_tree::gpu::COMMON_TRAVERSE_WGSL,
+        pc_tree::gpu::COMMON_OPTICS_WGSL,
+        include_str!("../../../shaders/caustics/photons.wgsl"),
+    ])
+}
+
+/// Photon ids per dispatch.
+pub const PHOTONS_PER_DISPATCH: u32 = 1 << 18;
+
+/// WGSL `Leaf`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct GpuLeaf {
+    lo: u32,
+    hi: u32,
+    area: f32,
+    _pad: u32,
+}
+
+/// WGSL `Aim`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct GpuAim {
+    origin: [f32; 3],
+    source_leaf: u32,
+    power: [f32; 3],
+    target_leaf: u32,
+    first: u32,
+    _pad: [u32; 3],
+}
+
+/// WGSL `PhotonParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct GpuParams {
+    seed: u32,
+    max_bounces: u32,
+    self_hit: f32,
+    aim_count: u32,
+    id_offset: u32,
+    count: u32,
+    _pad: [u32; 2],
+}
+
+/// WGSL `PhotonOut` fates.
+const FATE_STORED: u32 = 0;
+const FATE_OCCLUDED: u32 = 1;
+const FATE_LOST: u32 = 2;
+
+/// The scene on the GPU and the compiled kernel.
+pub struct GpuTracer {
+    kernel: Kernel,
+    buffers: Vec<wgpu::Buffer>,
+    max_bounces: u32,
+    self_hit: f32,
+    seed: u32,
+}
+
+impl GpuTracer {
+    /// Upload the octree, the materials and the leaves; `max_bounces`, `self_hit` (Δ in radii)
+    /// and `seed` as in [`crate::trace::Tracer`].
+    pub fn new(
+        ctx: &GpuContext,
+        view: &OctreeView,
+        materials: &[MaterialRecord],
+        leaves: &Leaves,
+        max_bounces: u32,
+        self_hit: f32,
+        seed: u32,
+    ) -> Result<GpuTracer, GpuError> {
+        let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
+        if limit < 10 {
+            return Err(GpuError::Device {
+                adapter: ctx.describe(),
+                msg: format!(
+                    "the photon tracer needs 10 storage buffers per stage, the adapter allows {limit}"
+                ),
+            });
+        }
+        let mut b = vec![Binding::Uniform];
+        b.extend([Binding::ReadOnly; 9]);
+        b.push(Binding::Uniform);
+        b.push(Binding::ReadWrite);
+        let kernel = ctx.kernel("caustics/photons", &source(), "main", &b)?;
+        let gl: Vec<GpuLeaf> = leaves
+            .leaves
+            .iter()
+            .map(|l| GpuLeaf {
+                lo: l.lo,
+                hi: l.hi,
+                area: l.area,
+                _pad: 0,
+            })
+            .collect();
+        let buffers = vec![
+            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
+            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
+            ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?,
+            ctx.storage("splats", bytemuck::cast_slice(view.splats))?,
+            ctx.storage("node_info", bytemuck::cast_slice(view.node_info))?,
+            ctx.storage("splat_area", bytemuck::cast_slice(view.splat_area))?,
+            ctx.storage("splat_leaf", bytemuck::cast_slice(view.splat_leaf))?,
+            ctx.storage("materials", bytemuck::cast_slice(materials))?,
+            ctx.storage("leaves", bytemuck::cast_slice(&gl))?,
+        ];
+        Ok(GpuTracer {
+            kernel,
+            buffers,
+            max_bounces,
+            self_hit,
+            seed,
+        })
+    }
+
+    /// Trace every photon of `aims` (ids in aim order, as [`crate::stage::trace_all`]);
+    /// `progress` gets the photons done after each dispatch.
+    pub fn trace_all(
+        &self,
+        ctx: &GpuContext,
+        aims: &[Aim],
+        progress: &dyn Fn(u64),
+    ) -> Result<Traced, GpuError> {
+        let mut out = Traced::default();
+        self.dispatch_all(ctx, aims, &mut |slots| {
+            for p in slots {
+                match p._pad {
+                    FATE_STORED => out.photons.push(Photon { _pad: 0, ..*p }),
+                    FATE_OCCLUDED => out.occluded += 1,
+                    _ => out.lost += 1,
+                }
+            }
+            out.traced += slots.len() as u64;
+            progress(slots.len() as u64);
+        })?;
+        Ok(out)
+    }
+
+    /// The fate of every photon of `aims`, by id (for tests against the CPU twin).
+    pub fn fates(&self, ctx: &GpuContext, aims: &[Aim]) -> Result<Vec<Fate>, GpuError> {
+        let mut out = Vec::new();
+        self.dispatch_all(ctx, aims, &mut |slots| {
+            out.extend(slots.iter().map(|p| match p._pad {
+                FATE_STORED => Fate::Stored(Photon { _pad: 0, ..*p }),
+                FATE_OCCLUDED => Fate::Occluded,
+                FATE_LOST => Fate::Lost,
+                _ => Fate::Absorbed,
+            }))
+        })?;
+        Ok(out)
+    }
+
+    /// Run the kernel over every photon id of `aims`, handing each dispatch's slots (photon
+    /// records with the fate in `_pad`) to `sink` in id order.
+    fn dispatch_all(
+        &self,
+        ctx: &GpuContext,
+        aims: &[Aim],
+        sink: &mut dyn FnMut(&[Photon]),
+    ) -> Result<(), GpuError> {
+        let mut ga = Vec::with_capacity(aims.len());
+        let mut total = 0u64;
+        for a in aims.iter().filter(|a| a.photons > 0) {
+            let (origin, source_leaf) = match a.source {
+                Source::Point(p) => (p.into(), u32::MAX),
+                Source::Area(e) => ([0.0; 3], e),
+            };
+            ga.push(GpuAim {
+                origin,
+                source_leaf,
+                power: a.power,
+                target_leaf: a.target,
+                first: total as u32,
+                _pad: [0; 3],
+            });
+            total += a.photons as u64;
+        }
+        if total > u32::MAX as u64 {
+            return Err(GpuError::Device {
+                adapter: ctx.describe(),
+                msg: format!("{total} photons do not fit 32-bit photon ids"),
+            });
+        }
+        if total == 0 {
+            return Ok(());
+        }
+        let aims_buf = ctx.storage("aims", bytemuck::cast_slice(&ga))?;
+        let per = PHOTONS_PER_DISPATCH.min(total as u32);
+        let size = per as u64 * std::mem::size_of::<Photon>() as u64;
+        let photons_buf = ctx.output("photons", size)?;
+        let mut done = 0u64;
+        while done < total {
+            let count = (total - done).min(per as u64) as u32;
+            let params = GpuParams {
+                seed: self.seed,
+                max_bounces: self.max_bounces,
+                self_hit: self.self_hit,
+                aim_count: ga.len() as u32,
+                id_offset: done as u32,
+                count,
+                _pad: [0; 2],
+            };
+            let pb = ctx.uniform("photon_params", bytemuck::bytes_of(&params));
+            let mut bind: Vec<&wgpu::Buffer> = self.buffers.iter().collect();
+            bind.push(&aims_buf);
+            bind.push(&pb);
+            bind.push(&photons_buf);
+            self.kernel.run(ctx, &bind, grid(count, 64))?;
+            let bytes = ctx.read(
+                &photons_buf,
+                count as u64 * std::mem::size_of::<Photon>() as u64,
+            )?;
+            // A copy: the readback bytes carry no alignment guarantee for the cast.
+            let slots: Vec<Photon> = bytemuck::pod_collect_to_vec(&bytes);
+            sink(&slots);
+            done += count as u64;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kernel validates, and its records have the sizes and offsets of the Rust ones.
+    #[test]
+    fn wgsl_records_match_rust_layouts() {
+        let module = pc_gpu::validate_wgsl(&source()).unwrap();
+        for (name, size) in [
+            ("Leaf", std::mem::size_of::<GpuLeaf>()),
+            ("Aim", std::mem::size_of::<GpuAim>()),
+            ("PhotonParams", std::mem::size_of::<GpuParams>()),
+            ("PhotonOut", std::mem::size_of::<Photon>()),
+            ("Material", std::mem::size_of::<MaterialRecord>()),
+        ] {
+            let (wsize, _) = pc_gpu::wgsl_struct_layout(&module, name)
+                .unwrap_or_else(|| panic!("no struct {name}"));
+            assert_eq!(wsize as usize, size, "{name}");
+        }
+        let off = |s: &str, m: &str| {
+            let (_, members) = pc_gpu::wgsl_struct_layout(&module, s).unwrap();
+            members.iter().find(|x| x.0 == m).unwrap().1 as usize
+        };
+        assert_eq!(off("Aim", "power"), std::mem::offset_of!(GpuAim, power));
+        assert_eq!(off("Aim", "first"), std::mem::offset_of!(GpuAim, first));
+        assert_eq!(
+            off("PhotonParams", "id_offset"),
+            std::mem::offset_of!(GpuParams, id_offset)
+        );
+        assert_eq!(
+            off("PhotonOut", "power"),
+            std::mem::offset_of!(Photon, power)
+        );
+        assert_eq!(off("PhotonOut", "fate"), std::mem::offset_of!(Photon, _pad));
+    }
+}

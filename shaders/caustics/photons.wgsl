@@ -1,0 +1,177 @@
+// requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
+// Photon tracing kernel (seed §8.5.4 to §8.5.7): one thread per photon id. Line-by-line twin of
+// crates/pc-caustics/src/trace.rs (Tracer::photon, Tracer::trace) and of Leaves::pick in
+// crates/pc-caustics/src/emit.rs; draws the same counter-based random numbers, so a photon
+// follows the same path on both sides up to floating-point rounding. Driven by
+// crates/pc-caustics/src/gpu.rs, which compacts the stored photons in id order.
+
+// An octree leaf's own splats [lo, hi) and their summed area (twin of emit::Leaf).
+struct Leaf {
+    lo: u32,
+    hi: u32,
+    area: f32,
+    _pad: u32,
+}
+
+// Photons first .. first + count of one aim (twin of emit::Aim): from a point light at `origin`
+// (source_leaf == INVALID) or from a splat of emitter leaf `source_leaf`, towards a splat of
+// specular leaf `target`, each carrying `power`.
+struct Aim {
+    origin: vec3<f32>,
+    source_leaf: u32,
+    power: vec3<f32>,
+    target_leaf: u32,
+    first: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+struct PhotonParams {
+    seed: u32,
+    max_bounces: u32,
+    self_hit: f32,
+    aim_count: u32,
+    // This dispatch traces photons id_offset .. id_offset + count.
+    id_offset: u32,
+    count: u32,
+    _pad: vec2<u32>,
+}
+
+// One photon's fate (twin of pc_artifact::photons::Photon; `fate` in place of its padding).
+struct PhotonOut {
+    position: vec3<f32>,
+    splat: u32,
+    dir: vec3<f32>,
+    bounces: u32,
+    power: vec3<f32>,
+    fate: u32,
+}
+
+const FATE_STORED: u32 = 0u;
+const FATE_OCCLUDED: u32 = 1u;
+const FATE_LOST: u32 = 2u;
+const FATE_ABSORBED: u32 = 3u;
+const F32_MAX: f32 = 3.40282347e38;
+// Random-number dimensions of a photon: 0..5 for the emission, then one per bounce.
+const DIM_BOUNCE: u32 = 8u;
+
+@group(0) @binding(0) var<uniform> octree_frame: Frame;
+@group(0) @binding(1) var<storage, read> octree_nodes: array<u32>;
+@group(0) @binding(2) var<storage, read> begin_end: array<u32>;
+@group(0) @binding(3) var<storage, read> splats: array<Splat>;
+@group(0) @binding(4) var<storage, read> node_info: array<NodeInfo>;
+@group(0) @binding(5) var<storage, read> splat_area: array<f32>;
+@group(0) @binding(6) var<storage, read> splat_leaf: array<u32>;
+@group(0) @binding(7) var<storage, read> materials: array<Material>;
+@group(0) @binding(8) var<storage, read> leaves: array<Leaf>;
+@group(0) @binding(9) var<storage, read> aims: array<Aim>;
+@group(0) @binding(10) var<uniform> params: PhotonParams;
+@group(0) @binding(11) var<storage, read_write> out_photons: array<PhotonOut>;
+
+fn r(id: u32, d: u32) -> f32 {
+    return rand4(params.seed, id, 0u, d);
+}
+
+// A splat of leaf l drawn in proportion to area (twin of Leaves::pick).
+fn pick(l: u32, u: f32) -> u32 {
+    let leaf = leaves[l];
+    var t = u * leaf.area;
+    for (var j = leaf.lo; j < leaf.hi; j = j + 1u) {
+        t = t - splat_area[j];
+        if t < 0.0 {
+            return j;
+        }
+    }
+    return leaf.hi - 1u;
+}
+
+fn fate(f: u32) -> PhotonOut {
+    return PhotonOut(vec3<f32>(0.0), INVALID, vec3<f32>(0.0), 0u, vec3<f32>(0.0), f);
+}
+
+fn photon(id: u32) -> PhotonOut {
+    // The aim of photon id: the last one whose first id is <= id.
+    var lo = 0u;
+    var hi = params.aim_count;
+    loop {
+        if lo >= hi {
+            break;
+        }
+        let mid = (lo + hi) / 2u;
+        if aims[mid].first <= id {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    let aim = aims[lo - 1u];
+    // Start: the light's position, or a point on an emitter splat drawn by area.
+    var origin = aim.origin;
+    var t_min = 0.0;
+    var emitter_normal = vec3<f32>(0.0);
+    if aim.source_leaf != INVALID {
+        let s = splats[pick(aim.source_leaf, r(id, 0u))];
+        origin = disk_point(s, r(id, 1u), r(id, 2u));
+        t_min = params.self_hit * s.radius;
+        emitter_normal = s.normal;
+    }
+    // Aim: a point on a splat of the target leaf, drawn by area.
+    let target_splat = splats[pick(aim.target_leaf, r(id, 3u))];
+    let to = disk_point(target_splat, r(id, 4u), r(id, 5u)) - origin;
+    let dist = length(to);
+    if dist <= t_min {
+        return fate(FATE_OCCLUDED);
+    }
+    var rd = to / dist;
+    if aim.source_leaf != INVALID && dot(emitter_normal, rd) <= 0.0 {
+        return fate(FATE_OCCLUDED);
+    }
+    let first_min = dist - 2.0 * target_splat.radius;
+    var ro = origin;
+    var power = aim.power;
+    var bounces = 0u;
+    loop {
+        let hit = trace(ro, rd, t_min, F32_MAX, false);
+        if !hit.found {
+            return fate(FATE_LOST);
+        }
+        let s = splats[hit.splat];
+        let m = materials[s.material];
+        if bounces == 0u && hit.t < first_min {
+            return fate(FATE_OCCLUDED);
+        }
+        let x = ro + rd * hit.t;
+        if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
+            if bounces == params.max_bounces {
+                return fate(FATE_LOST);
+            }
+            let u = r(id, DIM_BOUNCE + bounces);
+            let n = shading_normal(hit.splat, x);
+            let b = specular_bounce(m, m.color * s.albedo, s.normal, n, rd, u);
+            power = power * b.tint;
+            bounces = bounces + 1u;
+            ro = x;
+            rd = b.dir;
+            t_min = params.self_hit * s.radius;
+            continue;
+        }
+        if bounces == 0u {
+            return fate(FATE_OCCLUDED);
+        }
+        if dot(rd, s.normal) >= 0.0 {
+            return fate(FATE_ABSORBED);
+        }
+        return PhotonOut(x, hit.splat, rd, bounces, power, FATE_STORED);
+    }
+    return fate(FATE_LOST);
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = gid.x + gid.y * groups.x * 64u;
+    if i >= params.count {
+        return;
+    }
+    out_photons[i] = photon(params.id_offset + i);
+}
