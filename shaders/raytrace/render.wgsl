@@ -33,6 +33,23 @@ struct Params {
     rows: u32,
     // 1: diffuse hits show the per-splat radiance of `radiance` (pc-fmm's artifact).
     stored_radiance: u32,
+    // The photon map (twin of crate::caustic::PhotonGrid): density-estimate radius, photons in
+    // `photons` (0: no caustic term), spatial hash of cells of side grid_cell from grid_origin.
+    caustic_radius: f32,
+    grid_origin: vec3<f32>,
+    grid_mask: u32,
+    photon_count: u32,
+    grid_cell: f32,
+    _pad: vec2<u32>,
+}
+
+// A stored photon (twin of pc_artifact::photons::Photon).
+struct Photon {
+    position: vec3<f32>,
+    splat: u32,
+    dir: vec3<f32>,
+    bounces: u32,
+    power: vec3<f32>,
     _pad: u32,
 }
 
@@ -60,6 +77,9 @@ struct PixelOut {
 @group(0) @binding(11) var<storage, read_write> out_pixels: array<PixelOut>;
 // Per splat outgoing diffuse radiance (xyz) when params.stored_radiance == 1.
 @group(0) @binding(12) var<storage, read> radiance: array<vec4<f32>>;
+// The photons sorted by hash bucket, and each bucket's first photon (params.grid_mask + 2 entries).
+@group(0) @binding(13) var<storage, read> photons: array<Photon>;
+@group(0) @binding(14) var<storage, read> grid_offsets: array<u32>;
 
 const F32_MAX: f32 = 3.40282347e38;
 
@@ -148,6 +168,62 @@ fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u3
         }
     }
     return e;
+}
+
+// ---- caustic density estimate (twin of crate::caustic::PhotonGrid::irradiance) ---------------
+
+fn grid_hash(c: vec3<u32>) -> u32 {
+    return ((c.x * 73856093u) ^ (c.y * 19349663u) ^ (c.z * 83492791u)) & params.grid_mask;
+}
+
+// Caustic irradiance at x (unit normal n): the photons within the radius that arrived from the
+// front and lie near the tangent plane, with the 2-D Epanechnikov kernel.
+fn caustic(x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let r = params.caustic_radius;
+    let r2 = r * r;
+    let q = (x - params.grid_origin) / params.grid_cell;
+    let c = floor(q);
+    let f = q - c;
+    var seen: array<u32, 8>;
+    var count = 0u;
+    var e = vec3<f32>(0.0);
+    for (var i = 0u; i < 8u; i = i + 1u) {
+        var cc = c;
+        let step = select(vec3<f32>(1.0), vec3<f32>(-1.0), f < vec3<f32>(0.5));
+        if (i & 1u) != 0u {
+            cc.x = cc.x + step.x;
+        }
+        if (i & 2u) != 0u {
+            cc.y = cc.y + step.y;
+        }
+        if (i & 4u) != 0u {
+            cc.z = cc.z + step.z;
+        }
+        if any(cc < vec3<f32>(0.0)) {
+            continue;
+        }
+        let h = grid_hash(vec3<u32>(cc));
+        var dup = false;
+        for (var j = 0u; j < count; j = j + 1u) {
+            if seen[j] == h {
+                dup = true;
+            }
+        }
+        if dup {
+            continue;
+        }
+        seen[count] = h;
+        count = count + 1u;
+        for (var k = grid_offsets[h]; k < grid_offsets[h + 1u]; k = k + 1u) {
+            let p = photons[k];
+            let d = p.position - x;
+            let d2 = dot(d, d);
+            if d2 <= r2 && dot(p.dir, n) < 0.0 && abs(dot(d, n)) <= 0.25 * r {
+                e = e + p.power * max(1.0 - d2 / r2, 0.0);
+            }
+        }
+    }
+    return e * (2.0 / (PI * r2));
 }
 
 fn phong(x: vec3<f32>, n: vec3<f32>, wo: vec3<f32>, e: f32, delta: f32) -> vec3<f32> {
@@ -288,6 +364,9 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             res.splat = s.source;
         }
         res.rgb = res.rgb + throughput * emit;
+        if params.photon_count > 0u {
+            res.rgb = res.rgb + throughput * albedo / PI * caustic(x, n);
+        }
         if params.mode == 1u {
             res.rgb = res.rgb + throughput * albedo / PI * direct(x, n, delta, pixel, k, bounce);
         }

@@ -18,8 +18,10 @@ commands:
   compare [--set KEY=VALUE]...               render ../shared/reference/cornell's points through the
                                              whole chain and compare with Mitsuba's image (region
                                              means, relative RMSE, out/reference/image.diff.png)
-  bench [--sizes 1M,4M] [--runs N] [--only octree|rays] [--write]
-                                             octree build and ray traversal benchmarks
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics] [--write]
+                                             octree build and ray traversal benchmarks; with
+                                             --only caustics, photon tracing at about 1M photons
+                                             and the caustic lookup (default size 1M)
                                              (writes BENCHMARKS.md with --write)
 ";
 
@@ -246,9 +248,21 @@ fn bench(args: &[String]) -> Result<()> {
             }
             "--runs" => runs = it.next().context("--runs needs a number")?.parse()?,
             "--write" => write = true,
-            "--only" => only = Some(it.next().context("--only needs octree or rays")?.clone()),
+            "--only" => {
+                only = Some(
+                    it.next()
+                        .context("--only needs octree, rays or caustics")?
+                        .clone(),
+                )
+            }
             other => bail!("bench: unknown option `{other}`"),
         }
+    }
+    if only.as_deref() == Some("caustics") {
+        if !args.iter().any(|a| a == "--sizes") {
+            sizes = vec![1_000_000];
+        }
+        return bench_caustics(&sizes, runs, write);
     }
     let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
     let work = root().join("target/bench");
@@ -449,4 +463,217 @@ is lent to this machine; a software adapter, when present, is listed as such).\n
         println!("xtask: updated {}", path.display());
     }
     Ok(())
+}
+
+/// Sample `pc-sample cornell --with-specular` at `n` points under target/bench (once) and write
+/// its bench.toml; returns the config path.
+fn bench_scene(bin: &Path, n: usize) -> Result<PathBuf> {
+    let scene = root().join("target/bench").join(format!("cornell-{n}"));
+    if !scene.join("scene.toml").exists() {
+        run_checked(
+            Command::new(bin.join("pc-sample"))
+                .args([
+                    "cornell",
+                    "--with-specular",
+                    "--points",
+                    &n.to_string(),
+                    "--out",
+                ])
+                .arg(&scene),
+            "pc-sample",
+        )?;
+    }
+    let config = scene.join("bench.toml");
+    std::fs::write(
+        &config,
+        "include = [\"scene.toml\"]\n[output]\ndir = \"out\"\n",
+    )?;
+    Ok(config)
+}
+
+/// Replace the block between `<!-- bench:NAME:begin/end -->` in BENCHMARKS.md with `table`
+/// (appended under `heading` the first time).
+fn write_bench_block(name: &str, heading: &str, table: &str) -> Result<()> {
+    let path = root().join("BENCHMARKS.md");
+    let text = std::fs::read_to_string(&path).unwrap_or_default();
+    let (begin, end) = (
+        format!("<!-- bench:{name}:begin -->"),
+        format!("<!-- bench:{name}:end -->"),
+    );
+    let new = match (text.find(&begin), text.find(&end)) {
+        (Some(b), Some(e)) if b < e => format!("{}{begin}\n{table}{}", &text[..b], &text[e..]),
+        _ => format!("{text}\n## {heading}\n\n{begin}\n{table}{end}\n"),
+    };
+    std::fs::write(&path, new)?;
+    println!("xtask: updated {}", path.display());
+    Ok(())
+}
+
+/// Photons per second of pc-caustics at about one million traced photons (CPU on 1 and 2
+/// threads, the GPU when wgpu finds one), and the caustic lookup cost per shaded hit.
+fn bench_caustics(sizes: &[usize], runs: usize, write: bool) -> Result<()> {
+    let bin = build_release(&[
+        "pc-sample",
+        "pc-octree",
+        "pc-vmap",
+        "pc-caustics",
+        "pc-raybench",
+    ])?;
+    let read_json = |p: &Path| -> Result<serde_json::Value> {
+        Ok(serde_json::from_str(&std::fs::read_to_string(p)?)?)
+    };
+    let mut rows = Vec::new();
+    let mut lookup_rows = Vec::new();
+    for &n in sizes {
+        let config = bench_scene(&bin, n)?;
+        let dir = config.parent().unwrap().to_path_buf();
+        if !dir.join("out/octree.pcgi").exists() {
+            run_checked(
+                Command::new(bin.join("pc-octree"))
+                    .arg("--quiet")
+                    .arg("--config")
+                    .arg(&config),
+                "pc-octree",
+            )?;
+        }
+        // Up to date V-map links are reused; only the light lists are redone.
+        run_checked(
+            Command::new(bin.join("pc-vmap"))
+                .args(["--quiet", "--backend", "cpu", "--config"])
+                .arg(&config),
+            "pc-vmap",
+        )?;
+        let stats = dir.join("caustics.json");
+        let caustics = |backend: &str, threads: usize, budget: u64| -> Result<serde_json::Value> {
+            run_checked(
+                Command::new(bin.join("pc-caustics"))
+                    .env("RAYON_NUM_THREADS", threads.to_string())
+                    .args(["--quiet", "--backend", backend, "--config"])
+                    .arg(&config)
+                    .arg("--set")
+                    .arg(format!("caustics.photons={budget}"))
+                    .arg("--stats-json")
+                    .arg(&stats),
+                "pc-caustics",
+            )?;
+            read_json(&stats)
+        };
+        // The budget covers the lights' whole sphere; scale it so that about 1M are traced.
+        let probe = caustics("cpu", 2, 2_000_000)?;
+        let traced = probe["traced"].as_f64().unwrap_or(0.0).max(1.0);
+        let budget = ((2e6 * 1e6 / traced).ceil() as u64).min(u32::MAX as u64);
+        let gpu_present = pc_gpu_present(&bin, &config);
+        let mut devices = vec![("cpu", 1usize), ("cpu", 2)];
+        if gpu_present {
+            devices.push(("gpu", 2));
+        }
+        for (backend, threads) in devices {
+            let mut best: Option<serde_json::Value> = None;
+            for _ in 0..runs {
+                match caustics(backend, threads, budget) {
+                    Ok(v) => {
+                        if best.as_ref().is_none_or(|b| {
+                            v["photons_per_s"].as_f64() > b["photons_per_s"].as_f64()
+                        }) {
+                            best = Some(v);
+                        }
+                    }
+                    Err(e) => {
+                        rows.push(format!(
+                            "| {:.2}M | {backend}: not run: {e:#} | | | | | |",
+                            n as f64 / 1e6
+                        ));
+                        break;
+                    }
+                }
+            }
+            if let Some(v) = best {
+                let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+                rows.push(format!(
+                    "| {:.2}M | {} | {} | {:.2}M | {:.0}k | {:.2} s | {:.2} M/s |",
+                    n as f64 / 1e6,
+                    if backend == "cpu" {
+                        format!(
+                            "CPU, {threads} thread{}",
+                            if threads > 1 { "s" } else { "" }
+                        )
+                    } else {
+                        v["device"].as_str().unwrap_or("GPU").to_string()
+                    },
+                    budget,
+                    f("traced") / 1e6,
+                    f("stored") / 1e3,
+                    f("trace_seconds"),
+                    f("photons_per_s") / 1e6,
+                ));
+                println!("{}", rows.last().unwrap());
+            }
+        }
+        // The lookup, on the map just written (the last run's).
+        let rays = dir.join("lookups.json");
+        run_checked(
+            Command::new(bin.join("pc-raybench"))
+                .args([
+                    "--cpu-only",
+                    "--caustics",
+                    "--width",
+                    "512",
+                    "--incoherent",
+                    "1000",
+                ])
+                .arg("--config")
+                .arg(&config)
+                .arg("--json")
+                .arg(&rays),
+            "pc-raybench",
+        )?;
+        let v = read_json(&rays)?;
+        let c = &v["caustic"];
+        let f = |k: &str| c[k].as_f64().unwrap_or(f64::NAN);
+        lookup_rows.push(format!(
+            "| {:.2}M | {:.0}k | {:.4} | {:.0}k ({:.0} % near photons) | {:.0} ns | {:.0} ns (k {}) | {:.0} ns (built in {:.3} s) |",
+            n as f64 / 1e6,
+            f("photons") / 1e3,
+            f("radius"),
+            f("lookups") / 1e3,
+            100.0 * f("found") / f("lookups"),
+            f("kdtree_ns"),
+            f("knn_ns"),
+            c["k"],
+            f("grid_ns"),
+            f("grid_build_s"),
+        ));
+        println!("{}", lookup_rows.last().unwrap());
+    }
+    let table = format!(
+        "Machine: {}. Date: {}. Command: `cargo xtask bench --only caustics --sizes {} --runs {runs}` \
+(best of {runs}). Scene: `pc-sample cornell --with-specular` (glass and mirror spheres); the budget is \
+scaled so that about 1M photons are traced (the budget covers the lights' whole sphere, only photons \
+aimed at light-visible specular leaves are traced). Trace time: emission plan excluded, tracing only.\n\n\
+| splats | device | budget | traced | stored | trace | photons/s |\n|---|---|---|---|---|---|---|\n{}\n\n\
+Caustic lookup per shaded hit (CPU, per thread): the diffuse hits of 512×512 primary rays from the scene \
+camera, on the photon map above; fixed radius through the kd-tree queried in place, k-nearest through \
+it, and the hashed grid the GPU renderer uses, run on the CPU.\n\n\
+| splats | photons | radius | lookups | kd-tree, fixed radius | kd-tree, k-nearest | hashed grid |\n|---|---|---|---|---|---|---|\n{}\n",
+        machine(),
+        today(),
+        sizes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","),
+        rows.join("\n"),
+        lookup_rows.join("\n")
+    );
+    println!("\n{table}");
+    if write {
+        write_bench_block("caustics", "Caustic photon map (pc-caustics)", &table)?;
+    }
+    Ok(())
+}
+
+/// Whether wgpu finds any adapter (pc-raybench's GPU pass says so without --cpu-only).
+fn pc_gpu_present(bin: &Path, config: &Path) -> bool {
+    Command::new(bin.join("pc-raybench"))
+        .args(["--width", "8", "--incoherent", "8", "--config"])
+        .arg(config)
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).contains(", GPU "))
+        .unwrap_or(false)
 }

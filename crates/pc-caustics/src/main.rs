@@ -27,6 +27,9 @@ struct Args {
     /// The photons artifact to write (default: <output.dir>/<caustics.file>).
     #[arg(long, short)]
     output: Option<PathBuf>,
+    /// Also write the counts and timings here as JSON (for `cargo xtask bench`).
+    #[arg(long, value_name = "FILE")]
+    stats_json: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -70,5 +73,19 @@ fn run(args: &Args) -> anyhow::Result<()> {
         s.seconds,
         m.device
     );
+    if let Some(path) = &args.stats_json {
+        let json = format!(
+            "{{\"budget\": {}, \"traced\": {}, \"stored\": {}, \"occluded\": {}, \"lost\": {}, \"trace_seconds\": {trace_s:.6}, \"total_seconds\": {:.6}, \"photons_per_s\": {:.0}, \"device\": \"{}\"}}\n",
+            m.params.photons,
+            m.traced,
+            m.stored,
+            m.occluded,
+            m.lost,
+            s.seconds,
+            m.traced as f64 / trace_s.max(1e-9),
+            m.device.replace('"', "'")
+        );
+        std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?;
+    }
     Ok(())
 }

@@ -111,7 +111,13 @@ pub struct Params {
     pub rows: u32,
     /// 1 when diffuse hits show [`RenderScene::radiance`].
     pub stored_radiance: u32,
-    pub _pad: u32,
+    /// The photon map's grid ([`crate::caustic::PhotonGrid`]); `photon_count` 0: none.
+    pub caustic_radius: f32,
+    pub grid_origin: [f32; 3],
+    pub grid_mask: u32,
+    pub photon_count: u32,
+    pub grid_cell: f32,
+    pub _pad: [u32; 2],
 }
 
 /// Everything a render reads.
@@ -126,7 +132,7 @@ pub struct RenderScene<'a> {
     /// Per-splat outgoing diffuse radiance (pc-fmm's radiosity artifact), xyz and a pad; when
     /// present, diffuse hits show it instead of the materials' emission.
     pub radiance: Option<Vec<[f32; 4]>>,
-    /// pc-caustics' photon map: diffuse hits add its density estimate (CPU renderer).
+    /// pc-caustics' photon map: diffuse hits add its density estimate.
     pub caustics: Option<crate::caustic::Caustics<'a>>,
 }
 
@@ -171,7 +177,7 @@ impl<'a> RenderScene<'a> {
             row_offset: 0,
             rows: camera.height,
             stored_radiance: 0,
-            _pad: 0,
+            ..Default::default()
         };
         RenderScene {
             view,

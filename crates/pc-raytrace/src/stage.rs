@@ -125,6 +125,16 @@ pub fn load_photons<'a>(
     })
 }
 
+/// The density-estimate radius: `raytrace.caustic_radius`, or 1/100 of the root cube's edge
+/// when it is 0.
+pub fn caustic_radius(rt: &pc_scene::config::RaytraceConfig, view: &pc_tree::OctreeView) -> f32 {
+    if rt.caustic_radius > 0.0 {
+        rt.caustic_radius
+    } else {
+        view.frame.size / 100.0
+    }
+}
+
 /// Render the config's camera view of the octree at `octree_path` and write the images.
 ///
 /// Shading: `stored` shows the radiosity artifact at `radiosity_path` when it exists (else the
@@ -166,11 +176,7 @@ pub fn run(
     } else {
         None
     };
-    let radius = if rt.caustic_radius > 0.0 {
-        rt.caustic_radius
-    } else {
-        view.frame.size / 100.0
-    };
+    let radius = caustic_radius(&rt, &view);
     let mut sc = RenderScene::new(view, materials, &c.lights, &camera, &rt);
     if let Some(r) = &radiance {
         sc.set_radiance(r);
@@ -183,13 +189,6 @@ pub fn run(
         }
     }
     let gpu = match backend {
-        // The WGSL renderer has no photon-map lookup yet: caustics render on the CPU.
-        _ if sc.caustics.is_some() && backend != Backend::Gpu => None,
-        Backend::Gpu if sc.caustics.is_some() => bail!(
-            "raytrace.backend = \"gpu\" cannot show the photon map {} (the GPU renderer has no \
-             caustic lookup yet): use cpu or auto",
-            photons_path.display()
-        ),
         Backend::Cpu => None,
         Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
         // `auto` means a real GPU: a software rasterizer (llvmpipe) is slower than the CPU path.

@@ -33,6 +33,11 @@ struct Args {
     /// Skip the GPU even when an adapter exists.
     #[arg(long)]
     cpu_only: bool,
+    /// Also time the caustic lookup (pc-caustics' photon map, `<output.dir>/<caustics.file>`) at
+    /// the diffuse hits of the primary rays: the kd-tree queried in place (fixed radius and
+    /// k-nearest) and the GPU renderer's hashed grid, on the CPU.
+    #[arg(long)]
+    caustics: bool,
     /// Write the results here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -120,6 +125,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let (pc, pt) = work(&view, &primary);
     let (ic, it) = work(&view, &incoherent);
     eprintln!("pc-raybench: per primary ray {pc:.1} cells, {pt:.1} splat tests; per incoherent ray {ic:.1} cells, {it:.1} splat tests");
+    let caustic_json = if args.caustics {
+        caustic_lookups(&cfg, &art, &view, &accel, &primary)?
+    } else {
+        "null".to_string()
+    };
     let mut gpu = String::from("null");
     let mut line = String::new();
     if !args.cpu_only {
@@ -166,7 +176,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
     );
     if let Some(path) = &args.json {
         let json = format!(
-            "{{\"splats\": {}, \"threads\": {threads}, \"primary_rays\": {}, \"cpu_primary_rays_per_s\": {cpu_primary:.0}, \"incoherent_rays\": {}, \"cpu_incoherent_rays_per_s\": {cpu_incoherent:.0}, \"gpu\": {gpu}}}\n",
+            "{{\"splats\": {}, \"threads\": {threads}, \"primary_rays\": {}, \"cpu_primary_rays_per_s\": {cpu_primary:.0}, \"incoherent_rays\": {}, \"cpu_incoherent_rays_per_s\": {cpu_incoherent:.0}, \"gpu\": {gpu}, \"caustic\": {caustic_json}}}\n",
             view.splats.len(),
             primary.len(),
             incoherent.len()
@@ -174,4 +184,66 @@ fn run(args: &Args) -> anyhow::Result<()> {
         std::fs::write(path, json).with_context(|| path.display().to_string())?;
     }
     Ok(())
+}
+
+/// Time the caustic lookups at the primary rays' diffuse hits; returns the JSON object.
+fn caustic_lookups(
+    cfg: &pc_scene::config::LoadedConfig,
+    art: &Artifact,
+    view: &OctreeView,
+    accel: &pc_tree::accel::Accel,
+    primary: &[Ray],
+) -> anyhow::Result<String> {
+    use pc_artifact::octree::class;
+    use pc_raytrace::caustic::PhotonGrid;
+    let path = cfg.photons_path();
+    let pa = Artifact::open_kind(&path, ArtifactKind::Photons)
+        .with_context(|| format!("run pc-caustics first to make {}", path.display()))?;
+    let rt = &cfg.config.raytrace;
+    let radius = pc_raytrace::stage::caustic_radius(rt, view);
+    let mut c = pc_raytrace::stage::load_photons(&pa, art, radius, 0)?;
+    let materials = pc_scene::cli::current_materials(cfg, art)?;
+    let hits: Vec<(Vec3, Vec3)> = primary
+        .par_iter()
+        .map_init(TraversalStats::default, |st, r| {
+            let h = accel.intersect(view, r, st)?;
+            let s = &view.splats[h.splat as usize];
+            let n = Vec3::from(s.normal);
+            (materials[s.material as usize].class == class::DIFFUSE && n.dot(r.dir) < 0.0)
+                .then(|| (r.origin + r.dir * h.t, n))
+        })
+        .flatten()
+        .collect();
+    let threads = rayon::current_num_threads() as f64;
+    // Nanoseconds per lookup per thread, and the lookups that found photons.
+    let time = |f: &(dyn Fn(Vec3, Vec3) -> Vec3 + Sync)| -> (f64, usize) {
+        let t = Instant::now();
+        let lit = hits.par_iter().filter(|(x, n)| f(*x, *n).x > 0.0).count();
+        (
+            t.elapsed().as_secs_f64() * threads * 1e9 / hits.len().max(1) as f64,
+            lit,
+        )
+    };
+    let (kd_ns, lit) = time(&|x, n| c.irradiance(x, n));
+    let k = if rt.caustic_k > 0 { rt.caustic_k } else { 50 };
+    c.k = k;
+    let (knn_ns, _) = time(&|x, n| c.irradiance(x, n));
+    c.k = 0;
+    let t = Instant::now();
+    let grid = PhotonGrid::new(c.photons, radius);
+    let grid_build = t.elapsed().as_secs_f64();
+    let (grid_ns, _) = time(&|x, n| grid.irradiance(x, n));
+    println!(
+        "pc-raybench: caustic lookup at {} diffuse primary hits ({:.0} % near photons), {} photons, \
+         radius {radius:.4}: kd-tree {kd_ns:.0} ns, k-nearest (k {k}) {knn_ns:.0} ns, hashed grid \
+         {grid_ns:.0} ns per lookup per thread (grid built in {grid_build:.3} s)",
+        hits.len(),
+        100.0 * lit as f64 / hits.len().max(1) as f64,
+        c.photons.len()
+    );
+    Ok(format!(
+        "{{\"photons\": {}, \"lookups\": {}, \"found\": {lit}, \"radius\": {radius}, \"kdtree_ns\": {kd_ns:.1}, \"k\": {k}, \"knn_ns\": {knn_ns:.1}, \"grid_ns\": {grid_ns:.1}, \"grid_build_s\": {grid_build:.4}}}",
+        c.photons.len(),
+        hits.len()
+    ))
 }

@@ -7,6 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use pc_gpu::{compose, Binding, GpuContext, GpuError, Kernel};
 
+use crate::caustic::PhotonGrid;
 use crate::image::{Aovs, Image};
 use crate::scene::{Params, RenderScene};
 
@@ -37,6 +38,10 @@ pub struct GpuRenderer {
     kernel: Kernel,
     buffers: Vec<wgpu::Buffer>,
     radiance: wgpu::Buffer,
+    photons: wgpu::Buffer,
+    grid_offsets: wgpu::Buffer,
+    /// The photon-map fields of [`Params`].
+    grid: Params,
 }
 
 /// Samples per dispatch; bands of rows are sized to stay under this.
@@ -48,13 +53,13 @@ impl GpuRenderer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
-        b.push(Binding::ReadOnly);
+        b.extend([Binding::ReadOnly; 3]);
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
-        if limit < 11 {
+        if limit < 13 {
             return Err(GpuError::Device {
                 adapter: ctx.describe(),
                 msg: format!(
-                    "the renderer needs 11 storage buffers per stage, the adapter allows {limit}"
+                    "the renderer needs 13 storage buffers per stage, the adapter allows {limit}"
                 ),
             });
         }
@@ -83,10 +88,42 @@ impl GpuRenderer {
             Some(r) => ctx.storage("radiance", bytemuck::cast_slice(r))?,
             None => ctx.storage("radiance", &[0u8; 16])?,
         };
+        let mut grid = Params::default();
+        let (photons, grid_offsets) = match &sc.caustics {
+            Some(c) if c.k > 0 => {
+                return Err(GpuError::Device {
+                    adapter: ctx.describe(),
+                    msg: format!(
+                        "the GPU renderer's caustic estimate is fixed-radius only \
+                         (raytrace.caustic_k = {}: k-nearest renders on the CPU)",
+                        c.k
+                    ),
+                })
+            }
+            Some(c) if !c.photons.is_empty() => {
+                let g = PhotonGrid::new(c.photons, c.radius);
+                grid.caustic_radius = g.radius;
+                grid.grid_origin = g.origin;
+                grid.grid_mask = g.mask;
+                grid.photon_count = g.photons.len() as u32;
+                grid.grid_cell = g.cell;
+                (
+                    ctx.storage("photons", bytemuck::cast_slice(&g.photons))?,
+                    ctx.storage("grid_offsets", bytemuck::cast_slice(&g.offsets))?,
+                )
+            }
+            _ => (
+                ctx.storage("photons", &[0u8; 48])?,
+                ctx.storage("grid_offsets", &[0u8; 8])?,
+            ),
+        };
         Ok(GpuRenderer {
             kernel,
             buffers,
             radiance,
+            photons,
+            grid_offsets,
+            grid,
         })
     }
 
@@ -112,9 +149,15 @@ impl GpuRenderer {
         let mut row = 0;
         while row < h {
             let rows = band.min(h - row);
+            let g = &self.grid;
             let params = Params {
                 row_offset: row,
                 rows,
+                caustic_radius: g.caustic_radius,
+                grid_origin: g.grid_origin,
+                grid_mask: g.grid_mask,
+                photon_count: g.photon_count,
+                grid_cell: g.grid_cell,
                 ..sc.params
             };
             let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
@@ -122,6 +165,8 @@ impl GpuRenderer {
             bind.push(&uniform);
             bind.push(&out);
             bind.push(&self.radiance);
+            bind.push(&self.photons);
+            bind.push(&self.grid_offsets);
             self.kernel
                 .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
             let bytes = ctx.read(

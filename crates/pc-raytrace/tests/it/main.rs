@@ -9,6 +9,7 @@ use pc_scene::config::{CameraConfig, FovAxis, PointLightConfig, RaytraceConfig, 
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
+mod caustic;
 mod specular;
 
 pub use pc_testkit::Soa;
@@ -340,6 +341,15 @@ fn wgsl_records_match_rust_layouts() {
         std::mem::offset_of!(Params, light_samples)
     );
     assert_eq!(off("row_offset"), std::mem::offset_of!(Params, row_offset));
+    assert_eq!(
+        off("grid_origin"),
+        std::mem::offset_of!(Params, grid_origin)
+    );
+    assert_eq!(
+        off("photon_count"),
+        std::mem::offset_of!(Params, photon_count)
+    );
+    assert_eq!(off("grid_cell"), std::mem::offset_of!(Params, grid_cell));
     let (_, members) = pc_gpu::wgsl_struct_layout(&module, "Material").unwrap();
     assert_eq!(
         members.iter().find(|m| m.0 == "phong").unwrap().1 as usize,

@@ -1,0 +1,176 @@
+//! The caustic lookup: the GPU renderer's hashed grid finds the same photons as the kd-tree the
+//! CPU queries in place, and CPU and GPU render the same image with a photon map.
+
+use glam::Vec3;
+use pc_artifact::photons::{archived_tree, sections, tree_bytes, Photon, PhotonTree, TREE_ALIGN};
+use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key};
+use pc_raytrace::caustic::{Caustics, PhotonGrid};
+use pc_raytrace::scene::RenderScene;
+use pc_scene::config::{PointLightConfig, ShadingMode};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+use super::{camera, mixed_room, params};
+
+/// A photons artifact holding `photons` and their kd-tree (the sections pc-caustics writes).
+fn photon_file(path: &std::path::Path, photons: &[Photon]) -> Artifact {
+    let positions: Vec<[f32; 3]> = photons.iter().map(|p| p.position).collect();
+    let tree = PhotonTree::new_from_slice(&positions).unwrap();
+    let mut w =
+        ArtifactWriter::create(path, ArtifactKind::Photons, "test", "0", Key::default()).unwrap();
+    w.section(sections::PHOTONS, photons).unwrap();
+    w.section_aligned(sections::KDTREE, TREE_ALIGN, &tree_bytes(&tree).unwrap())
+        .unwrap();
+    w.section(sections::DEPOSIT, &[[0f32; 3]]).unwrap();
+    w.metadata(&pc_artifact::photons::PhotonsMeta::default())
+        .unwrap();
+    w.finish().unwrap();
+    Artifact::open(path).unwrap()
+}
+
+/// Photons on the floor of the mixed room (y = −1, arriving downwards), denser in a bright
+/// spot, and a few on the back wall (z = −1) arriving from the front and from behind.
+fn room_photons(n: usize) -> Vec<Photon> {
+    let mut rng = Pcg64::seed_from_u64(4);
+    (0..n)
+        .map(|i| {
+            let (position, dir) = if i % 10 == 9 {
+                let d = if i % 20 == 9 { 1.0 } else { -1.0 };
+                (
+                    [
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        -1.0,
+                    ],
+                    [0.0, 0.0, d],
+                )
+            } else if i % 2 == 0 {
+                let (r, a) = (
+                    0.15 * rng.random::<f32>().sqrt(),
+                    rng.random_range(0.0f32..6.283),
+                );
+                (
+                    [0.3 + r * a.cos(), -1.0, 0.2 + r * a.sin()],
+                    [0.0, -1.0, 0.0],
+                )
+            } else {
+                (
+                    [
+                        rng.random_range(-1.0..1.0),
+                        -1.0,
+                        rng.random_range(-1.0..1.0),
+                    ],
+                    Vec3::new(0.3, -1.0, 0.1).normalize().into(),
+                )
+            };
+            Photon {
+                position,
+                splat: 0,
+                dir,
+                bounces: 1,
+                power: [2e-5, 1.5e-5, 1e-5],
+                _pad: 0,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn the_hashed_grid_finds_the_kd_trees_photons() {
+    let dir = tempfile::tempdir().unwrap();
+    let photons = room_photons(40_000);
+    let a = photon_file(&dir.path().join("photons.pcgi"), &photons);
+    let c = Caustics {
+        photons: a.section(sections::PHOTONS).unwrap(),
+        tree: archived_tree(&a).unwrap(),
+        radius: 0.03,
+        k: 0,
+    };
+    let grid = PhotonGrid::new(&photons, c.radius);
+    assert_eq!(grid.photons.len(), photons.len());
+    let mut rng = Pcg64::seed_from_u64(8);
+    let mut lit = 0;
+    for i in 0..4000 {
+        let (x, n) = if i % 4 == 3 {
+            (
+                Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    -1.0,
+                ),
+                Vec3::Z,
+            )
+        } else {
+            (
+                Vec3::new(
+                    rng.random_range(-1.1..1.1),
+                    -1.0,
+                    rng.random_range(-1.1..1.1),
+                ),
+                Vec3::Y,
+            )
+        };
+        let (a, b) = (c.irradiance(x, n), grid.irradiance(x, n));
+        if a.x > 0.0 {
+            lit += 1;
+        }
+        assert!(
+            (a - b).abs().max_element() <= 1e-5 * a.max_element() + 1e-9,
+            "at {x}: kd-tree {a}, grid {b}"
+        );
+    }
+    assert!(lit > 2000, "{lit} lookups found photons");
+}
+
+#[test]
+fn cpu_and_gpu_render_the_same_caustics() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let photons = room_photons(60_000);
+    let a = photon_file(&dir.path().join("photons.pcgi"), &photons);
+    let (o, mats) = mixed_room();
+    let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
+    let light = PointLightConfig {
+        position: [0.2, 0.7, 0.3],
+        intensity: [0.6; 3],
+    };
+    let mut p = params(4, ShadingMode::Direct);
+    p.max_bounces = 6;
+    let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
+    sc.caustics = Some(Caustics {
+        photons: a.section(sections::PHOTONS).unwrap(),
+        tree: archived_tree(&a).unwrap(),
+        radius: 0.04,
+        k: 0,
+    });
+    sc.prepare_cpu();
+    let (cpu, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    let gpu = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
+        .unwrap()
+        .render(&ctx, &sc, false)
+        .unwrap();
+    let c = pc_raytrace::image::compare(&gpu, &cpu).unwrap();
+    assert!(c.mean_relative < 1e-3, "{c} on {}", ctx.describe());
+    // The caustic shows: brighter than the same render without it.
+    sc.caustics = None;
+    let (plain, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    assert!(
+        cpu.mean()[0] > 1.05 * plain.mean()[0],
+        "{:?} vs {:?}",
+        cpu.mean(),
+        plain.mean()
+    );
+    // k-nearest stays on the CPU: the GPU renderer says so.
+    sc.caustics = Some(Caustics {
+        photons: a.section(sections::PHOTONS).unwrap(),
+        tree: archived_tree(&a).unwrap(),
+        radius: 0.04,
+        k: 16,
+    });
+    let err = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
+        .err()
+        .expect("k-nearest on the GPU is refused");
+    assert!(err.to_string().contains("k-nearest"), "{err}");
+}
