@@ -32,6 +32,26 @@ pub struct FmmParams {
     pub max_iterations: u32,
     /// Shadow rays per splat for the emitting splats' direct light.
     pub emitter_samples: u32,
+    /// The iterative method (absent in artifacts made before it was a choice: Jacobi).
+    #[serde(default = "Solver::jacobi")]
+    pub solver: Solver,
+}
+
+/// The iterative method of the radiosity solve (docs/fmm.md).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Solver {
+    /// Restarted GMRES, one Krylov process per channel in lockstep.
+    #[default]
+    Gmres,
+    /// Jacobi iteration (the Neumann series), one bounce per iteration.
+    Jacobi,
+}
+
+impl Solver {
+    fn jacobi() -> Solver {
+        Solver::Jacobi
+    }
 }
 
 /// Metadata of a radiosity artifact.

@@ -1,4 +1,7 @@
-//! The radiosity solve: Jacobi iteration `L ← E + ρ ∘ T (L − Lₑ)` until the relative residual
+//! The radiosity solve, by restarted GMRES ([`solve_gmres`], the default) or Jacobi
+//! ([`solve`]); docs/fmm.md "Solver".
+//!
+//! Jacobi iteration `L ← E + ρ ∘ T (L − Lₑ)` runs until the relative residual
 //! `‖L_{k+1} − L_k‖_A / ‖L_{k+1} − Lₑ‖_A` (area-weighted L2 over RGB) falls below the
 //! tolerance. The norm leaves out the emitters' own radiance `Lₑ`: a light 100 times brighter
 //! than the room would otherwise make the residual look converged long before the
@@ -303,4 +306,200 @@ pub fn solve(
     }
     sol.radiance = l;
     Ok(sol)
+}
+
+/// Krylov vectors kept before GMRES restarts (each N RGB doubles: 24 MB per million splats).
+pub const GMRES_RESTART: usize = 16;
+
+/// Restarted GMRES on the same equation, written for the reflected part `x = L − Lₑ`:
+/// `(I − ρ ∘ T) x = E − Lₑ`, one Krylov process per color channel, the three in lockstep so
+/// that each step costs one application of `T` (the FMM product) for all three. Inner products
+/// are area-weighted over the active splats, so the residual it reports,
+/// `‖b − (I − ρT) x‖_A / ‖b‖_A` over RGB, is the norm Jacobi reports (Jacobi's update
+/// `L_{k+1} − L_k` is exactly the residual of `L_k`), relative to the source instead of the
+/// solution, which is stricter. Radiosity's operator has a spectrum clustered near 0 with a
+/// few eigenvalues out to the scene's mean albedo, where Krylov methods converge much faster
+/// than Jacobi's fixed rate (docs/fmm.md). `restart` bounds the stored basis (`restart` + 1
+/// vectors of N RGB doubles).
+pub fn solve_gmres(
+    op: &mut dyn Operator,
+    sys: &System,
+    pts: &Points,
+    tolerance: f64,
+    max_iterations: u32,
+    restart: usize,
+    progress: &mut dyn FnMut(u32, f64),
+) -> Result<Solution, String> {
+    let n = sys.source.len();
+    let m = restart.max(1);
+    let emit = |i: usize, c: usize| sys.emission.get(i).map_or(0.0, |e| e[c]) as f64;
+    let weight: Vec<f64> = (0..n)
+        .map(|i| {
+            if pts.active[i] {
+                pts.area[i] as f64
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let b: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            if weight[i] == 0.0 {
+                return [0.0; 3];
+            }
+            std::array::from_fn(|c| sys.source[i][c] as f64 - emit(i, c))
+        })
+        .collect();
+    let dot = |u: &[[f64; 3]], v: &[[f64; 3]], c: usize| -> f64 {
+        (0..n).map(|i| weight[i] * u[i][c] * v[i][c]).sum()
+    };
+    // y = (I − ρT) v on the active splats.
+    let mut v32 = vec![[0.0f32; 3]; n];
+    let mut t = vec![[0.0f32; 3]; n];
+    let mut apply = |v: &[[f64; 3]], out: &mut Vec<[f64; 3]>| -> Result<(), String> {
+        for i in 0..n {
+            v32[i] = v[i].map(|x| x as f32);
+        }
+        op.apply(&v32, &mut t)?;
+        out.clear();
+        out.extend((0..n).map(|i| {
+            if weight[i] == 0.0 {
+                [0.0; 3]
+            } else {
+                std::array::from_fn(|c| v[i][c] - sys.albedo[i][c] as f64 * t[i][c] as f64)
+            }
+        }));
+        Ok(())
+    };
+    let b_norm = (0..3).map(|c| dot(&b, &b, c)).sum::<f64>().sqrt();
+    // x0 = 0, so the first cycle starts from r0 = b without a product; a restart costs one
+    // product more (not counted as an iteration: it adds no Krylov vector).
+    let mut x = vec![[0.0f64; 3]; n];
+    let mut sol = Solution::default();
+    let mut w = Vec::with_capacity(n);
+    let mut it = 0u32;
+    'outer: while it < max_iterations && b_norm > 0.0 {
+        let r0: Vec<[f64; 3]> = if it == 0 {
+            b.clone()
+        } else {
+            apply(&x, &mut w)?;
+            (0..n)
+                .map(|i| std::array::from_fn(|c| b[i][c] - w[i][c]))
+                .collect()
+        };
+        let mut basis: Vec<Vec<[f64; 3]>> = Vec::with_capacity(m + 1);
+        let beta: [f64; 3] = std::array::from_fn(|c| dot(&r0, &r0, c).sqrt());
+        let scale = beta.map(|s| if s > 0.0 { 1.0 / s } else { 0.0 });
+        basis.push(
+            r0.iter()
+                .map(|r| std::array::from_fn(|c| r[c] * scale[c]))
+                .collect(),
+        );
+        // Per channel: Hessenberg columns (rotated), Givens rotations, the rotated rhs g.
+        let mut h: Vec<[Vec<f64>; 3]> = vec![std::array::from_fn(|_| vec![0.0f64; m + 1]); m];
+        let mut rot = vec![[(1.0f64, 0.0f64); 3]; m];
+        let mut g: Vec<[f64; 3]> = vec![[0.0; 3]; m + 1];
+        g[0] = beta;
+        let mut k = 0;
+        while k < m && it < max_iterations {
+            apply(&basis[k], &mut w)?;
+            it += 1;
+            for c in 0..3 {
+                // Modified Gram-Schmidt.
+                for (j, v) in basis.iter().enumerate() {
+                    let hj = dot(&w, v, c);
+                    h[k][c][j] = hj;
+                    for i in 0..n {
+                        w[i][c] -= hj * v[i][c];
+                    }
+                }
+                h[k][c][k + 1] = dot(&w, &w, c).sqrt();
+            }
+            let next: Vec<[f64; 3]> = w
+                .iter()
+                .map(|x| {
+                    std::array::from_fn(|c| {
+                        let s = h[k][c][k + 1];
+                        if s > 0.0 {
+                            x[c] / s
+                        } else {
+                            0.0
+                        }
+                    })
+                })
+                .collect();
+            for c in 0..3 {
+                let col = &mut h[k][c];
+                for (j, r) in rot.iter().enumerate().take(k) {
+                    let (cs, sn) = r[c];
+                    let (a, bb) = (col[j], col[j + 1]);
+                    col[j] = cs * a + sn * bb;
+                    col[j + 1] = -sn * a + cs * bb;
+                }
+                let (a, bb) = (col[k], col[k + 1]);
+                let d = a.hypot(bb);
+                let (cs, sn) = if d > 0.0 { (a / d, bb / d) } else { (1.0, 0.0) };
+                rot[k][c] = (cs, sn);
+                col[k] = d;
+                col[k + 1] = 0.0;
+                g[k + 1][c] = -sn * g[k][c];
+                g[k][c] *= cs;
+            }
+            basis.push(next);
+            k += 1;
+            let r = (0..3).map(|c| g[k][c] * g[k][c]).sum::<f64>().sqrt() / b_norm;
+            sol.residuals.push(r);
+            progress(it, r);
+            if r < tolerance {
+                sol.converged = true;
+            }
+            if sol.converged || it == max_iterations {
+                update(&mut x, &basis, &h, &g, k);
+                break 'outer;
+            }
+        }
+        update(&mut x, &basis, &h, &g, k);
+    }
+    if b_norm == 0.0 {
+        sol.converged = true;
+    }
+    sol.radiance = (0..n)
+        .map(|i| {
+            if weight[i] == 0.0 {
+                sys.source[i]
+            } else {
+                std::array::from_fn(|c| (x[i][c] + emit(i, c)) as f32)
+            }
+        })
+        .collect();
+    Ok(sol)
+}
+
+/// `x += V y` with `y` solving the `k`×`k` upper triangular system `H y = g`, per channel.
+fn update(
+    x: &mut [[f64; 3]],
+    basis: &[Vec<[f64; 3]>],
+    h: &[[Vec<f64>; 3]],
+    g: &[[f64; 3]],
+    k: usize,
+) {
+    for c in 0..3 {
+        let mut y = vec![0.0f64; k];
+        for j in (0..k).rev() {
+            let mut s = g[j][c];
+            for l in j + 1..k {
+                s -= h[l][c][j] * y[l];
+            }
+            y[j] = if h[j][c][j] != 0.0 {
+                s / h[j][c][j]
+            } else {
+                0.0
+            };
+        }
+        for (j, yj) in y.iter().enumerate() {
+            for (xi, v) in x.iter_mut().zip(&basis[j]) {
+                xi[c] += yj * v[c];
+            }
+        }
+    }
 }

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use glam::Vec3;
+use pc_artifact::radiosity::Solver;
 use pc_artifact::radiosity::{sections, FmmParams, RadiosityMeta};
 use pc_artifact::vmap::{self as vs, Link};
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
@@ -28,6 +29,7 @@ pub fn params(cfg: &LoadedConfig) -> FmmParams {
         tolerance: f.tolerance,
         max_iterations: f.max_iterations,
         emitter_samples: f.emitter_samples,
+        solver: f.solver,
     }
 }
 
@@ -215,14 +217,26 @@ pub fn run(
 
     progress.phase("solve");
     let t = Instant::now();
-    let sol = solve::solve(
-        op.as_mut(),
-        &sys,
-        &pts,
-        p.tolerance as f64,
-        p.max_iterations,
-        &mut |it, r| progress.iteration(it, r),
-    )
+    let mut report = |it, r| progress.iteration(it, r);
+    let sol = match p.solver {
+        Solver::Gmres => solve::solve_gmres(
+            op.as_mut(),
+            &sys,
+            &pts,
+            p.tolerance as f64,
+            p.max_iterations,
+            solve::GMRES_RESTART,
+            &mut report,
+        ),
+        Solver::Jacobi => solve::solve(
+            op.as_mut(),
+            &sys,
+            &pts,
+            p.tolerance as f64,
+            p.max_iterations,
+            &mut report,
+        ),
+    }
     .map_err(|e| anyhow::anyhow!("FMM on {device}: {e}"))?;
     let solve_s = t.elapsed().as_secs_f64();
     timings.push(("solve".to_string(), solve_s));

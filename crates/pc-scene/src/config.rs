@@ -333,6 +333,8 @@ pub struct FmmConfig {
     pub max_iterations: u32,
     /// Shadow rays per splat for the direct light of the emitting splats (0: none).
     pub emitter_samples: u32,
+    /// The iterative method: "gmres" (default) or "jacobi".
+    pub solver: pc_artifact::radiosity::Solver,
     /// Where the FMM passes run.
     pub backend: Backend,
     /// Artifact file name inside `output.dir`.
@@ -348,6 +350,7 @@ impl Default for FmmConfig {
             tolerance: 1e-3,
             max_iterations: 200,
             emitter_samples: 64,
+            solver: pc_artifact::radiosity::Solver::Gmres,
             backend: Backend::Auto,
             file: PathBuf::from("radiosity.pcgi"),
         }
