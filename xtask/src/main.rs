@@ -265,30 +265,11 @@ fn bench(args: &[String]) -> Result<()> {
         return bench_caustics(&sizes, runs, write);
     }
     let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
-    let work = root().join("target/bench");
     let mut rows = Vec::new();
     let mut ray_rows = Vec::new();
     for &n in &sizes {
-        let scene = work.join(format!("cornell-{n}"));
-        if !scene.join("scene.toml").exists() {
-            run_checked(
-                Command::new(bin.join("pc-sample"))
-                    .args([
-                        "cornell",
-                        "--with-specular",
-                        "--points",
-                        &n.to_string(),
-                        "--out",
-                    ])
-                    .arg(&scene),
-                "pc-sample",
-            )?;
-        }
-        let config = scene.join("bench.toml");
-        std::fs::write(
-            &config,
-            "include = [\"scene.toml\"]\n[output]\ndir = \"out\"\n",
-        )?;
+        let config = bench_scene(&bin, n)?;
+        let scene = config.parent().unwrap().to_path_buf();
         // The octree the ray benchmark reads.
         if only.as_deref() == Some("rays") && !scene.join("out/octree.pcgi").exists() {
             run_checked(
