@@ -9,6 +9,7 @@ mod inspect;
 mod octree_cli;
 mod raytrace_cli;
 mod reference;
+mod run_cli;
 mod vmap_cli;
 
 use std::path::{Path, PathBuf};

@@ -28,13 +28,15 @@ macro_rules! args {
 }
 
 /// The packages whose binaries the tests run, and the binaries.
-const BIN_PACKAGES: [&str; 6] = [
+const BIN_PACKAGES: [&str; 8] = [
     "pc-octree",
     "pc-inspect",
     "pc-scene",
     "pc-raytrace",
     "pc-vmap",
     "pc-fmm",
+    "pc-caustics",
+    "pc-run",
 ];
 
 /// The workspace root (the folder of the root Cargo.toml).

@@ -11,7 +11,9 @@ const USAGE: &str = "\
 cargo xtask <command>
 
 commands:
-  run [--config FILE] [--set KEY=VALUE]...   run the pipeline's stages in order (release build)
+  run [--config FILE] [--set KEY=VALUE]... [--force STAGE|all]... [--from STAGE] [--until STAGE]
+                                             run the pipeline's stages in order (release build),
+                                             skipping the ones that are up to date (pc-run)
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
   reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
@@ -93,39 +95,20 @@ fn run_checked(cmd: &mut Command, what: &str) -> Result<()> {
     Ok(())
 }
 
+/// `cargo xtask run [pc-run options]`: build the stage binaries (release) and run pc-run,
+/// which runs the stages that are not up to date. The config defaults to the workspace's
+/// pipeline.toml.
 fn run(args: &[String]) -> Result<()> {
-    let mut config = root().join("pipeline.toml");
-    let mut sets = Vec::new();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--config" => config = PathBuf::from(it.next().context("--config needs a file")?),
-            "--set" => sets.push(it.next().context("--set needs KEY=VALUE")?.clone()),
-            other => bail!("run: unknown option `{other}`"),
-        }
+    let bin = build_release(&[STAGES, &["pc-run", "pc-inspect"]].concat())?;
+    let mut cmd = Command::new(bin.join("pc-run"));
+    if !args
+        .iter()
+        .any(|a| a == "--config" || a.starts_with("--config="))
+    {
+        cmd.arg("--config").arg(root().join("pipeline.toml"));
     }
-    if !config.exists() {
-        bail!("{}: no such config file", config.display());
-    }
-    let bin = build_release(&[STAGES, &["pc-inspect"]].concat())?;
-    let started = Instant::now();
-    let mut report = Vec::new();
-    for stage in STAGES {
-        let t = Instant::now();
-        let mut cmd = Command::new(bin.join(stage));
-        cmd.arg("--config").arg(&config);
-        for s in &sets {
-            cmd.args(["--set", s]);
-        }
-        run_checked(&mut cmd, stage)?;
-        report.push(format!("{stage} ran in {:.2} s", t.elapsed().as_secs_f64()));
-    }
-    println!(
-        "xtask run: {} (total {:.2} s)",
-        report.join(", "),
-        started.elapsed().as_secs_f64()
-    );
-    Ok(())
+    cmd.args(args);
+    run_checked(&mut cmd, "pc-run")
 }
 
 /// The reference comparison: reference config, every stage, then pc-compare.

@@ -6,6 +6,7 @@
 //! metadata, and a section table with a checksum per section. The byte layout is documented in
 //! [`container`].
 
+pub mod atomic;
 pub mod container;
 pub mod error;
 pub mod key;
@@ -15,6 +16,7 @@ pub mod photons;
 pub mod radiosity;
 pub mod vmap;
 
+pub use atomic::write_file_atomically;
 pub use container::{
     is_valid_section_name, Artifact, ArtifactWriter, HeaderInfo, SectionInfo, FORMAT_VERSION,
     HEADER_SIZE, MAGIC, MAX_SECTION_NAME, MAX_STAGE_NAME, MAX_STAGE_VERSION, SECTION_ALIGN,

@@ -42,6 +42,14 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let vmap = args.vmap.clone().unwrap_or_else(|| cfg.vmap_path());
     let out = args.output.clone().unwrap_or_else(|| cfg.photons_path());
     let backend = args.backend.unwrap_or(cfg.config.caustics.backend);
+    let key = pc_caustics::stage::key(&cfg, &octree, &vmap)
+        .with_context(|| format!("tracing the photons for {}", args.stage.config.display()))?;
+    let started = std::time::Instant::now();
+    let existing =
+        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Photons);
+    if args.stage.gate("pc-caustics", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+        return Ok(());
+    }
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
@@ -87,5 +95,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
         );
         std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?;
     }
-    Ok(())
+    args.stage.finish(
+        "pc-caustics",
+        "ran",
+        &s.path,
+        &key,
+        started.elapsed().as_secs_f64(),
+    )
 }

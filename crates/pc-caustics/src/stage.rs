@@ -244,8 +244,23 @@ pub fn run(
     })
 }
 
+/// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
+/// config (nothing is traced).
+pub fn key(cfg: &LoadedConfig, octree_path: &Path, vmap_path: &Path) -> anyhow::Result<Key> {
+    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
+        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
+    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
+        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
+    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
+    Ok(photons_key(&oct.key(), &vm.key(), &params(cfg), &materials))
+}
+
 /// The artifact key: stage, build, octree and V-map keys (the V-map key covers the lights),
-/// parameters and materials.
+/// parameters, and what of the materials a photon meets: every material's class, the
+/// specular ones whole and the emitters' radiance. A diffuse albedo is left out: photons
+/// stop at the first diffuse surface and store the power that arrives there, which the
+/// albedo does not change (pc-fmm and pc-raytrace apply it), so recoloring a wall does not
+/// retrace the photons.
 pub fn photons_key(
     octree: &Key,
     vmap: &Key,
@@ -258,7 +273,13 @@ pub fn photons_key(
         .update_key(&pc_artifact::build_id())
         .update_key(octree)
         .update_key(vmap)
-        .update_serialize(p)
-        .update(bytemuck::cast_slice(materials));
+        .update_serialize(p);
+    for m in materials {
+        let mut seen = *m;
+        if m.class == pc_artifact::octree::class::DIFFUSE {
+            seen.color = [0.0; 3];
+        }
+        h.update(bytemuck::bytes_of(&seen));
+    }
     h.finish()
 }

@@ -63,6 +63,14 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let out = args.output.clone().unwrap_or_else(|| cfg.radiosity_path());
     let photons = args.photons.clone().unwrap_or_else(|| cfg.photons_path());
     let backend = args.backend.unwrap_or(cfg.config.fmm.backend);
+    let key = pc_fmm::stage::key(&cfg, &octree, &vmap, &photons)
+        .with_context(|| format!("solving the radiosity for {}", args.stage.config.display()))?;
+    let started = std::time::Instant::now();
+    let existing =
+        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Radiosity);
+    if args.stage.gate("pc-fmm", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+        return Ok(());
+    }
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
@@ -101,5 +109,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
         s.seconds,
         m.device
     );
-    Ok(())
+    args.stage.finish(
+        "pc-fmm",
+        "ran",
+        &s.path,
+        &key,
+        started.elapsed().as_secs_f64(),
+    )
 }

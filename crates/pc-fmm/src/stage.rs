@@ -299,6 +299,34 @@ pub fn run(
     })
 }
 
+/// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
+/// config (nothing is solved). The photon map counts when it exists, as in [`run`].
+pub fn key(
+    cfg: &LoadedConfig,
+    octree_path: &Path,
+    vmap_path: &Path,
+    photons_path: &Path,
+) -> anyhow::Result<Key> {
+    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
+        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
+    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
+        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
+    let photons = if photons_path.exists() {
+        Some(Artifact::open_kind(photons_path, ArtifactKind::Photons)?.key())
+    } else {
+        None
+    };
+    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
+    Ok(radiosity_key(
+        &oct.key(),
+        &vm.key(),
+        photons.as_ref(),
+        &params(cfg),
+        &materials,
+        &cfg.light_records(),
+    ))
+}
+
 /// The artifact key: stage, build, octree and V-map keys, parameters, materials and lights.
 pub fn radiosity_key(
     octree: &Key,

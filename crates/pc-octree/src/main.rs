@@ -29,7 +29,14 @@ fn main() -> ExitCode {
 fn run(args: &Args) -> anyhow::Result<()> {
     let cfg = args.stage.load()?;
     let out = args.output.clone().unwrap_or_else(|| cfg.octree_path());
+    let key = pc_octree::stage::octree_key(&cfg)
+        .with_context(|| format!("building the octree for {}", args.stage.config.display()))?;
     let started = Instant::now();
+    let existing =
+        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Octree);
+    if args.stage.gate("pc-octree", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+        return Ok(());
+    }
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
@@ -83,7 +90,8 @@ fn run(args: &Args) -> anyhow::Result<()> {
         );
         std::fs::write(path, json).with_context(|| format!("writing {}", path.display()))?;
     }
-    Ok(())
+    args.stage
+        .finish("pc-octree", "ran", &summary.path, &key, secs)
 }
 
 /// Peak resident memory of this process (Linux: VmHWM in /proc/self/status).

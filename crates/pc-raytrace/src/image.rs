@@ -10,7 +10,7 @@
 //! folder, which is then renamed onto `<path>` (and removed if anything fails).
 
 use std::fs;
-use std::io::{Cursor, Write};
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::{
@@ -197,43 +197,47 @@ impl ImageError {
     }
 }
 
-/// `<path>.tmp`, next to `path`.
-fn tmp_path(path: &Path) -> Result<PathBuf, ImageError> {
-    let name = path
-        .file_name()
-        .ok_or_else(|| ImageError::format(path, "not a file path"))?;
-    let mut tmp_name = name.to_os_string();
-    tmp_name.push(".tmp");
-    Ok(path.with_file_name(tmp_name))
-}
-
 /// Writes `bytes` to `<path>.tmp` and renames it onto `path`, creating the parent folder.
 /// The temporary file is removed on failure.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
-    let io_err = |source| ImageError::Io {
+    pc_artifact::write_file_atomically(path, bytes).map_err(|source| ImageError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let tmp = tmp_path(path)?;
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        fs::create_dir_all(parent).map_err(io_err)?;
-    }
-    let result = (|| {
-        let mut file = fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        drop(file);
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(io_err(e));
-    }
-    Ok(())
+    })
 }
 
 /// Writes `img` as an OpenEXR file (see the module documentation for the layout).
 pub fn write_exr(path: &Path, img: &Image) -> Result<(), ImageError> {
+    write_exr_keyed(path, img, None)
+}
+
+/// The name of the EXR header attribute (text) that holds the key of the render: the stage's
+/// version, its parameters, the camera, and the keys of the artifacts it read.
+pub const KEY_ATTRIBUTE: &str = "pcgiKey";
+
+/// The key a render wrote into the EXR at `path` ([`KEY_ATTRIBUTE`]), when the file reads as a
+/// whole; `None` when it is missing, damaged or has no key.
+pub fn exr_key(path: &Path) -> Option<pc_artifact::Key> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).ok()?;
+    let header = meta.headers.first()?;
+    let value = header
+        .own_attributes
+        .other
+        .get(&exr::meta::attribute::Text::new_or_panic(KEY_ATTRIBUTE))?;
+    let exr::meta::attribute::AttributeValue::Text(text) = value else {
+        return None;
+    };
+    let key = pc_artifact::Key::from_hex(&text.to_string())?;
+    read_exr(path).ok()?;
+    Some(key)
+}
+
+/// [`write_exr`], with the render's key in the header ([`KEY_ATTRIBUTE`]) when given.
+pub fn write_exr_keyed(
+    path: &Path,
+    img: &Image,
+    key: Option<&pc_artifact::Key>,
+) -> Result<(), ImageError> {
     img.check_sizes().map_err(|m| ImageError::format(path, m))?;
     if img.width == 0 || img.height == 0 {
         return Err(ImageError::format(
@@ -272,9 +276,18 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), ImageError> {
 
     let size = (img.width as usize, img.height as usize);
     // ZIP16 compression, scan lines, increasing line order (y down), a single resolution level.
+    let mut attributes = LayerAttributes::default();
+    if let Some(key) = key {
+        attributes.other.insert(
+            exr::meta::attribute::Text::new_or_panic(KEY_ATTRIBUTE),
+            exr::meta::attribute::AttributeValue::Text(exr::meta::attribute::Text::new_or_panic(
+                key.to_string(),
+            )),
+        );
+    }
     let layer = Layer::new(
         size,
-        LayerAttributes::default(),
+        attributes,
         Encoding::SMALL_LOSSLESS,
         AnyChannels::sort(list),
     );

@@ -7,6 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
+use pc_scene::cli::Gate;
 use pc_scene::config::Backend;
 
 /// Ray trace the octree (primary and specular rays, diffuse shading, supersampling).
@@ -48,6 +49,16 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .unwrap_or_else(|| cfg.radiosity_path());
     let photons = args.photons.clone().unwrap_or_else(|| cfg.photons_path());
     let backend = args.backend.unwrap_or(cfg.config.raytrace.backend);
+    let key = pc_raytrace::stage::render_key(&cfg, &octree, &radiosity, &photons, backend)
+        .with_context(|| format!("rendering {}", args.stage.config.display()))?;
+    let started = std::time::Instant::now();
+    if args
+        .stage
+        .gate("pc-raytrace", &exr, &key, pc_raytrace::image::exr_key)?
+        == Gate::Done
+    {
+        return Ok(());
+    }
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
@@ -67,6 +78,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         &photons,
         &exr,
         backend,
+        Some(&key),
         &tick,
         &mut set_len,
     )
@@ -89,5 +101,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
         s.device_name,
         rate
     );
-    Ok(())
+    args.stage.finish(
+        "pc-raytrace",
+        "ran",
+        &exr,
+        &key,
+        started.elapsed().as_secs_f64(),
+    )
 }

@@ -5,14 +5,14 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use pc_artifact::radiosity::{sections as rs, RadiosityMeta};
-use pc_artifact::{Artifact, ArtifactKind};
+use pc_artifact::{Artifact, ArtifactKind, Key, KeyHasher};
 use pc_scene::camera::Camera;
 use pc_scene::config::ShadingMode;
 use pc_scene::config::{Backend, LoadedConfig};
 use pc_tree::OctreeView;
 
 use crate::cpu::RayCounts;
-use crate::image::{write_exr, write_png, Image};
+use crate::image::{write_exr_keyed, write_png, Image};
 use crate::scene::RenderScene;
 
 pub use pc_scene::cli::current_materials;
@@ -135,6 +135,52 @@ pub fn caustic_radius(rt: &pc_scene::config::RaytraceConfig, view: &pc_tree::Oct
     }
 }
 
+/// The producing stage's name and version (the render's key starts with them).
+pub const STAGE: &str = "pc-raytrace";
+pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// Whether a render of `cfg` reads the radiosity artifact at `radiosity_path`.
+fn reads_radiosity(cfg: &LoadedConfig, radiosity_path: &Path) -> bool {
+    cfg.config.raytrace.mode != ShadingMode::Direct && radiosity_path.exists()
+}
+
+/// The render's key, written into the EXR: this stage's version and build, the keys of the
+/// artifacts the render reads (octree; radiosity and photon map when it shows them), the
+/// materials, lights, camera and every `raytrace` parameter, and the backend asked for. It
+/// opens the input artifacts (validating them) but renders nothing.
+pub fn render_key(
+    cfg: &LoadedConfig,
+    octree_path: &Path,
+    radiosity_path: &Path,
+    photons_path: &Path,
+    backend: Backend,
+) -> anyhow::Result<Key> {
+    let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
+        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
+    let c = &cfg.config;
+    let mut h = KeyHasher::new();
+    h.update_str(STAGE)
+        .update_str(STAGE_VERSION)
+        .update_key(&pc_artifact::build_id())
+        .update_key(&art.key());
+    let input =
+        |path: &Path, kind| -> anyhow::Result<Key> { Ok(Artifact::open_kind(path, kind)?.key()) };
+    if reads_radiosity(cfg, radiosity_path) {
+        h.update_str("radiosity")
+            .update_key(&input(radiosity_path, ArtifactKind::Radiosity)?);
+    }
+    if photons_path.exists() {
+        h.update_str("photons")
+            .update_key(&input(photons_path, ArtifactKind::Photons)?);
+    }
+    h.update_serialize(&c.materials)
+        .update_serialize(&c.lights)
+        .update_serialize(&c.camera)
+        .update_serialize(&c.raytrace)
+        .update_serialize(&backend);
+    Ok(h.finish())
+}
+
 /// Render the config's camera view of the octree at `octree_path` and write the images.
 ///
 /// Shading: `stored` shows the radiosity artifact at `radiosity_path` when it exists (else the
@@ -147,6 +193,7 @@ pub fn run(
     photons_path: &Path,
     exr: &Path,
     backend: Backend,
+    key: Option<&Key>,
     tile_done: &(dyn Fn() + Sync),
     total_tiles: &mut dyn FnMut(u64),
 ) -> anyhow::Result<Summary> {
@@ -159,7 +206,7 @@ pub fn run(
     let mut rt = c.raytrace.clone();
     let radiance = match rt.mode {
         ShadingMode::Direct => None,
-        ShadingMode::Stored | ShadingMode::Auto if radiosity_path.exists() => {
+        ShadingMode::Stored | ShadingMode::Auto if reads_radiosity(cfg, radiosity_path) => {
             Some(load_radiosity(radiosity_path, &art)?)
         }
         ShadingMode::Stored | ShadingMode::Auto => None,
@@ -229,9 +276,10 @@ pub fn run(
         }
     };
     let seconds = t.elapsed().as_secs_f64();
-    write_exr(exr, &image)?;
+    // The PNG first: the EXR carries the key, so a run killed between the two is redone.
     let png = exr.with_extension("png");
     write_png(&png, &image, c.raytrace.exposure)?;
+    write_exr_keyed(exr, &image, key)?;
     Ok(Summary {
         mode: rt.mode,
         image,

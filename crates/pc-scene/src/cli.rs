@@ -1,8 +1,10 @@
 //! What every stage binary's command line shares: `--config`, `--set`, `--quiet`, loading the
 //! config, and mapping an error to its message and exit code 2 (ripgrep's convention).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+use pc_artifact::Key;
 
 use crate::config::{load_config, LoadedConfig};
 use crate::SceneError;
@@ -19,6 +21,26 @@ pub struct StageArgs {
     /// No progress display.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Print the key of what this run would make (hashed from the stage's version, its
+    /// parameters, the keys of its input artifacts and the content of its input files) and exit.
+    #[arg(long)]
+    pub print_key: bool,
+    /// Do nothing when the output exists, is intact and has that key already (up to date).
+    #[arg(long)]
+    pub if_stale: bool,
+    /// Also write what happened as JSON: stage, status ("ran" or "up to date"), output, key,
+    /// seconds.
+    #[arg(long, value_name = "FILE")]
+    pub report: Option<PathBuf>,
+}
+
+/// What a stage binary does after [`StageArgs::gate`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Gate {
+    /// Do the work.
+    Run,
+    /// Nothing to do: the key was printed, or the output is up to date.
+    Done,
 }
 
 impl StageArgs {
@@ -26,6 +48,58 @@ impl StageArgs {
     pub fn load(&self) -> Result<LoadedConfig, SceneError> {
         load_config(&self.config, &self.set)
     }
+
+    /// Before the work: `--print-key` prints `key` and is done; `--if-stale` is done when
+    /// `existing(output)` (the key of the output already there, `None` when it is missing or
+    /// damaged) equals `key`, and says so.
+    pub fn gate(
+        &self,
+        stage: &str,
+        output: &Path,
+        key: &Key,
+        existing: impl FnOnce(&Path) -> Option<Key>,
+    ) -> anyhow::Result<Gate> {
+        if self.print_key {
+            println!("{key}");
+            return Ok(Gate::Done);
+        }
+        if self.if_stale && existing(output).as_ref() == Some(key) {
+            println!("{stage}: {} is up to date (key {key})", output.display());
+            self.finish(stage, "up to date", output, key, 0.0)?;
+            return Ok(Gate::Done);
+        }
+        Ok(Gate::Run)
+    }
+
+    /// After the work (or when up to date): write the `--report` JSON, if asked for.
+    pub fn finish(
+        &self,
+        stage: &str,
+        status: &str,
+        output: &Path,
+        key: &Key,
+        seconds: f64,
+    ) -> anyhow::Result<()> {
+        let Some(path) = &self.report else {
+            return Ok(());
+        };
+        let json = serde_json::json!({
+            "stage": stage,
+            "status": status,
+            "output": output.display().to_string(),
+            "key": key.to_string(),
+            "seconds": seconds,
+        });
+        pc_artifact::write_file_atomically(path, format!("{json}\n").as_bytes())
+            .map_err(|e| anyhow::anyhow!("{}: cannot write the report: {e}", path.display()))
+    }
+}
+
+/// The key of the artifact at `path` when it opens as a valid artifact of `kind`, else `None`.
+pub fn artifact_key(path: &Path, kind: pc_artifact::ArtifactKind) -> Option<Key> {
+    pc_artifact::Artifact::open_kind(path, kind)
+        .ok()
+        .map(|a| a.key())
 }
 
 /// Run a stage's body: on error print `NAME: error: <chain>` to stderr and exit with 2.

@@ -35,6 +35,14 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
     let out = args.output.clone().unwrap_or_else(|| cfg.vmap_path());
     let backend = args.backend.unwrap_or(cfg.config.vmap.backend);
+    let key = pc_vmap::stage::key(&cfg, &octree)
+        .with_context(|| format!("computing the V-map for {}", args.stage.config.display()))?;
+    let started = std::time::Instant::now();
+    let existing =
+        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Vmap);
+    if args.stage.gate("pc-vmap", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+        return Ok(());
+    }
     let bar = if args.stage.quiet {
         ProgressBar::hidden()
     } else {
@@ -63,5 +71,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
         s.seconds,
         m.device
     );
-    Ok(())
+    args.stage.finish(
+        "pc-vmap",
+        "ran",
+        &s.path,
+        &key,
+        started.elapsed().as_secs_f64(),
+    )
 }

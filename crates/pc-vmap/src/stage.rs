@@ -57,6 +57,15 @@ pub struct Summary {
     pub seconds: f64,
 }
 
+/// The key a run on `cfg` would give its artifact, from the octree artifact's header (nothing
+/// is computed): [`vmap_key`] of [`links_key`] and the lights.
+pub fn key(cfg: &LoadedConfig, octree_path: &Path) -> anyhow::Result<Key> {
+    let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
+        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
+    let lkey = links_key(&art.key(), &params(cfg));
+    Ok(vmap_key(&lkey, &cfg.light_records()))
+}
+
 /// The link sections of a previous artifact whose links key matches, if any.
 struct Reused {
     offsets: Vec<u32>,
