@@ -89,10 +89,35 @@ fn reference_cornell_render_matches_mitsuba_within_3_percent() {
     let cfg = tmp.path().join("cornell.toml");
     let text = pc_raytrace::reference::config_toml(&dir).unwrap();
     std::fs::write(&cfg, text).unwrap();
-    for stage in ["pc-octree", "pc-vmap", "pc-fmm", "pc-raytrace"] {
-        run(stage, args!["--config", cfg, "--quiet"]).success();
-    }
+    run("pc-run", args!["--config", cfg, "--quiet"]).success();
     let image = tmp.path().join("image.exr");
+    // The validation command (`cargo xtask compare IMAGE REFERENCE --regions FILE` runs it).
+    let diff = tmp.path().join("diff.png");
+    let out = run(
+        "pc-compare",
+        args![
+            &image,
+            dir.join("cornell.exr"),
+            "--regions",
+            dir.join("cornell.stats.json"),
+            "--diff",
+            &diff,
+            "--max-region-error",
+            "0.03"
+        ],
+    )
+    .success();
+    println!("{}", out.stdout);
+    assert!(out.stdout.contains("relative RMSE"), "{out:?}");
+    assert!(out.stdout.contains("pc-compare: 10 regions"), "{out:?}");
+    let png = std::fs::read(&diff).unwrap();
+    assert_eq!(&png[1..4], b"PNG", "{}", diff.display());
+    let size = |at: usize| u32::from_be_bytes(png[at..at + 4].try_into().unwrap());
+    assert_eq!(
+        (size(16), size(20)),
+        (256, 256),
+        "the IHDR of the difference image"
+    );
     let ours = pc_raytrace::image::read_exr(&image).unwrap();
     let (report, _) = pc_raytrace::reference::compare(&ours, &dir).unwrap();
     println!("{}", report.table());

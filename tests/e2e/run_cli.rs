@@ -262,3 +262,80 @@ fn a_killed_stage_leaves_its_previous_output_and_the_next_run_redoes_it() {
     assert_ne!(keys(&r)["pc-raytrace"], keys(&first)["pc-raytrace"]);
     assert_ne!(std::fs::read(&image).unwrap(), bytes);
 }
+
+#[test]
+fn a_walkthrough_renders_numbered_frames_on_the_cached_solution() {
+    let dir = temp_dir();
+    let cfg = scene(dir.path());
+    pc_run(&cfg, &[]);
+    let out = dir.path().join("out");
+    let mut backends = vec!["cpu"];
+    if pc_gpu::test_context().is_some() {
+        backends.push("gpu");
+    }
+    for backend in backends {
+        // The single image on this backend, and a three-frame orbit whose middle frame is the
+        // config's camera.
+        let single = out.join(format!("single-{backend}.exr"));
+        run(
+            "pc-raytrace",
+            args![
+                "--quiet",
+                "--config",
+                &cfg,
+                "--backend",
+                backend,
+                "-o",
+                &single
+            ],
+        )
+        .success();
+        let frames = out.join(format!("walk-{backend}"));
+        let stats = out.join(format!("walk-{backend}.json"));
+        let o = run(
+            "pc-raytrace",
+            args![
+                "--quiet",
+                "--config",
+                &cfg,
+                "--backend",
+                backend,
+                "--frames",
+                "3",
+                "--frames-dir",
+                &frames,
+                "--stats-json",
+                &stats
+            ],
+        )
+        .success();
+        assert!(
+            o.stdout.contains("wrote 3 frames") && o.stdout.contains("frames/s"),
+            "{o:?}"
+        );
+        let names = pcgi_tests::files_under(&frames);
+        assert_eq!(
+            names,
+            ["frame_00000.png", "frame_00001.png", "frame_00002.png"].map(PathBuf::from),
+            "{backend}"
+        );
+        let read = |n: &str| std::fs::read(frames.join(n)).unwrap();
+        assert_eq!(
+            read("frame_00001.png"),
+            std::fs::read(single.with_extension("png")).unwrap(),
+            "{backend}: the middle frame is the config's view"
+        );
+        assert_ne!(read("frame_00000.png"), read("frame_00001.png"));
+        assert_ne!(read("frame_00002.png"), read("frame_00001.png"));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        assert_eq!(json["frames"], 3);
+        assert_eq!(json["gpu"], backend == "gpu");
+        assert!(json["frames_per_second"].as_f64().unwrap() > 0.0);
+    }
+    run(
+        "pc-raytrace",
+        args!["--quiet", "--config", &cfg, "--frames", "0"],
+    )
+    .error(&["a walkthrough needs at least one frame"]);
+}

@@ -3,7 +3,6 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
-use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 
@@ -17,9 +16,17 @@ commands:
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
   reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
-  compare [--set KEY=VALUE]...               render ../shared/reference/cornell's points through the
-                                             whole chain and compare with Mitsuba's image (region
-                                             means, relative RMSE, out/reference/image.diff.png)
+  compare IMAGE.exr REFERENCE.exr [--regions FILE] [--diff PNG]
+                                             relative RMSE, per-region means (regions: JSON with
+                                             rects, as *.stats.json) and a difference image
+  compare [--set KEY=VALUE]...               with no image: render ../shared/reference/cornell's
+                                             points through the whole chain and compare with
+                                             Mitsuba's image (out/reference/image.diff.png)
+  walkthrough [--frames N] [--orbit DEG] [--config FILE] [--set KEY=VALUE]...
+                                             bring the solution up to date (pc-run), then render
+                                             N frames (default 60) of a camera orbit on it as
+                                             out/<scene>/walkthrough-{cpu,gpu}/frame_NNNNN.png,
+                                             and report frames per second on the CPU and the GPU
   bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics] [--write]
                                              octree build and ray traversal benchmarks; with
                                              --only caustics, photon tracing at about 1M photons
@@ -54,6 +61,7 @@ fn dispatch(args: &[String]) -> Result<()> {
         Some("reference-config") => reference_config(&args[1..]),
         Some("compare") => compare(&args[1..]),
         Some("bench") => bench(&args[1..]),
+        Some("walkthrough") => walkthrough(&args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{USAGE}");
             Ok(())
@@ -111,8 +119,93 @@ fn run(args: &[String]) -> Result<()> {
     run_checked(&mut cmd, "pc-run")
 }
 
-/// The reference comparison: reference config, every stage, then pc-compare.
+/// `cargo xtask walkthrough`: pc-run, then pc-raytrace --frames on the CPU and on the GPU.
+fn walkthrough(args: &[String]) -> Result<()> {
+    let mut frames = "60".to_string();
+    let mut orbit = None;
+    let mut config = root().join("pipeline.toml");
+    let mut sets = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--frames" => frames = it.next().context("--frames needs a count")?.clone(),
+            "--orbit" => orbit = Some(it.next().context("--orbit needs degrees")?.clone()),
+            "--config" => config = PathBuf::from(it.next().context("--config needs a file")?),
+            "--set" => sets.push(it.next().context("--set needs KEY=VALUE")?.clone()),
+            other => bail!("walkthrough: unknown option `{other}`"),
+        }
+    }
+    let mut run_args = vec!["--config".to_string(), config.display().to_string()];
+    for s in &sets {
+        run_args.extend(["--set".to_string(), s.clone()]);
+    }
+    run(&run_args)?;
+    let bin = build_release(&["pc-raytrace"])?;
+    let stats_dir = tempfile::tempdir().context("making a temporary folder")?;
+    let mut lines = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let stats = stats_dir.path().join(format!("{backend}.json"));
+        let mut cmd = Command::new(bin.join("pc-raytrace"));
+        cmd.args(&run_args)
+            .args(["--backend", backend, "--frames", &frames, "--stats-json"])
+            .arg(&stats);
+        if let Some(o) = &orbit {
+            cmd.args(["--orbit", o]);
+        }
+        let out_dir = walkthrough_dir(&config, backend)?;
+        cmd.arg("--frames-dir").arg(&out_dir);
+        let status = cmd.status().context("starting pc-raytrace")?;
+        if !status.success() {
+            if backend == "gpu" {
+                lines.push("GPU: none usable here (pc-raytrace --backend gpu failed)".to_string());
+                continue;
+            }
+            bail!("pc-raytrace --frames failed ({status})");
+        }
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats)?)?;
+        lines.push(format!(
+            "{}: {:.2} frames/s on {} ({} frames {}x{} at {} spp in {}; PNG writing excluded)",
+            backend.to_uppercase(),
+            json["frames_per_second"].as_f64().unwrap_or(0.0),
+            json["device"].as_str().unwrap_or("?"),
+            json["frames"],
+            json["width"],
+            json["height"],
+            json["spp"],
+            out_dir.display()
+        ));
+    }
+    println!("xtask walkthrough:\n  {}", lines.join("\n  "));
+    Ok(())
+}
+
+/// `<output.dir>/walkthrough-<backend>` of a config (the output folder read from its
+/// `[output] dir`, relative to the config's folder; `out` when unset).
+fn walkthrough_dir(config: &Path, backend: &str) -> Result<PathBuf> {
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("{}: cannot read", config.display()))?;
+    let value: toml::Value =
+        toml::from_str(&text).with_context(|| format!("{}: not TOML", config.display()))?;
+    let dir = value
+        .get("output")
+        .and_then(|o| o.get("dir"))
+        .and_then(|d| d.as_str())
+        .unwrap_or("out");
+    let base = config.parent().unwrap_or(Path::new("."));
+    Ok(base.join(dir).join(format!("walkthrough-{backend}")))
+}
+
+/// `cargo xtask compare IMAGE.exr REFERENCE.exr [--regions FILE] [pc-compare options]`
+/// compares two renders; with no image, the reference comparison: reference config, every
+/// stage, then pc-compare against ../shared/reference/cornell.
 fn compare(args: &[String]) -> Result<()> {
+    if args.first().is_some_and(|a| !a.starts_with('-')) {
+        let bin = build_release(&["pc-compare"])?;
+        return run_checked(
+            Command::new(bin.join("pc-compare")).args(args),
+            "pc-compare",
+        );
+    }
     let mut sets = Vec::new();
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -129,11 +222,13 @@ fn compare(args: &[String]) -> Result<()> {
     }
     run(&run_args)?;
     let bin = build_release(&["pc-compare"])?;
+    let reference = root().join("../shared/reference/cornell");
     run_checked(
         Command::new(bin.join("pc-compare"))
             .arg(root().join("out/reference/image.exr"))
-            .arg("--reference")
-            .arg(root().join("../shared/reference/cornell")),
+            .arg(reference.join("cornell.exr"))
+            .arg("--regions")
+            .arg(reference.join("cornell.stats.json")),
         "pc-compare",
     )
 }

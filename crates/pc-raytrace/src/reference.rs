@@ -1,8 +1,9 @@
-//! Comparison of a render with a reference render (`../shared/reference/<scene>`: an EXR and a
-//! `*.stats.json` of pixel regions with their mean RGB). Used by `pc-compare`,
+//! Comparison of a render with a reference render (two EXRs, and optionally a JSON file of
+//! pixel regions such as `../shared/reference/<scene>/*.stats.json`). Used by `pc-compare`,
 //! `cargo xtask compare` and the end-to-end reference test.
 //!
-//! Per region: our mean RGB over the region's pixels against the reference mean, as the
+//! Per region: our mean RGB over the region's pixels against the reference's mean over the
+//! same pixels, as the
 //! relative error of each channel and as `‖ours − ref‖₁ / ‖ref‖₁` over RGB (the figure the
 //! 3 % target is about: tiny channels, such as the red wall's green, cannot blow it up).
 //! Whole image: `rel_rmse = sqrt(Σ (o − r)² / Σ r²)` over every pixel and channel.
@@ -118,76 +119,119 @@ pub fn stats_file(dir: &Path) -> anyhow::Result<PathBuf> {
     }
 }
 
-/// Compare `ours` with the reference in `dir` (its stats JSON and the EXR it names).
+/// Compare `ours` with the reference in `dir` (its stats JSON, and the EXR it names, over the
+/// stats' regions).
 pub fn compare(ours: &Image, dir: &Path) -> anyhow::Result<(Report, Image)> {
     let stats_path = stats_file(dir)?;
-    let stats: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&stats_path)
-            .with_context(|| format!("{}: cannot read", stats_path.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", stats_path.display()))?;
+    let stats = read_json(&stats_path)?;
     let exr_name = stats["image"]
         .as_str()
         .with_context(|| format!("{}: no `image`", stats_path.display()))?;
     let exr = dir.join(exr_name);
     let reference = read_exr(&exr)?;
+    let report = compare_images(ours, &reference, &exr, Some(&stats_path))?;
+    Ok((report, reference))
+}
+
+fn read_json(path: &Path) -> anyhow::Result<serde_json::Value> {
+    serde_json::from_str(
+        &std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))?,
+    )
+    .with_context(|| format!("{}: not JSON", path.display()))
+}
+
+/// The regions of a regions file: a JSON object whose `regions` maps each name to
+/// `{"rect": [x0, y0, x1, y1], "description": "..."}` (pixels from the top left, `[x0, x1) ×
+/// [y0, y1)`), as the reference's `*.stats.json` does; other keys are ignored.
+pub fn read_regions(
+    path: &Path,
+    width: u32,
+    height: u32,
+) -> anyhow::Result<Vec<(String, String, [u32; 4])>> {
+    let json = read_json(path)?;
+    let regions = json["regions"]
+        .as_object()
+        .with_context(|| format!("{}: no `regions` object", path.display()))?;
+    let mut out = Vec::new();
+    for (name, r) in regions {
+        let rect: Vec<u32> = r["rect"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|v| v.as_u64().and_then(|x| u32::try_from(x).ok()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        if rect.len() != 4 || rect[0] >= rect[2] || rect[1] >= rect[3] {
+            bail!(
+                "{}: region `{name}` needs a rect [x0, y0, x1, y1] with x0 < x1 and y0 < y1",
+                path.display()
+            );
+        }
+        if rect[2] > width || rect[3] > height {
+            bail!(
+                "{}: region `{name}` ({rect:?}) reaches outside the {width}x{height} image",
+                path.display()
+            );
+        }
+        let description = r["description"].as_str().unwrap_or("").to_string();
+        out.push((
+            name.clone(),
+            description,
+            [rect[0], rect[1], rect[2], rect[3]],
+        ));
+    }
+    Ok(out)
+}
+
+/// The mean RGB of `img` over `rect` ([x0, y0, x1, y1)).
+fn region_mean(img: &Image, rect: [u32; 4]) -> [f64; 3] {
+    let mut sum = [0.0f64; 3];
+    for y in rect[1]..rect[3] {
+        for x in rect[0]..rect[2] {
+            let p = img.get(x, y);
+            for c in 0..3 {
+                sum[c] += p[c] as f64;
+            }
+        }
+    }
+    let n = ((rect[2] - rect[0]) * (rect[3] - rect[1])) as f64;
+    sum.map(|s| s / n)
+}
+
+/// Compare `ours` with `reference` (read from `reference_path`, named in the report): the
+/// relative RMSE over the whole image, and the mean of both images over each region of the
+/// `regions` file when given.
+pub fn compare_images(
+    ours: &Image,
+    reference: &Image,
+    reference_path: &Path,
+    regions: Option<&Path>,
+) -> anyhow::Result<Report> {
     if (reference.width, reference.height) != (ours.width, ours.height) {
         bail!(
             "{}: the reference is {}x{}, the render {}x{}: render at the reference's size",
-            exr.display(),
+            reference_path.display(),
             reference.width,
             reference.height,
             ours.width,
             ours.height
         );
     }
-    let regions_json = stats["regions"]
-        .as_object()
-        .with_context(|| format!("{}: no `regions`", stats_path.display()))?;
-    let mut regions = Vec::new();
-    for (name, r) in regions_json {
-        let rect: Vec<u32> = r["rect"]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .filter_map(|v| v.as_u64().map(|x| x as u32))
-                    .collect()
+    let regions = match regions {
+        Some(path) => read_regions(path, ours.width, ours.height)?
+            .into_iter()
+            .map(|(name, description, rect)| Region {
+                name,
+                description,
+                rect,
+                reference: region_mean(reference, rect),
+                ours: region_mean(ours, rect),
             })
-            .unwrap_or_default();
-        let mean: Vec<f64> = r["mean_rgb"]
-            .as_array()
-            .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
-            .unwrap_or_default();
-        if rect.len() != 4
-            || mean.len() != 3
-            || rect[0] >= rect[2]
-            || rect[1] >= rect[3]
-            || rect[2] > ours.width
-            || rect[3] > ours.height
-        {
-            bail!(
-                "{}: region `{name}` has a bad rect or mean_rgb",
-                stats_path.display()
-            );
-        }
-        let mut sum = [0.0f64; 3];
-        for y in rect[1]..rect[3] {
-            for x in rect[0]..rect[2] {
-                let p = ours.get(x, y);
-                for c in 0..3 {
-                    sum[c] += p[c] as f64;
-                }
-            }
-        }
-        let n = ((rect[2] - rect[0]) * (rect[3] - rect[1])) as f64;
-        regions.push(Region {
-            name: name.clone(),
-            description: r["description"].as_str().unwrap_or("").to_string(),
-            rect: [rect[0], rect[1], rect[2], rect[3]],
-            reference: [mean[0], mean[1], mean[2]],
-            ours: sum.map(|s| s / n),
-        });
-    }
+            .collect(),
+        None => Vec::new(),
+    };
     let (mut d2, mut r2) = (0.0f64, 0.0f64);
     for (o, r) in ours.rgb.iter().zip(&reference.rgb) {
         for c in 0..3 {
@@ -195,14 +239,13 @@ pub fn compare(ours: &Image, dir: &Path) -> anyhow::Result<(Report, Image)> {
             r2 += (r[c] as f64).powi(2);
         }
     }
-    let report = Report {
-        reference_exr: exr,
+    Ok(Report {
+        reference_exr: reference_path.to_path_buf(),
         regions,
         rel_rmse: (d2 / r2.max(1e-300)).sqrt(),
         mean_ours: ours.mean(),
         mean_reference: reference.mean(),
-    };
-    Ok((report, reference))
+    })
 }
 
 /// A pipeline config that renders the reference scene in `dir` (`../shared/reference/cornell`)

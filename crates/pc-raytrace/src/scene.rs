@@ -191,6 +191,19 @@ impl<'a> RenderScene<'a> {
         }
     }
 
+    /// Look through `camera` from now on (its size included).
+    pub fn set_camera(&mut self, camera: &Camera) {
+        let p = &mut self.params;
+        p.cam_origin = camera.origin.into();
+        p.cam_forward = camera.forward.into();
+        p.cam_right = camera.right.into();
+        p.cam_up = camera.up.into();
+        p.tan_half = [camera.tan_half.0, camera.tan_half.1];
+        p.width = camera.width;
+        p.height = camera.height;
+        p.rows = camera.height;
+    }
+
     /// Show this per-splat radiance at diffuse hits (one RGB per data-pool splat).
     pub fn set_radiance(&mut self, radiance: &[[f32; 3]]) {
         self.radiance = Some(radiance.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect());

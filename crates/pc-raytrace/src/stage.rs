@@ -181,22 +181,19 @@ pub fn render_key(
     Ok(h.finish())
 }
 
-/// Render the config's camera view of the octree at `octree_path` and write the images.
+/// The render scene of `cfg` (octree, materials, lights, camera, and the radiosity and photon
+/// map it shows), handed to `f` with the shading mode (`auto` resolved); the artifacts stay
+/// mapped while `f` runs.
 ///
 /// Shading: `stored` shows the radiosity artifact at `radiosity_path` when it exists (else the
 /// materials' emission alone); `auto` is `stored` when it exists and `direct` otherwise.
-#[allow(clippy::too_many_arguments)]
-pub fn run(
+pub fn with_scene<R>(
     cfg: &LoadedConfig,
     octree_path: &Path,
     radiosity_path: &Path,
     photons_path: &Path,
-    exr: &Path,
-    backend: Backend,
-    key: Option<&Key>,
-    tile_done: &(dyn Fn() + Sync),
-    total_tiles: &mut dyn FnMut(u64),
-) -> anyhow::Result<Summary> {
+    f: impl FnOnce(&mut RenderScene, ShadingMode) -> anyhow::Result<R>,
+) -> anyhow::Result<R> {
     let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
         .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
     let view = OctreeView::from_artifact(&art)?;
@@ -235,60 +232,219 @@ pub fn run(
             sc.caustics = Some(c);
         }
     }
-    let gpu = match backend {
-        Backend::Cpu => None,
-        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
-        // `auto` means a real GPU: a software rasterizer (llvmpipe) is slower than the CPU path.
-        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
-    };
-    let t = Instant::now();
-    // With `auto`, a GPU that cannot take the scene (too large for its buffers, too few
-    // bindings) falls back to the CPU with a warning; with `gpu` it is an error.
-    let gpu_image = match &gpu {
-        Some(ctx) => match crate::gpu::render::GpuRenderer::new(ctx, &sc)
-            .and_then(|r| r.render(ctx, &sc, c.raytrace.aovs))
-        {
-            Ok(img) => Some((img, ctx.describe())),
-            Err(e) if backend == Backend::Auto => {
-                eprintln!(
-                    "pc-raytrace: warning: rendering on the CPU: the GPU {} cannot: {e}",
-                    ctx.describe()
-                );
-                None
-            }
-            Err(e) => return Err(e.into()),
-        },
-        None => None,
-    };
-    let (image, device, device_name, counts) = match gpu_image {
-        Some((img, name)) => (img, Device::Gpu, name, None),
-        None => {
+    f(&mut sc, rt.mode)
+}
+
+/// Renders frames of one scene on the backend asked for, keeping the GPU's buffers between
+/// frames. With `auto`, a GPU that cannot take the scene (too large for its buffers, too few
+/// bindings) falls back to the CPU with a warning; with `gpu` it is an error.
+pub struct Renderer {
+    gpu: Option<(pc_gpu::GpuContext, crate::gpu::render::GpuRenderer)>,
+}
+
+impl Renderer {
+    pub fn new(sc: &mut RenderScene, backend: Backend) -> anyhow::Result<Renderer> {
+        let ctx = match backend {
+            Backend::Cpu => None,
+            Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
+            // `auto` means a real GPU: a software rasterizer (llvmpipe) is slower than the CPU.
+            Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
+        };
+        let gpu = match ctx {
+            Some(ctx) => match crate::gpu::render::GpuRenderer::new(&ctx, sc) {
+                Ok(r) => Some((ctx, r)),
+                Err(e) if backend == Backend::Auto => {
+                    eprintln!(
+                        "pc-raytrace: warning: rendering on the CPU: the GPU {} cannot: {e}",
+                        ctx.describe()
+                    );
+                    None
+                }
+                Err(e) => return Err(e.into()),
+            },
+            None => None,
+        };
+        if gpu.is_none() {
             sc.prepare_cpu();
-            let w = sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64;
-            total_tiles(w);
-            let (img, counts) = crate::cpu::render(&sc, c.raytrace.aovs, tile_done);
-            (
-                img,
-                Device::Cpu,
-                format!("CPU, {} threads", rayon::current_num_threads()),
-                Some(counts),
-            )
         }
-    };
-    let seconds = t.elapsed().as_secs_f64();
+        Ok(Renderer { gpu })
+    }
+
+    /// Which device renders.
+    pub fn device(&self) -> Device {
+        if self.gpu.is_some() {
+            Device::Gpu
+        } else {
+            Device::Cpu
+        }
+    }
+
+    /// The device, in words.
+    pub fn device_name(&self) -> String {
+        match &self.gpu {
+            Some((ctx, _)) => ctx.describe(),
+            None => format!("CPU, {} threads", rayon::current_num_threads()),
+        }
+    }
+
+    /// Render the scene's camera view (ray counts on the CPU only).
+    pub fn render(
+        &self,
+        sc: &RenderScene,
+        aovs: bool,
+        tile_done: &(dyn Fn() + Sync),
+    ) -> anyhow::Result<(Image, Option<RayCounts>)> {
+        match &self.gpu {
+            Some((ctx, r)) => Ok((r.render(ctx, sc, aovs)?, None)),
+            None => {
+                let (img, counts) = crate::cpu::render(sc, aovs, tile_done);
+                Ok((img, Some(counts)))
+            }
+        }
+    }
+}
+
+/// Render the config's camera view of the octree at `octree_path` and write the images, the
+/// EXR carrying `key` (see [`with_scene`] for the shading).
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    cfg: &LoadedConfig,
+    octree_path: &Path,
+    radiosity_path: &Path,
+    photons_path: &Path,
+    exr: &Path,
+    backend: Backend,
+    key: Option<&Key>,
+    tile_done: &(dyn Fn() + Sync),
+    total_tiles: &mut dyn FnMut(u64),
+) -> anyhow::Result<Summary> {
+    let c = &cfg.config;
+    let (mode, image, device, device_name, seconds, counts, caustics) = with_scene(
+        cfg,
+        octree_path,
+        radiosity_path,
+        photons_path,
+        |sc, mode| {
+            let t = Instant::now();
+            let renderer = Renderer::new(sc, backend)?;
+            if renderer.device() == Device::Cpu {
+                total_tiles(
+                    sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64,
+                );
+            }
+            let (image, counts) = renderer.render(sc, c.raytrace.aovs, tile_done)?;
+            Ok((
+                mode,
+                image,
+                renderer.device(),
+                renderer.device_name(),
+                t.elapsed().as_secs_f64(),
+                counts,
+                sc.caustics.is_some(),
+            ))
+        },
+    )?;
     // The PNG first: the EXR carries the key, so a run killed between the two is redone.
     let png = exr.with_extension("png");
     write_png(&png, &image, c.raytrace.exposure)?;
     write_exr_keyed(exr, &image, key)?;
     Ok(Summary {
-        mode: rt.mode,
+        mode,
         image,
         device,
         device_name,
         seconds,
         counts,
-        caustics: sc.caustics.is_some(),
+        caustics,
         exr: exr.to_path_buf(),
         png,
+    })
+}
+
+/// The camera of frame `i` of `frames` on the walkthrough path: the config's camera orbiting
+/// its target about its up axis, from −`orbit_deg`/2 to +`orbit_deg`/2, at the same distance
+/// and field of view (the seed's interactive walkthrough, §10, as a fixed path).
+pub fn walkthrough_camera(
+    base: &pc_scene::config::CameraConfig,
+    i: usize,
+    frames: usize,
+    orbit_deg: f32,
+) -> pc_scene::config::CameraConfig {
+    use glam::{Quat, Vec3};
+    let t = if frames > 1 {
+        i as f32 / (frames - 1) as f32
+    } else {
+        0.5
+    };
+    let angle = (t - 0.5) * orbit_deg.to_radians();
+    let target = Vec3::from(base.target);
+    let up = Vec3::from(base.up).normalize_or_zero();
+    let offset = Vec3::from(base.origin) - target;
+    let origin = target + Quat::from_axis_angle(up, angle) * offset;
+    pc_scene::config::CameraConfig {
+        origin: origin.into(),
+        ..base.clone()
+    }
+}
+
+/// What a walkthrough made.
+pub struct Walkthrough {
+    pub frames: Vec<PathBuf>,
+    pub device: Device,
+    pub device_name: String,
+    /// Time spent rendering the frames (loading and GPU setup excluded).
+    pub render_seconds: f64,
+    /// Time spent writing the PNGs.
+    pub write_seconds: f64,
+    /// Loading the artifacts and setting up the renderer.
+    pub setup_seconds: f64,
+}
+
+/// Render `frames` frames along [`walkthrough_camera`]'s path on the cached solution (the
+/// artifacts are loaded once; the GPU keeps its buffers between frames) into
+/// `dir/frame_00000.png`, ... (each written atomically); `frame_done` hears of each frame.
+#[allow(clippy::too_many_arguments)]
+pub fn walkthrough(
+    cfg: &LoadedConfig,
+    octree_path: &Path,
+    radiosity_path: &Path,
+    photons_path: &Path,
+    dir: &Path,
+    frames: usize,
+    orbit_deg: f32,
+    backend: Backend,
+    frame_done: &mut dyn FnMut(usize),
+) -> anyhow::Result<Walkthrough> {
+    if frames == 0 {
+        bail!("a walkthrough needs at least one frame");
+    }
+    let c = &cfg.config;
+    let started = Instant::now();
+    with_scene(cfg, octree_path, radiosity_path, photons_path, |sc, _| {
+        let renderer = Renderer::new(sc, backend)?;
+        let setup_seconds = started.elapsed().as_secs_f64();
+        let (mut render_seconds, mut write_seconds) = (0.0, 0.0);
+        let mut paths = Vec::with_capacity(frames);
+        for i in 0..frames {
+            let cam = walkthrough_camera(&c.camera, i, frames, orbit_deg);
+            sc.set_camera(&Camera::new(&cam));
+            let t = Instant::now();
+            let (image, _) = renderer.render(sc, false, &|| {})?;
+            render_seconds += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let path = dir.join(format!("frame_{i:05}.png"));
+            write_png(&path, &image, c.raytrace.exposure)?;
+            write_seconds += t.elapsed().as_secs_f64();
+            paths.push(path);
+            frame_done(i);
+        }
+        Ok(Walkthrough {
+            frames: paths,
+            device: renderer.device(),
+            device_name: renderer.device_name(),
+            render_seconds,
+            write_seconds,
+            setup_seconds,
+        })
     })
 }

@@ -8,17 +8,27 @@ use anyhow::Context;
 use clap::Parser;
 use pc_raytrace::image::{read_exr, write_diff_png};
 
-/// Region means and relative RMSE of a render against a reference (an EXR and its
-/// *.stats.json, as in ../shared/reference/cornell).
+/// Relative RMSE and region means of a render against a reference render, and the difference
+/// image: `pc-compare IMAGE.exr REFERENCE.exr [--regions FILE]`, or `pc-compare IMAGE.exr
+/// --reference DIR` for a reference folder (an EXR and its *.stats.json, as in
+/// ../shared/reference/cornell).
 #[derive(Parser)]
 #[command(name = "pc-compare", version, about)]
 struct Args {
     /// Our render (linear EXR).
     #[arg(required_unless_present = "write_config")]
     image: Option<PathBuf>,
-    /// The reference folder.
-    #[arg(long)]
-    reference: PathBuf,
+    /// The reference render (linear EXR, same size).
+    #[arg(conflicts_with = "reference", required_unless_present_any = ["reference", "write_config"])]
+    reference_image: Option<PathBuf>,
+    /// Regions to compare (JSON: `regions` maps names to `{"rect": [x0, y0, x1, y1]}`, pixels
+    /// from the top left, as in a reference's *.stats.json).
+    #[arg(long, value_name = "FILE", conflicts_with = "reference")]
+    regions: Option<PathBuf>,
+    /// A reference folder instead of REFERENCE_IMAGE: its *.stats.json names the EXR and the
+    /// regions.
+    #[arg(long, value_name = "DIR")]
+    reference: Option<PathBuf>,
     /// Where to write |ours − reference| × scale as a PNG (default: <image>.diff.png).
     #[arg(long)]
     diff: Option<PathBuf>,
@@ -40,7 +50,11 @@ fn main() -> ExitCode {
 
 fn run(a: &Args) -> anyhow::Result<()> {
     if let Some(out) = &a.write_config {
-        let text = pc_raytrace::reference::config_toml(&a.reference)?;
+        let dir = a
+            .reference
+            .as_ref()
+            .context("--write-config needs --reference DIR")?;
+        let text = pc_raytrace::reference::config_toml(dir)?;
         pc_raytrace::image::write_atomically(out, text.as_bytes())?;
         println!("pc-compare: wrote {}", out.display());
     }
@@ -48,8 +62,22 @@ fn run(a: &Args) -> anyhow::Result<()> {
         return Ok(());
     };
     let ours = read_exr(image)?;
-    let (report, reference) = pc_raytrace::reference::compare(&ours, &a.reference)
-        .with_context(|| format!("comparing {}", image.display()))?;
+    let (report, reference) = match (&a.reference_image, &a.reference) {
+        (Some(path), _) => {
+            let reference = read_exr(path)?;
+            let report = pc_raytrace::reference::compare_images(
+                &ours,
+                &reference,
+                path,
+                a.regions.as_deref(),
+            )
+            .with_context(|| format!("comparing {}", image.display()))?;
+            (report, reference)
+        }
+        (None, Some(dir)) => pc_raytrace::reference::compare(&ours, dir)
+            .with_context(|| format!("comparing {}", image.display()))?,
+        (None, None) => anyhow::bail!("give a reference image or --reference DIR"),
+    };
     let diff = a
         .diff
         .clone()
