@@ -6,6 +6,7 @@ mod bad_input;
 mod caustics_cli;
 mod fmm_cli;
 mod inspect;
+mod makefile;
 mod octree_cli;
 mod raytrace_cli;
 mod reference;
