@@ -329,18 +329,51 @@ fn bench(args: &[String]) -> Result<()> {
             "--only" => {
                 only = Some(
                     it.next()
-                        .context("--only needs octree, rays or caustics")?
+                        .context("--only needs octree, rays, caustics or chain")?
                         .clone(),
                 )
             }
             other => bail!("bench: unknown option `{other}`"),
         }
     }
-    if only.as_deref() == Some("caustics") {
-        if !args.iter().any(|a| a == "--sizes") {
-            sizes = vec![1_000_000];
+    let default_sizes = !args.iter().any(|a| a == "--sizes");
+    match only.as_deref() {
+        Some("caustics") => {
+            if default_sizes {
+                sizes = vec![1_000_000];
+            }
+            return bench_caustics(&sizes, runs, write);
         }
-        return bench_caustics(&sizes, runs, write);
+        Some("chain") => {
+            if default_sizes {
+                sizes = vec![1_000_000];
+            }
+            return bench_chain(&sizes, write);
+        }
+        None => {
+            // Every benchmark: the stages' own, then the whole chain at 1M splats.
+            let mut one = vec!["--runs".to_string(), runs.to_string()];
+            if write {
+                one.push("--write".into());
+            }
+            for what in ["octree", "rays"] {
+                let mut a = vec!["--only".to_string(), what.to_string()];
+                a.extend(one.iter().cloned());
+                if !default_sizes {
+                    a.extend(["--sizes".to_string(), sizes_arg(&sizes)]);
+                }
+                bench(&a)?;
+            }
+            let small = if default_sizes {
+                vec![1_000_000]
+            } else {
+                sizes.clone()
+            };
+            bench_caustics(&small, runs, write)?;
+            return bench_chain(&small, write);
+        }
+        Some("octree" | "rays") => {}
+        Some(other) => bail!("bench: --only takes octree, rays, caustics or chain, not `{other}`"),
     }
     let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
     let mut rows = Vec::new();
@@ -501,25 +534,14 @@ is lent to this machine; a software adapter, when present, is listed as such).\n
     );
     println!("\n{table}\n{ray_table}");
     if write && !ray_rows.is_empty() {
-        let path = root().join("BENCHMARKS.md");
-        let text = std::fs::read_to_string(&path).unwrap_or_default();
-        let (begin, end) = ("<!-- bench:rays:begin -->", "<!-- bench:rays:end -->");
-        let new = match (text.find(begin), text.find(end)) {
-            (Some(b), Some(e)) if b < e => format!("{}{begin}\n{ray_table}{}", &text[..b], &text[e..]),
-            _ => format!("{text}\n## Ray traversal (pc-tree, used by pc-raytrace)\n\n{begin}\n{ray_table}{end}\n"),
-        };
-        std::fs::write(&path, new)?;
+        write_bench_block(
+            "rays",
+            "Ray traversal (pc-tree, used by pc-raytrace)",
+            &ray_table,
+        )?;
     }
     if write && !rows.is_empty() {
-        let path = root().join("BENCHMARKS.md");
-        let text = std::fs::read_to_string(&path).unwrap_or_default();
-        let (begin, end) = ("<!-- bench:octree:begin -->", "<!-- bench:octree:end -->");
-        let new = match (text.find(begin), text.find(end)) {
-            (Some(b), Some(e)) if b < e => format!("{}{begin}\n{table}{}", &text[..b], &text[e..]),
-            _ => format!("{text}\n## pc-octree build\n\n{begin}\n{table}{end}\n"),
-        };
-        std::fs::write(&path, new)?;
-        println!("xtask: updated {}", path.display());
+        write_bench_block("octree", "pc-octree build", &table)?;
     }
     Ok(())
 }
@@ -548,6 +570,93 @@ fn bench_scene(bin: &Path, n: usize) -> Result<PathBuf> {
         "include = [\"scene.toml\"]\n[output]\ndir = \"out\"\n",
     )?;
     Ok(config)
+}
+
+fn sizes_arg(sizes: &[usize]) -> String {
+    sizes
+        .iter()
+        .map(|n| n.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// The whole chain through pc-run on the Cornell box with a glass and a mirror sphere at each
+/// size, 512×512 at 16 samples per pixel: cold (no artifacts), then a new camera on the cached
+/// solution (only pc-raytrace runs).
+fn bench_chain(sizes: &[usize], write: bool) -> Result<()> {
+    let bin = build_release(&[STAGES, &["pc-run", "pc-sample"]].concat())?;
+    let mut rows = Vec::new();
+    for &n in sizes {
+        let config = bench_scene(&bin, n)?;
+        let scene = config.parent().unwrap().to_path_buf();
+        let out = scene.join("out-chain");
+        let _ = std::fs::remove_dir_all(&out);
+        let report = scene.join("chain.json");
+        let base = [
+            "output.dir=out-chain",
+            "camera.width=512",
+            "camera.height=512",
+            "raytrace.spp=16",
+        ];
+        let pass = |extra: &[&str]| -> Result<(f64, serde_json::Value)> {
+            let mut cmd = Command::new(bin.join("pc-run"));
+            cmd.arg("--quiet").arg("--config").arg(&config);
+            for s in base.iter().chain(extra) {
+                cmd.args(["--set", s]);
+            }
+            cmd.arg("--report").arg(&report);
+            let t = std::time::Instant::now();
+            run_checked(&mut cmd, "pc-run")?;
+            let secs = t.elapsed().as_secs_f64();
+            Ok((
+                secs,
+                serde_json::from_str(&std::fs::read_to_string(&report)?)?,
+            ))
+        };
+        let stage_time = |v: &serde_json::Value, stage: &str| -> String {
+            v.as_array()
+                .and_then(|a| a.iter().find(|r| r["stage"] == stage))
+                .map(|r| {
+                    if r["status"] == "ran" {
+                        format!("{:.1} s", r["seconds"].as_f64().unwrap_or(f64::NAN))
+                    } else {
+                        "cached".to_string()
+                    }
+                })
+                .unwrap_or_else(|| "—".to_string())
+        };
+        let (cold, v) = pass(&[])?;
+        let (view, w) = pass(&["camera.origin=[0.4, 0.2, 3.8]"])?;
+        let stages: Vec<String> = STAGES.iter().map(|s| stage_time(&v, s)).collect();
+        rows.push(format!(
+            "| {:.2}M | {cold:.1} s | {} | {view:.2} s | {} |",
+            n as f64 / 1e6,
+            stages.join(" | "),
+            STAGES
+                .iter()
+                .map(|s| format!("{} {}", &s[3..], stage_time(&w, s)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        println!("{}", rows.last().unwrap());
+    }
+    let table = format!(
+        "Machine: {}. Date: {}. Command: `cargo xtask bench --only chain --sizes {}`. Cornell box with a \
+glass and a mirror sphere (`pc-sample cornell --with-specular`), 512×512, 16 spp, stage defaults \
+(backend `auto`: the CPU here). Cold: no artifacts; new view: another camera on the cached solution. \
+Times are each stage's process wall time as pc-run measured it. Aims: cold under 60 s, new view under 5 s.\n\n\
+| splats | cold | pc-octree | pc-vmap | pc-caustics | pc-fmm | pc-raytrace | new view | new view per stage |\n\
+|---|---|---|---|---|---|---|---|---|\n{}\n",
+        machine(),
+        today(),
+        sizes_arg(sizes),
+        rows.join("\n")
+    );
+    println!("\n{table}");
+    if write {
+        write_bench_block("chain", "The whole chain (cargo xtask run)", &table)?;
+    }
+    Ok(())
 }
 
 /// Replace the block between `<!-- bench:NAME:begin/end -->` in BENCHMARKS.md with `table`

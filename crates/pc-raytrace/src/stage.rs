@@ -240,6 +240,8 @@ pub fn with_scene<R>(
 /// bindings) falls back to the CPU with a warning; with `gpu` it is an error.
 pub struct Renderer {
     gpu: Option<(pc_gpu::GpuContext, crate::gpu::render::GpuRenderer)>,
+    /// `auto`: a GPU failure falls back to the CPU instead of failing.
+    fallback: bool,
 }
 
 impl Renderer {
@@ -267,7 +269,10 @@ impl Renderer {
         if gpu.is_none() {
             sc.prepare_cpu();
         }
-        Ok(Renderer { gpu })
+        Ok(Renderer {
+            gpu,
+            fallback: backend == Backend::Auto,
+        })
     }
 
     /// Which device renders.
@@ -287,20 +292,30 @@ impl Renderer {
         }
     }
 
-    /// Render the scene's camera view (ray counts on the CPU only).
+    /// Render the scene's camera view (ray counts on the CPU only). With `auto`, a GPU that
+    /// fails here is dropped with a warning and this and later frames render on the CPU.
     pub fn render(
-        &self,
-        sc: &RenderScene,
+        &mut self,
+        sc: &mut RenderScene,
         aovs: bool,
         tile_done: &(dyn Fn() + Sync),
     ) -> anyhow::Result<(Image, Option<RayCounts>)> {
-        match &self.gpu {
-            Some((ctx, r)) => Ok((r.render(ctx, sc, aovs)?, None)),
-            None => {
-                let (img, counts) = crate::cpu::render(sc, aovs, tile_done);
-                Ok((img, Some(counts)))
+        if let Some((ctx, r)) = &self.gpu {
+            match r.render(ctx, sc, aovs) {
+                Ok(img) => return Ok((img, None)),
+                Err(e) if self.fallback => {
+                    eprintln!(
+                        "pc-raytrace: warning: rendering on the CPU: the GPU {} failed: {e}",
+                        ctx.describe()
+                    );
+                    self.gpu = None;
+                    sc.prepare_cpu();
+                }
+                Err(e) => return Err(e.into()),
             }
         }
+        let (img, counts) = crate::cpu::render(sc, aovs, tile_done);
+        Ok((img, Some(counts)))
     }
 }
 
@@ -326,7 +341,7 @@ pub fn run(
         photons_path,
         |sc, mode| {
             let t = Instant::now();
-            let renderer = Renderer::new(sc, backend)?;
+            let mut renderer = Renderer::new(sc, backend)?;
             if renderer.device() == Device::Cpu {
                 total_tiles(
                     sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64,
@@ -421,7 +436,7 @@ pub fn walkthrough(
     let c = &cfg.config;
     let started = Instant::now();
     with_scene(cfg, octree_path, radiosity_path, photons_path, |sc, _| {
-        let renderer = Renderer::new(sc, backend)?;
+        let mut renderer = Renderer::new(sc, backend)?;
         let setup_seconds = started.elapsed().as_secs_f64();
         let (mut render_seconds, mut write_seconds) = (0.0, 0.0);
         let mut paths = Vec::with_capacity(frames);
