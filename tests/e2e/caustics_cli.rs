@@ -4,29 +4,19 @@
 
 use pc_artifact::photons::sections;
 use pc_artifact::Artifact;
-use pcgi_tests::{args, pc_inspect, pc_octree, pc_sample, run, temp_dir};
+use pcgi_tests::{args, pc_inspect, pc_octree, run, sampled_cornell, temp_dir};
 
 #[test]
 fn traces_inspects_renders_and_rejects_bad_inputs() {
     let dir = temp_dir();
     let d = dir.path();
-    pc_sample(args![
-        "cornell",
-        "--with-specular",
-        "--points",
-        "8000",
-        "--out",
-        d.join("scene")
-    ])
-    .success();
-    let cfg = d.join("pipeline.toml");
-    std::fs::write(
-        &cfg,
-        "include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n[vmap]\nleaf_splats = 16\n\
-         [fmm]\nemitter_samples = 8\n[caustics]\nphotons = 200000\n[camera]\nwidth = 24\n\
-         height = 24\n[raytrace]\nspp = 1\n",
-    )
-    .unwrap();
+    let cfg = sampled_cornell(
+        d,
+        8000,
+        true,
+        "[vmap]\nleaf_splats = 16\n[fmm]\nemitter_samples = 8\n[caustics]\nphotons = 200000\n\
+         [camera]\nwidth = 24\nheight = 24\n[raytrace]\nspp = 1\n",
+    );
     let photons = d.join("out").join("photons.pcgi");
     pc_octree(args!["--quiet", "--config", &cfg]).success();
     // No V-map yet: a clear error naming the file.

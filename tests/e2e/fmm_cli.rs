@@ -1,26 +1,18 @@
 //! pc-fmm's command line: the whole chain on a sampled Cornell box, the radiosity shown by
 //! pc-raytrace in `auto` mode, and the errors for a missing or stale V-map.
 
-use pcgi_tests::{args, pc_octree, pc_sample, run, temp_dir};
+use pcgi_tests::{args, pc_octree, run, sampled_cornell, temp_dir};
 
 #[test]
 fn solves_renders_and_rejects_stale_inputs() {
     let dir = temp_dir();
     let d = dir.path();
-    pc_sample(args![
-        "cornell",
-        "--points",
-        "4000",
-        "--out",
-        d.join("scene")
-    ])
-    .success();
-    let cfg = d.join("pipeline.toml");
-    std::fs::write(
-        &cfg,
-        "include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n[vmap]\nleaf_splats = 16\n[fmm]\nemitter_samples = 16\n[camera]\nwidth = 32\nheight = 32\n[raytrace]\nspp = 1\n",
-    )
-    .unwrap();
+    let cfg = sampled_cornell(
+        d,
+        4000,
+        false,
+        "[vmap]\nleaf_splats = 16\n[fmm]\nemitter_samples = 16\n[camera]\nwidth = 32\nheight = 32\n[raytrace]\nspp = 1\n",
+    );
     pc_octree(args!["--quiet", "--config", &cfg]).success();
     // No V-map yet: a clear error naming the file.
     let out = run(

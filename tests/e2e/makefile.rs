@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use pcgi_tests::{args, bin, bin_dir, pc_sample, temp_dir, workspace_root};
+use pcgi_tests::{bin, bin_dir, sampled_cornell, temp_dir, workspace_root};
 
 fn make(dir: &Path, extra: &[&str]) -> (bool, String, String) {
     let makefile = workspace_root().join("examples").join("Makefile");
@@ -44,15 +44,7 @@ fn the_example_makefile_drives_the_stages_with_their_dependencies() {
     bin("pc-run"); // builds the stage binaries
     let dir = temp_dir();
     let d = dir.path();
-    pc_sample(args![
-        "cornell",
-        "--with-specular",
-        "--points",
-        "4000",
-        "--out",
-        d.join("scene")
-    ])
-    .success();
+    sampled_cornell(d, 4000, true, "");
     std::fs::write(d.join("pipeline.toml"), config(39.3)).unwrap();
 
     let (ok, out, err) = make(d, &[]);

@@ -3,25 +3,15 @@
 
 use std::path::Path;
 
-use pcgi_tests::{args, files_under, pc_octree, pc_sample, run, temp_dir};
+use pcgi_tests::{args, files_under, pc_octree, run, sampled_cornell, temp_dir};
 
 fn scene(dir: &Path) -> std::path::PathBuf {
-    pc_sample(args![
-        "cornell",
-        "--points",
-        "4000",
-        "--with-specular",
-        "--out",
-        dir.join("scene")
-    ])
-    .success();
-    let cfg = dir.join("pipeline.toml");
-    std::fs::write(
-        &cfg,
-        "include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n[camera]\nwidth = 40\nheight = 32\n[raytrace]\nspp = 4\nmode = \"direct\"\n",
+    sampled_cornell(
+        dir,
+        4000,
+        true,
+        "[camera]\nwidth = 40\nheight = 32\n[raytrace]\nspp = 4\nmode = \"direct\"\n",
     )
-    .unwrap();
-    cfg
 }
 
 #[test]

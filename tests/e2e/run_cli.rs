@@ -9,29 +9,18 @@ use std::time::{Duration, Instant};
 
 use pc_artifact::vmap::VmapMeta;
 use pc_artifact::Artifact;
-use pcgi_tests::{args, bin, pc_sample, run, temp_dir};
+use pcgi_tests::{args, bin, run, sampled_cornell, temp_dir};
 
 /// A sampled Cornell box with a glass and a mirror sphere, a point light, and small settings.
 fn scene(d: &Path) -> PathBuf {
-    pc_sample(args![
-        "cornell",
-        "--with-specular",
-        "--points",
-        "6000",
-        "--out",
-        d.join("scene")
-    ])
-    .success();
-    let cfg = d.join("pipeline.toml");
-    std::fs::write(
-        &cfg,
-        "include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n\
-         [[lights]]\nposition = [0.3, 0.7, 0.3]\nintensity = [0.5, 0.5, 0.5]\n\
+    sampled_cornell(
+        d,
+        6000,
+        true,
+        "[[lights]]\nposition = [0.3, 0.7, 0.3]\nintensity = [0.5, 0.5, 0.5]\n\
          [vmap]\nleaf_splats = 16\n[fmm]\nemitter_samples = 8\n[caustics]\nphotons = 100000\n\
          [camera]\nwidth = 32\nheight = 32\n[raytrace]\nspp = 1\n",
     )
-    .unwrap();
-    cfg
 }
 
 /// `pc-run --config CFG ARGS`: stage → (status, key), in the order they ran.

@@ -3,24 +3,15 @@
 
 use std::path::Path;
 
-use pcgi_tests::{args, pc_inspect, pc_octree, pc_sample, run, temp_dir};
+use pcgi_tests::{args, pc_inspect, pc_octree, run, sampled_cornell, temp_dir};
 
 fn scene(dir: &Path) -> std::path::PathBuf {
-    pc_sample(args![
-        "cornell",
-        "--points",
-        "3000",
-        "--out",
-        dir.join("scene")
-    ])
-    .success();
-    let cfg = dir.join("pipeline.toml");
-    std::fs::write(
-        &cfg,
-        "include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n[[lights]]\nposition = [0.0, 0.5, 0.0]\nintensity = [1.0, 1.0, 1.0]\n[vmap]\nleaf_splats = 16\n",
+    sampled_cornell(
+        dir,
+        3000,
+        false,
+        "[[lights]]\nposition = [0.0, 0.5, 0.0]\nintensity = [1.0, 1.0, 1.0]\n[vmap]\nleaf_splats = 16\n",
     )
-    .unwrap();
-    cfg
 }
 
 #[test]

@@ -249,6 +249,27 @@ where
     run("pc-sample", args)
 }
 
+/// `pc-sample cornell` (with the glass and mirror spheres when `specular`) at `points` splats
+/// into `dir/scene`, and `dir/pipeline.toml` including it, writing to `dir/out`, with `extra`
+/// TOML after; returns the config's path.
+pub fn sampled_cornell(dir: &Path, points: usize, specular: bool, extra: &str) -> PathBuf {
+    let mut a = args![
+        "cornell",
+        "--points",
+        points.to_string(),
+        "--out",
+        dir.join("scene")
+    ];
+    if specular {
+        a.push("--with-specular".into());
+    }
+    pc_sample(a).success();
+    let cfg = dir.join("pipeline.toml");
+    let text = format!("include = [\"scene/scene.toml\"]\n[output]\ndir = \"out\"\n{extra}");
+    std::fs::write(&cfg, text).unwrap_or_else(|e| panic!("{}: {e}", cfg.display()));
+    cfg
+}
+
 /// A fresh temporary folder, removed when dropped.
 pub fn temp_dir() -> tempfile::TempDir {
     tempfile::Builder::new()
