@@ -45,9 +45,13 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let key = pc_caustics::stage::key(&cfg, &octree, &vmap)
         .with_context(|| format!("tracing the photons for {}", args.stage.config.display()))?;
     let started = std::time::Instant::now();
-    let existing =
-        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Photons);
-    if args.stage.gate("pc-caustics", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+    if args.stage.gate_artifact(
+        "pc-caustics",
+        &out,
+        &key,
+        pc_artifact::ArtifactKind::Photons,
+    )? == pc_scene::cli::Gate::Done
+    {
         return Ok(());
     }
     let bar = if args.stage.quiet {

@@ -66,9 +66,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let key = pc_fmm::stage::key(&cfg, &octree, &vmap, &photons)
         .with_context(|| format!("solving the radiosity for {}", args.stage.config.display()))?;
     let started = std::time::Instant::now();
-    let existing =
-        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Radiosity);
-    if args.stage.gate("pc-fmm", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+    if args
+        .stage
+        .gate_artifact("pc-fmm", &out, &key, pc_artifact::ArtifactKind::Radiosity)?
+        == pc_scene::cli::Gate::Done
+    {
         return Ok(());
     }
     let bar = if args.stage.quiet {

@@ -32,9 +32,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let key = pc_octree::stage::octree_key(&cfg)
         .with_context(|| format!("building the octree for {}", args.stage.config.display()))?;
     let started = Instant::now();
-    let existing =
-        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Octree);
-    if args.stage.gate("pc-octree", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+    if args
+        .stage
+        .gate_artifact("pc-octree", &out, &key, pc_artifact::ArtifactKind::Octree)?
+        == pc_scene::cli::Gate::Done
+    {
         return Ok(());
     }
     let bar = if args.stage.quiet {

@@ -71,6 +71,17 @@ impl StageArgs {
         Ok(Gate::Run)
     }
 
+    /// [`StageArgs::gate`] for a stage whose output is an artifact of `kind`.
+    pub fn gate_artifact(
+        &self,
+        stage: &str,
+        output: &Path,
+        key: &Key,
+        kind: pc_artifact::ArtifactKind,
+    ) -> anyhow::Result<Gate> {
+        self.gate(stage, output, key, |p| artifact_key(p, kind))
+    }
+
     /// After the work (or when up to date): write the `--report` JSON, if asked for.
     pub fn finish(
         &self,

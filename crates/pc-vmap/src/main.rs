@@ -38,9 +38,11 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let key = pc_vmap::stage::key(&cfg, &octree)
         .with_context(|| format!("computing the V-map for {}", args.stage.config.display()))?;
     let started = std::time::Instant::now();
-    let existing =
-        |p: &std::path::Path| pc_scene::cli::artifact_key(p, pc_artifact::ArtifactKind::Vmap);
-    if args.stage.gate("pc-vmap", &out, &key, existing)? == pc_scene::cli::Gate::Done {
+    if args
+        .stage
+        .gate_artifact("pc-vmap", &out, &key, pc_artifact::ArtifactKind::Vmap)?
+        == pc_scene::cli::Gate::Done
+    {
         return Ok(());
     }
     let bar = if args.stage.quiet {
