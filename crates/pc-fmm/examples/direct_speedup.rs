@@ -55,8 +55,10 @@ fn main() -> anyhow::Result<()> {
         .collect();
     let mut out = vec![[0.0f32; 3]; radiance.len()];
     let start = Instant::now();
-    fmm.apply(&radiance, &mut out, &mut PhaseTimes::default());
+    let mut phases = PhaseTimes::default();
+    fmm.apply(&radiance, &mut out, &mut phases);
     let t_fmm = start.elapsed().as_secs_f64();
+    println!("plan {:?}; product phases {phases:?}", plan.counts);
     let start = Instant::now();
     let exact = direct(&t, &p, &plan, &radiance);
     let t_direct = start.elapsed().as_secs_f64();

@@ -345,13 +345,25 @@ impl Refiner<'_> {
                 self.accept(a, b, f, out);
                 continue;
             }
-            // Split the straddling side (the more straddling one first), else the other.
-            let a_straddles = lo_a < 0.0 && !ga.point;
-            let b_straddles = lo_b < 0.0 && !gb.point;
-            let split_a = if a_straddles && b_straddles {
+            // What to split. A side straddles through its own normal spread (a corner leaf
+            // mixing two faces: splitting it separates the faces) or through the spread of
+            // directions between the two clusters (a flat face whose plane cuts the other
+            // cluster: splitting the flat side changes nothing, splitting the larger one
+            // narrows the directions). Split a side of the first kind, the more straddling one
+            // first; else the larger cluster.
+            let half = |g: &Geo| {
+                if g.point {
+                    0.0
+                } else {
+                    g.cone_cos.clamp(-1.0, 1.0).acos()
+                }
+            };
+            let a_mixed = lo_a < 0.0 && !ga.point && half(&ga) > spread;
+            let b_mixed = lo_b < 0.0 && !gb.point && half(&gb) > spread;
+            let split_a = if a_mixed && b_mixed {
                 -lo_a * hi_b >= -lo_b * hi_a
-            } else if a_straddles || b_straddles {
-                a_straddles
+            } else if a_mixed || b_mixed {
+                a_mixed
             } else {
                 !ga.point && (gb.point || ga.r >= gb.r)
             };
