@@ -30,8 +30,12 @@ pub struct FmmParams {
     /// The solve stops once the relative residual falls below this.
     pub tolerance: f32,
     pub max_iterations: u32,
-    /// Shadow rays per splat for the emitting splats' direct light.
+    /// Samples per splat of the emitting splats' direct light.
     pub emitter_samples: u32,
+    /// Of those, the probes that cast their shadow rays first; the rest cast only in leaves
+    /// where the probes disagree (0, and in artifacts made before it existed: every sample).
+    #[serde(default)]
+    pub emitter_probes: u32,
     /// The iterative method (absent in artifacts made before it was a choice: Jacobi).
     #[serde(default = "Solver::jacobi")]
     pub solver: Solver,
@@ -73,6 +77,12 @@ pub struct RadiosityMeta {
     pub m2p: u64,
     pub p2p: u64,
     pub p2p_pairs: u64,
+    /// Emitter samples taken over all receivers, and the shadow rays they cast (the probes'
+    /// verdict settled the others).
+    #[serde(default)]
+    pub emitter_samples: u64,
+    #[serde(default)]
+    pub emitter_rays: u64,
     pub device: String,
     pub timings: Vec<(String, f64)>,
 }

@@ -81,7 +81,7 @@ impl Scratch {
     fn new(b: &Basis) -> Scratch {
         Scratch {
             pow: vec![0.0; b.len()],
-            a: vec![0.0; b.len()],
+            a: vec![0.0; b.len() + 1],
             g: vec![[0.0; 6]; b.len()],
         }
     }

@@ -42,6 +42,20 @@ pub struct Basis {
     /// Translation terms (big, small, big − small, big!/(small! (big − small)!)) with
     /// small ≤ big componentwise: M2M and L2L.
     pub shift: Vec<(u16, u16, u16, f32)>,
+    /// [`kernel_coeffs`]'s recurrence per index, branch-free: a `NONE` index points at the
+    /// zero slot `len()` of the scratch instead.
+    recur: Vec<Recur>,
+}
+
+/// One step of [`kernel_coeffs`]: `a_γ = (c1 Σ_k R_k a[m1_k] + c2 Σ_k a[m2_k]) / |R|²` and the
+/// six tensor components' lower indices.
+#[derive(Clone, Copy, Debug)]
+struct Recur {
+    m1: [u16; 3],
+    m2: [u16; 3],
+    mij: [u16; 6],
+    c1: f32,
+    c2: f32,
 }
 
 pub const NONE: u16 = u16::MAX;
@@ -144,7 +158,31 @@ impl Basis {
                 }
             }
         }
+        const NU: f32 = 2.0;
+        let zero = exps.len() as u16;
+        let z = |i: u16| if i == NONE { zero } else { i };
+        let recur = (0..exps.len())
+            .map(|i| {
+                let m = degree_of(exps[i]) as f32;
+                Recur {
+                    m1: minus1[i].map(z),
+                    m2: minus2[i].map(z),
+                    mij: minus_ij[i].map(z),
+                    c1: if m > 0.0 {
+                        -(2.0 * m - 2.0 + 2.0 * NU) / m
+                    } else {
+                        0.0
+                    },
+                    c2: if m > 0.0 {
+                        -(m - 2.0 + 2.0 * NU) / m
+                    } else {
+                        0.0
+                    },
+                }
+            })
+            .collect();
         Basis {
+            recur,
             order,
             exps,
             lookup,
@@ -194,8 +232,12 @@ impl Basis {
     }
 }
 
+fn degree_of(e: [u8; 3]) -> u32 {
+    e.iter().map(|&x| x as u32).sum()
+}
+
 /// Taylor coefficients `g_γ = ∂^γ G(R) / γ!` of `G(d) = d dᵀ / |d|⁴` about `R`, for every γ of
-/// the basis. `a` is scratch of the basis size.
+/// the basis. `a` is scratch of at least the basis size plus one (a zero slot).
 ///
 /// `φ = |d|^{-2ν}` (ν = 2) obeys `s ∇φ = −ν φ ∇s` with `s = |d|²`; matching the coefficients of
 /// `u^γ` in `s(R+u) · (u·∇φ) = −ν φ · (u·∇s)` gives, for `m = |γ| ≥ 1`,
@@ -204,29 +246,40 @@ impl Basis {
 /// `g^{ij}_γ = R_i R_j a_γ + R_i a_{γ−e_j} + R_j a_{γ−e_i} + a_{γ−e_i−e_j}`.
 #[inline]
 pub fn kernel_coeffs(basis: &Basis, r: [f32; 3], a: &mut [f32], g: &mut [Sym]) {
-    const NU: f32 = 2.0;
+    let n = basis.len();
+    assert!(
+        a.len() > n && g.len() >= n,
+        "kernel_coeffs: scratch too small"
+    );
     let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
     let inv_r2 = 1.0 / r2;
     a[0] = inv_r2 * inv_r2;
-    let get = |a: &[f32], i: u16| if i == NONE { 0.0 } else { a[i as usize] };
-    for i in 1..basis.len() {
-        let m = basis.degree[i] as f32;
-        let m1 = basis.minus1[i];
-        let m2 = basis.minus2[i];
-        let s1 = r[0] * get(a, m1[0]) + r[1] * get(a, m1[1]) + r[2] * get(a, m1[2]);
-        let s2 = get(a, m2[0]) + get(a, m2[1]) + get(a, m2[2]);
-        a[i] = -((2.0 * m - 2.0 + 2.0 * NU) * s1 + (m - 2.0 + 2.0 * NU) * s2) * inv_r2 / m;
+    a[n] = 0.0;
+    // SAFETY (every `get_unchecked` below): `recur`'s indices are below `n` or the zero slot
+    // `n`, and `a.len() > n` was asserted; `i < n <= g.len()`.
+    let at = |a: &[f32], i: u16| unsafe { *a.get_unchecked(i as usize) };
+    for i in 1..n {
+        let t = unsafe { basis.recur.get_unchecked(i) };
+        let s1 = r[0] * at(a, t.m1[0]) + r[1] * at(a, t.m1[1]) + r[2] * at(a, t.m1[2]);
+        let s2 = at(a, t.m2[0]) + at(a, t.m2[1]) + at(a, t.m2[2]);
+        a[i] = (t.c1 * s1 + t.c2 * s2) * inv_r2;
     }
-    for i in 0..basis.len() {
-        let m1 = basis.minus1[i];
-        let mij = basis.minus_ij[i];
-        let ai = a[i];
-        let mut out = [0.0f32; 6];
+    let rr = [
+        r[0] * r[0],
+        r[0] * r[1],
+        r[0] * r[2],
+        r[1] * r[1],
+        r[1] * r[2],
+        r[2] * r[2],
+    ];
+    for i in 0..n {
+        let t = unsafe { basis.recur.get_unchecked(i) };
+        let ai = at(a, i as u16);
+        let b = [at(a, t.m1[0]), at(a, t.m1[1]), at(a, t.m1[2])];
+        let out = unsafe { g.get_unchecked_mut(i) };
         for (c, &(p, q)) in SYM_IJ.iter().enumerate() {
-            out[c] =
-                r[p] * r[q] * ai + r[p] * get(a, m1[q]) + r[q] * get(a, m1[p]) + get(a, mij[c]);
+            out[c] = rr[c] * ai + r[p] * b[q] + r[q] * b[p] + at(a, t.mij[c]);
         }
-        g[i] = out;
     }
 }
 
@@ -327,7 +380,7 @@ mod tests {
     use super::*;
 
     fn eval_taylor(basis: &Basis, r: [f32; 3], u: [f32; 3]) -> Sym {
-        let mut a = vec![0.0; basis.len()];
+        let mut a = vec![0.0; basis.len() + 1];
         let mut g = vec![[0.0; 6]; basis.len()];
         kernel_coeffs(basis, r, &mut a, &mut g);
         let mut pow = vec![0.0; basis.len()];
@@ -380,7 +433,7 @@ mod tests {
     fn first_derivatives_match_finite_differences() {
         let b = Basis::new(2);
         let r = [0.3f32, 0.9, -0.2];
-        let mut a = vec![0.0; b.len()];
+        let mut a = vec![0.0; b.len() + 1];
         let mut g = vec![[0.0; 6]; b.len()];
         kernel_coeffs(&b, r, &mut a, &mut g);
         let h = 1e-3f32;

@@ -148,16 +148,28 @@ fn range(t: &Tree, x: u32) -> (u32, u32) {
 }
 
 /// Bounds `[lo, hi]` of `n · d̂` over a normal cone and a direction cone (axis `dir`, half-angle
-/// `spread`).
+/// with sine `spread_sin`, at most a right angle): `cos(max(0, ang − δ))` and
+/// `cos(min(π, ang + δ))` with `ang` the angle between the axes and `δ` the two half-angles'
+/// sum, by the angle-sum formulas (no trigonometric calls: the plan makes tens of millions).
 #[inline]
-fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread: f32) -> (f32, f32) {
+fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread_sin: f32) -> (f32, f32) {
     if cone_cos <= -1.0 || axis == Vec3::ZERO {
         return (-1.0, 1.0);
     }
-    let ang = axis.dot(dir).clamp(-1.0, 1.0).acos();
-    let half = cone_cos.clamp(-1.0, 1.0).acos();
-    let hi = (ang - half - spread).max(0.0).cos();
-    let lo = (ang + half + spread).min(std::f32::consts::PI).cos();
+    let ca = axis.dot(dir).clamp(-1.0, 1.0);
+    let sa = (1.0 - ca * ca).max(0.0).sqrt();
+    let ch = cone_cos.clamp(-1.0, 1.0);
+    let sh = (1.0 - ch * ch).max(0.0).sqrt();
+    let ss = spread_sin.clamp(0.0, 1.0);
+    let cs = (1.0 - ss * ss).max(0.0).sqrt();
+    // δ = half + spread lies in [0, 3π/2]; past π every direction is possible.
+    let cd = ch * cs - sh * ss;
+    let sd = sh * cs + ch * ss;
+    if sd < 0.0 {
+        return (-1.0, 1.0);
+    }
+    let hi = if ca >= cd { 1.0 } else { ca * cd + sa * sd };
+    let lo = if cd <= -ca { -1.0 } else { ca * cd - sa * sd };
     (lo, hi)
 }
 
@@ -321,13 +333,13 @@ impl Refiner<'_> {
                 continue;
             }
             let dir = d / dist;
-            let spread = (sum_r / dist).min(1.0).asin();
+            let spread_sin = (sum_r / dist).min(1.0);
             let (dmin, dmax) = (dist - sum_r, dist + sum_r);
             let (ba, bb) = ((ga.bmin, ga.bmax), (gb.bmin, gb.bmax));
-            let (lo_a, hi_a) = cos_bounds(ga.axis, ga.cone_cos, dir, spread);
+            let (lo_a, hi_a) = cos_bounds(ga.axis, ga.cone_cos, dir, spread_sin);
             let (lo_a2, hi_a2) = box_cos_bounds(ga.axis, ga.cone_cos, ba, bb, dmin, dmax);
             let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
-            let (lo_b, hi_b) = cos_bounds(gb.axis, gb.cone_cos, -dir, spread);
+            let (lo_b, hi_b) = cos_bounds(gb.axis, gb.cone_cos, -dir, spread_sin);
             let (lo_b2, hi_b2) = box_cos_bounds(gb.axis, gb.cone_cos, bb, ba, dmin, dmax);
             let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
             if hi_a <= 0.0 || hi_b <= 0.0 {
@@ -351,15 +363,10 @@ impl Refiner<'_> {
             // cluster: splitting the flat side changes nothing, splitting the larger one
             // narrows the directions). Split a side of the first kind, the more straddling one
             // first; else the larger cluster.
-            let half = |g: &Geo| {
-                if g.point {
-                    0.0
-                } else {
-                    g.cone_cos.clamp(-1.0, 1.0).acos()
-                }
-            };
-            let a_mixed = lo_a < 0.0 && !ga.point && half(&ga) > spread;
-            let b_mixed = lo_b < 0.0 && !gb.point && half(&gb) > spread;
+            // (A half-angle above the spread's: a cosine below its cosine.)
+            let spread_cos = (1.0 - spread_sin * spread_sin).max(0.0).sqrt();
+            let a_mixed = lo_a < 0.0 && !ga.point && ga.cone_cos < spread_cos;
+            let b_mixed = lo_b < 0.0 && !gb.point && gb.cone_cos < spread_cos;
             let split_a = if a_mixed && b_mixed {
                 -lo_a * hi_b >= -lo_b * hi_a
             } else if a_mixed || b_mixed {

@@ -144,23 +144,31 @@ pub fn system(
 }
 
 /// Reflected direct light of the emitting splats, `D_i = ρ_i/π ∫ Lₑ cos θ_i cos θ_j / r² V dA`,
-/// by `samples` shadow rays per receiving splat to emitting splats drawn in proportion to
-/// their area (stratified over the area CDF). Near pairs use the disk form factor
+/// by `samples` stratified samples per receiving splat of the emitting splats, drawn in
+/// proportion to their area (over the area CDF). Near pairs use the disk form factor
 /// (docs/fmm.md). Added to `sys.source`.
+///
+/// Visibility is tested adaptively (docs/fmm.md, "Direct light of the emitters"): `probes` of
+/// the samples, spread over the strata, cast their shadow rays first; in an octree leaf where
+/// every probe of every receiver agrees (all open, or all blocked) the other samples take that
+/// answer, and only leaves where the probes disagree (a shadow edge) cast the rest.
+/// `probes` 0 (or at least `samples`) casts every sample. Returns the rays cast and the
+/// samples taken.
 pub fn emitter_direct(
     view: &OctreeView,
     pts: &Points,
     sys: &mut System,
     samples: u32,
+    probes: u32,
     self_hit: f32,
     tester: &dyn ShadowTester,
-) -> Result<(), String> {
+) -> Result<(u64, u64), String> {
     use rayon::prelude::*;
     let emitters: Vec<u32> = (0..view.splats.len() as u32)
         .filter(|&j| sys.emission[j as usize] != [0.0; 3] && pts.active[j as usize])
         .collect();
     if emitters.is_empty() || samples == 0 {
-        return Ok(());
+        return Ok((0, 0));
     }
     let mut cdf = Vec::with_capacity(emitters.len());
     let mut total = 0.0f64;
@@ -168,73 +176,166 @@ pub fn emitter_direct(
         total += view.splat_area[j as usize] as f64;
         cdf.push(total);
     }
+    // Every `every`-th sample is a probe (all of them without probing).
+    let every = if probes == 0 || probes >= samples {
+        1
+    } else {
+        samples / probes
+    };
+    // Receivers grouped by the leaf that owns them (a leaf's splats are contiguous).
     let receivers: Vec<u32> = (0..view.splats.len() as u32)
         .filter(|&i| pts.active[i as usize] && sys.albedo[i as usize] != [0.0; 3])
         .collect();
-    // Bounded batches of rays.
-    for chunk in receivers.chunks((1 << 22) / samples as usize + 1) {
-        let per: Vec<Vec<(Ray, u32, f32)>> = chunk
-            .par_iter()
-            .map(|&i| {
-                let si = &view.splats[i as usize];
-                let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
-                let mut out = Vec::with_capacity(samples as usize);
-                for k in 0..samples {
-                    let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
-                    let e = cdf
-                        .partition_point(|&c| c < u * total)
-                        .min(emitters.len() - 1);
-                    let j = emitters[e];
-                    if j == i {
-                        continue;
-                    }
-                    let sj = &view.splats[j as usize];
-                    let d = Vec3::from(sj.position) - xi;
-                    let r2 = d.length_squared();
-                    let len = r2.sqrt();
-                    if len <= 0.0 {
-                        continue;
-                    }
-                    let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
-                    if ci <= 0.0 || cj <= 0.0 {
-                        continue;
-                    }
-                    // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
-                    let aj = view.splat_area[j as usize];
-                    let w =
-                        ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
-                    let t_min = self_hit * si.radius;
-                    out.push((
-                        Ray {
-                            origin: xi,
-                            dir: d / len,
-                            t_min,
-                            t_max: (len - self_hit * sj.radius).max(t_min),
-                        },
-                        j,
-                        w,
-                    ));
-                }
-                out
-            })
-            .collect();
-        let rays: Vec<Ray> = per.iter().flatten().map(|r| r.0).collect();
-        let vis = tester.visible(&rays)?;
-        let mut at = 0;
-        for (&i, p) in chunk.iter().zip(&per) {
-            let mut e = Vec3::ZERO;
-            for (k, &(_, j, w)) in p.iter().enumerate() {
-                if vis[at + k] {
-                    e += Vec3::from(sys.emission[j as usize]) * w;
-                }
-            }
-            at += p.len();
-            let iu = i as usize;
-            let add = Vec3::from(sys.albedo[iu]) * e;
-            sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
+    let mut groups: Vec<&[u32]> = Vec::new();
+    let mut start = 0;
+    for k in 1..=receivers.len() {
+        if k == receivers.len()
+            || pts.leaf[receivers[k] as usize] != pts.leaf[receivers[start] as usize]
+        {
+            groups.push(&receivers[start..k]);
+            start = k;
         }
     }
-    Ok(())
+    let (mut cast, mut taken) = (0u64, 0u64);
+    // Bounded batches of rays, whole leaves at a time.
+    let batch = ((1usize << 22) / samples as usize).max(1);
+    let mut g0 = 0;
+    while g0 < groups.len() {
+        let mut g1 = g0;
+        let mut n = 0;
+        while g1 < groups.len() && (n == 0 || n + groups[g1].len() <= batch) {
+            n += groups[g1].len();
+            g1 += 1;
+        }
+        let chunk = &groups[g0..g1];
+        g0 = g1;
+        // Per leaf, per receiver: its samples (ray, emitter, weight, probe).
+        let per: Vec<Vec<Vec<(Ray, u32, f32, bool)>>> = chunk
+            .par_iter()
+            .map(|group| {
+                group
+                    .iter()
+                    .map(|&i| {
+                        emitter_samples(view, &emitters, &cdf, total, i, samples, every, self_hit)
+                    })
+                    .collect()
+            })
+            .collect();
+        let probe_rays: Vec<Ray> = per
+            .iter()
+            .flatten()
+            .flatten()
+            .filter(|s| s.3)
+            .map(|s| s.0)
+            .collect();
+        let probe_vis = tester.visible(&probe_rays)?;
+        // Per leaf: the probes' common answer, or None where they disagree.
+        let mut at = 0;
+        let verdicts: Vec<Option<bool>> = per
+            .iter()
+            .map(|leaf| {
+                let n = leaf.iter().flatten().filter(|s| s.3).count();
+                let v = &probe_vis[at..at + n];
+                at += n;
+                if v.iter().all(|&x| x) {
+                    Some(true)
+                } else if v.iter().all(|&x| !x) {
+                    Some(false)
+                } else {
+                    None
+                }
+            })
+            .collect();
+        let rest_rays: Vec<Ray> = per
+            .iter()
+            .zip(&verdicts)
+            .filter(|(_, v)| v.is_none())
+            .flat_map(|(leaf, _)| leaf.iter().flatten().filter(|s| !s.3).map(|s| s.0))
+            .collect();
+        let rest_vis = tester.visible(&rest_rays)?;
+        cast += (probe_rays.len() + rest_rays.len()) as u64;
+        taken += per.iter().flatten().map(|r| r.len() as u64).sum::<u64>();
+        let (mut pa, mut ra) = (0, 0);
+        for ((group, leaf), verdict) in chunk.iter().zip(&per).zip(&verdicts) {
+            for (&i, smp) in group.iter().zip(leaf) {
+                let mut e = Vec3::ZERO;
+                for &(_, j, w, probe) in smp {
+                    let seen = if probe {
+                        pa += 1;
+                        probe_vis[pa - 1]
+                    } else if let Some(v) = verdict {
+                        *v
+                    } else {
+                        ra += 1;
+                        rest_vis[ra - 1]
+                    };
+                    if seen {
+                        e += Vec3::from(sys.emission[j as usize]) * w;
+                    }
+                }
+                let iu = i as usize;
+                let add = Vec3::from(sys.albedo[iu]) * e;
+                sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
+            }
+        }
+    }
+    Ok((cast, taken))
+}
+
+/// The emitter samples of receiver `i`: stratified over the area CDF, each with its shadow ray,
+/// the emitter splat, the estimator's weight and whether it is a probe. Samples that face away
+/// (or draw `i` itself) are left out.
+#[allow(clippy::too_many_arguments)]
+fn emitter_samples(
+    view: &OctreeView,
+    emitters: &[u32],
+    cdf: &[f64],
+    total: f64,
+    i: u32,
+    samples: u32,
+    every: u32,
+    self_hit: f32,
+) -> Vec<(Ray, u32, f32, bool)> {
+    let si = &view.splats[i as usize];
+    let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
+    let mut out = Vec::with_capacity(samples as usize);
+    for k in 0..samples {
+        let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
+        let e = cdf
+            .partition_point(|&c| c < u * total)
+            .min(emitters.len() - 1);
+        let j = emitters[e];
+        if j == i {
+            continue;
+        }
+        let sj = &view.splats[j as usize];
+        let d = Vec3::from(sj.position) - xi;
+        let r2 = d.length_squared();
+        let len = r2.sqrt();
+        if len <= 0.0 {
+            continue;
+        }
+        let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
+        if ci <= 0.0 || cj <= 0.0 {
+            continue;
+        }
+        // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
+        let aj = view.splat_area[j as usize];
+        let w = ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
+        let t_min = self_hit * si.radius;
+        out.push((
+            Ray {
+                origin: xi,
+                dir: d / len,
+                t_min,
+                t_max: (len - self_hit * sj.radius).max(t_min),
+            },
+            j,
+            w,
+            k % every == 0,
+        ));
+    }
+    out
 }
 
 /// Result of a solve.

@@ -29,6 +29,7 @@ pub fn params(cfg: &LoadedConfig) -> FmmParams {
         tolerance: f.tolerance,
         max_iterations: f.max_iterations,
         emitter_samples: f.emitter_samples,
+        emitter_probes: f.emitter_probes,
         solver: f.solver,
     }
 }
@@ -136,11 +137,12 @@ pub fn run(
     )
     .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))?;
     let mut sys = sys;
-    solve::emitter_direct(
+    let (emitter_rays, emitter_samples) = solve::emitter_direct(
         &view,
         &pts,
         &mut sys,
-        cfg.config.fmm.emitter_samples,
+        p.emitter_samples,
+        p.emitter_probes,
         vmeta.params.self_hit,
         &caster,
     )
@@ -283,6 +285,8 @@ pub fn run(
         m2p: plan.counts.m2p,
         p2p: plan.counts.p2p,
         p2p_pairs: plan.counts.p2p_pairs,
+        emitter_samples,
+        emitter_rays,
         device,
         timings,
     };

@@ -208,9 +208,22 @@ fn radiosity_statistics(a: &Artifact) -> anyhow::Result<String> {
     );
     let _ = writeln!(
         s,
-        "parameters  order {}, theta {}, clamp tol {}, emitter samples {}",
-        meta.params.order, meta.params.theta, meta.params.clamp_tol, meta.params.emitter_samples
+        "parameters  order {}, theta {}, clamp tol {}, emitter samples {} ({} probes)",
+        meta.params.order,
+        meta.params.theta,
+        meta.params.clamp_tol,
+        meta.params.emitter_samples,
+        meta.params.emitter_probes
     );
+    if meta.emitter_samples > 0 {
+        let _ = writeln!(
+            s,
+            "emitters    {} samples, {} shadow rays ({:.1} %; the probes settled the rest)",
+            meta.emitter_samples,
+            meta.emitter_rays,
+            100.0 * meta.emitter_rays as f64 / meta.emitter_samples as f64
+        );
+    }
     let _ = writeln!(s, "device      {}", meta.device);
     let _ = writeln!(s, "octree      key {}", meta.octree_key);
     let _ = writeln!(s, "vmap        key {}", meta.vmap_key);

@@ -331,8 +331,11 @@ pub struct FmmConfig {
     pub tolerance: f32,
     /// The solve stops after this many iterations even if not converged.
     pub max_iterations: u32,
-    /// Shadow rays per splat for the direct light of the emitting splats (0: none).
+    /// Samples per splat of the direct light of the emitting splats (0: none).
     pub emitter_samples: u32,
+    /// Of those, how many probe visibility first: a leaf whose probes all agree gives the other
+    /// samples their answer without rays (0: every sample casts its ray).
+    pub emitter_probes: u32,
     /// The iterative method: "gmres" (default) or "jacobi".
     pub solver: pc_artifact::radiosity::Solver,
     /// Where the FMM passes run.
@@ -350,6 +353,7 @@ impl Default for FmmConfig {
             tolerance: 1e-3,
             max_iterations: 200,
             emitter_samples: 64,
+            emitter_probes: 16,
             solver: pc_artifact::radiosity::Solver::Gmres,
             backend: Backend::Auto,
             file: PathBuf::from("radiosity.pcgi"),

@@ -312,3 +312,125 @@ fn form_factor_rows_of_a_closed_room_sum_to_one() {
         mean(edge)
     );
 }
+
+/// Shadow rays through the renderer's acceleration structure (what pc-fmm's stage uses).
+struct AccelTester<'a> {
+    view: &'a pc_tree::OctreeView<'a>,
+    accel: pc_tree::accel::Accel,
+}
+
+impl solve::ShadowTester for AccelTester<'_> {
+    fn visible(&self, rays: &[pc_tree::Ray]) -> Result<Vec<bool>, String> {
+        Ok(self.accel.visible(self.view, rays))
+    }
+}
+
+/// Form factor from a differential area to a parallel rectangle `[x0, x1] × [z0, z1]` at
+/// height `c` above it (the receiver at the origin, facing it): the corner formula summed with
+/// signs over the four quadrants.
+fn parallel_rect_form_factor(x0: f64, x1: f64, z0: f64, z1: f64, c: f64) -> f64 {
+    let corner = |a: f64, b: f64| {
+        let (sa, sb) = (a.signum(), b.signum());
+        let (a, b) = (a.abs() / c, b.abs() / c);
+        let (ra, rb) = ((1.0 + a * a).sqrt(), (1.0 + b * b).sqrt());
+        sa * sb * (a / ra * (b / ra).atan() + b / rb * (a / rb).atan())
+            / (2.0 * std::f64::consts::PI)
+    };
+    corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0)
+}
+
+/// The emitters' direct light against the analytic form factor of a square light, and the
+/// probed estimate against casting every shadow ray, on a floor under a square light with a
+/// plate casting a penumbra.
+#[test]
+fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
+    let mut rng = Pcg64::seed_from_u64(3);
+    let mut soa = Soa::default();
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    soa.rect(Vec3::ZERO, z, x, 0.03, 0, &mut rng); // floor [-1, 1]², normal +y
+    soa.rect(y, x * 0.25, z * 0.25, 0.02, 1, &mut rng); // light at y = 1, normal −y
+    soa.rect(
+        Vec3::new(0.5, 0.5, 0.0),
+        z * 0.15,
+        x * 0.15,
+        0.02,
+        0,
+        &mut rng,
+    ); // plate
+    let (le, rho) = (2.0f32, 0.5f32);
+    let sc = scene(&soa, vec![diffuse(rho), emitter(le, 0.0)], 16);
+    let view = sc.octree.view();
+    let (_, pts) = tree::build(&view, &sc.materials);
+    let tester = AccelTester {
+        view: &view,
+        accel: pc_tree::accel::Accel::new(&view),
+    };
+    let base = || {
+        let n = view.splats.len();
+        let mut sys = solve::System {
+            source: vec![[0.0; 3]; n],
+            emission: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+        };
+        for (i, s) in view.splats.iter().enumerate() {
+            if s.material == 1 {
+                sys.emission[i] = [le; 3];
+            } else {
+                sys.albedo[i] = [rho; 3];
+            }
+        }
+        sys
+    };
+    let direct = |probes: u32| {
+        let mut sys = base();
+        let (rays, samples) =
+            solve::emitter_direct(&view, &pts, &mut sys, 64, probes, 0.5, &tester).unwrap();
+        (sys.source, rays, samples)
+    };
+    let (every, rays_all, samples) = direct(0);
+    let (probed, rays_probed, samples_probed) = direct(16);
+    assert_eq!(rays_all, samples, "probes 0 casts every sample");
+    assert_eq!(samples_probed, samples);
+    // Floor splats: open ones (x < 0.3, outside the plate's penumbra) against the analytic
+    // value ρ Lₑ F; the penumbra (0.45 < x < 1.55 under the plate's z-extent) by both methods.
+    let (mut err, mut open_n) = (0.0f64, 0);
+    let (mut pen_all, mut pen_probed, mut pen_n) = (0.0f64, 0.0f64, 0);
+    for (i, s) in view.splats.iter().enumerate() {
+        let p = Vec3::from(s.position);
+        if s.material != 0 || p.y.abs() > 1e-3 {
+            continue;
+        }
+        if p.x < 0.3 && p.x.abs() < 0.9 && p.z.abs() < 0.9 {
+            let f = parallel_rect_form_factor(
+                -0.25 - p.x as f64,
+                0.25 - p.x as f64,
+                -0.25 - p.z as f64,
+                0.25 - p.z as f64,
+                1.0,
+            );
+            let want = (rho * le) as f64 * f;
+            // Open: probing casts no extra ray and must agree exactly with every ray.
+            assert_eq!(probed[i], every[i], "open splat {i} at {p}");
+            err += ((every[i][0] as f64 - want) / want).abs();
+            open_n += 1;
+        } else if p.x > 0.5 && p.x < 1.0 && p.z.abs() < 0.3 {
+            pen_all += every[i][0] as f64;
+            pen_probed += probed[i][0] as f64;
+            pen_n += 1;
+        }
+    }
+    let mean_err = err / open_n as f64;
+    let pen_diff = (pen_probed - pen_all).abs() / pen_all;
+    let share = rays_probed as f64 / rays_all as f64;
+    println!(
+        "open floor: {open_n} splats, mean |error| against the analytic form factor {:.3} %; \
+         penumbra: {pen_n} splats, probed vs every ray {:.3} %; probing cast {:.1} % of the rays",
+        100.0 * mean_err,
+        100.0 * pen_diff,
+        100.0 * share
+    );
+    assert!(open_n > 1000 && pen_n > 100);
+    assert!(mean_err < 0.01, "mean error {mean_err}");
+    assert!(pen_diff < 0.01, "penumbra differs by {pen_diff}");
+    assert!(share < 0.6, "probing cast {share} of the rays");
+}
