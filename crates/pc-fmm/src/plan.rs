@@ -205,10 +205,13 @@ fn box_cos_bounds(
     (lo.max(-1.0), hi.min(1.0))
 }
 
-enum Out {
-    Node(u32, NodeTask),
-    Leaf(u32, LeafTask),
-    Dropped,
+/// Tasks one worker found: keyed by receiver (node-pool slot for node tasks, leaf slot for leaf
+/// tasks), and the interactions dropped as facing away.
+#[derive(Default)]
+struct Out {
+    node: Vec<(u32, NodeTask)>,
+    leaf: Vec<(u32, LeafTask)>,
+    dropped: u64,
 }
 
 struct Refiner<'a> {
@@ -240,11 +243,11 @@ impl Refiner<'_> {
         }
     }
 
-    fn p2p(&self, a: u32, b: u32, f: f32, out: &mut Vec<Out>) {
+    fn p2p(&self, a: u32, b: u32, f: f32, out: &mut Out) {
         let (rlo, rhi) = range(self.t, a);
         let (slo, shi) = range(self.t, b);
         let leaf = self.p.leaf[rlo as usize];
-        out.push(Out::Leaf(
+        out.leaf.push((
             leaf,
             LeafTask {
                 recv_lo: rlo,
@@ -257,9 +260,9 @@ impl Refiner<'_> {
         ));
     }
 
-    fn accept(&self, a: u32, b: u32, f: f32, out: &mut Vec<Out>) {
+    fn accept(&self, a: u32, b: u32, f: f32, out: &mut Out) {
         match (a & POINT != 0, b & POINT != 0) {
-            (false, _) => out.push(Out::Node(
+            (false, _) => out.node.push((
                 a,
                 NodeTask {
                     src: b,
@@ -268,7 +271,7 @@ impl Refiner<'_> {
             )),
             (true, false) => {
                 let i = a & !POINT;
-                out.push(Out::Leaf(
+                out.leaf.push((
                     self.p.leaf[i as usize],
                     LeafTask {
                         recv_lo: i,
@@ -284,7 +287,7 @@ impl Refiner<'_> {
         }
     }
 
-    fn refine(&self, a0: u32, b0: u32, f: f32, out: &mut Vec<Out>, stack: &mut Vec<(u32, u32)>) {
+    fn refine(&self, a0: u32, b0: u32, f: f32, out: &mut Out, stack: &mut Vec<(u32, u32)>) {
         let mut kids_a = Vec::new();
         let mut kids_b = Vec::new();
         stack.clear();
@@ -343,7 +346,7 @@ impl Refiner<'_> {
             let (lo_b2, hi_b2) = box_cos_bounds(gb.axis, gb.cone_cos, bb, ba, dmin, dmax);
             let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
             if hi_a <= 0.0 || hi_b <= 0.0 {
-                out.push(Out::Dropped);
+                out.dropped += 1;
                 continue;
             }
             if lo_a >= 0.0 && lo_b >= 0.0 {
@@ -396,11 +399,11 @@ pub fn build(
     params: PlanParams,
 ) -> Plan {
     let r = Refiner { t, p, params };
-    let outs: Vec<Out> = (0..t.slots)
+    let parts: Vec<Out> = (0..t.slots)
         .into_par_iter()
         .fold(
-            || (Vec::new(), Vec::new()),
-            |(mut out, mut stack): (Vec<Out>, Vec<(u32, u32)>), a| {
+            || (Out::default(), Vec::new()),
+            |(mut out, mut stack): (Out, Vec<(u32, u32)>), a| {
                 let (s, e) = (link_offsets[a] as usize, link_offsets[a + 1] as usize);
                 for l in &links[s..e] {
                     r.refine(a as u32, l.slot(), l.fraction, &mut out, &mut stack);
@@ -409,34 +412,32 @@ pub fn build(
             },
         )
         .map(|(o, _)| o)
-        .reduce(Vec::new, |mut a, mut b| {
-            a.append(&mut b);
-            a
-        });
+        .collect();
+    // One allocation per kind, receivers as compact indices.
     let mut counts = TaskCounts::default();
-    let mut node: Vec<(u32, NodeTask)> = Vec::new();
-    let mut leaf: Vec<(u32, LeafTask)> = Vec::new();
-    for o in outs {
-        match o {
-            Out::Node(a, task) => {
-                if task.src & POINT != 0 {
-                    counts.p2l += 1;
-                } else {
-                    counts.m2l += 1;
-                }
-                node.push((t.compact[a as usize], task));
+    let mut node: Vec<(u32, NodeTask)> =
+        Vec::with_capacity(parts.iter().map(|o| o.node.len()).sum());
+    let mut leaf: Vec<(u32, LeafTask)> =
+        Vec::with_capacity(parts.iter().map(|o| o.leaf.len()).sum());
+    for o in parts {
+        counts.dropped_facing_away += o.dropped;
+        for (a, task) in o.node {
+            if task.src & POINT != 0 {
+                counts.p2l += 1;
+            } else {
+                counts.m2l += 1;
             }
-            Out::Leaf(l, task) => {
-                if task.is_m2p() {
-                    counts.m2p += 1;
-                } else {
-                    counts.p2p += 1;
-                    counts.p2p_pairs +=
-                        (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
-                }
-                leaf.push((t.leaf_index[l as usize], task));
+            node.push((t.compact[a as usize], task));
+        }
+        for (l, task) in o.leaf {
+            if task.is_m2p() {
+                counts.m2p += 1;
+            } else {
+                counts.p2p += 1;
+                counts.p2p_pairs +=
+                    (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
             }
-            Out::Dropped => counts.dropped_facing_away += 1,
+            leaf.push((t.leaf_index[l as usize], task));
         }
     }
     node.par_sort_unstable_by_key(|x| (x.0, x.1.src));

@@ -149,7 +149,8 @@ pub fn system(
 /// (docs/fmm.md). Added to `sys.source`.
 ///
 /// Visibility is tested adaptively (docs/fmm.md, "Direct light of the emitters"): `probes` of
-/// the samples, spread over the strata, cast their shadow rays first; in an octree leaf where
+/// the samples, spread over the strata (and offset by receiver, so that a leaf's receivers
+/// together probe every stratum), cast their shadow rays first; in an octree leaf where
 /// every probe of every receiver agrees (all open, or all blocked) the other samples take that
 /// answer, and only leaves where the probes disagree (a shadow edge) cast the rest.
 /// `probes` 0 (or at least `samples`) casts every sample. Returns the rays cast and the
@@ -332,7 +333,7 @@ fn emitter_samples(
             },
             j,
             w,
-            k % every == 0,
+            (k + i) % every == 0,
         ));
     }
     out
