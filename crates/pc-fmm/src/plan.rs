@@ -29,6 +29,12 @@ pub const POINT: u32 = 1 << 31;
 /// Pairs closer than this many area-equivalent disk radii are always near field.
 pub const NEAR_DISKS: f32 = 4.0;
 
+/// Largest number of splat pairs a far interaction sums directly instead of through the
+/// expansions: a splat against a node (M2P, P2L) costs about as much as 50 pairs of the exact
+/// kernel at order 3, a node against a node (M2L) about 200 (docs/fmm.md, "Interaction plan").
+pub const DIRECT_ONE_SIDED: u64 = 32;
+pub const DIRECT_M2L: u64 = 128;
+
 /// Plan parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct PlanParams {
@@ -260,7 +266,35 @@ impl Refiner<'_> {
         ));
     }
 
+    /// Point-to-point tasks from `b` into every receiving leaf under `a` (or into splat `a`).
+    fn p2p_leaves(&self, a: u32, b: u32, f: f32, out: &mut Out) {
+        if a & POINT != 0 || self.t.first_child[a as usize] == NONE {
+            self.p2p(a, b, f, out);
+            return;
+        }
+        for c in self.t.children(a) {
+            if self.t.active[c as usize] > 0 {
+                self.p2p_leaves(c, b, f, out);
+            }
+        }
+    }
+
     fn accept(&self, a: u32, b: u32, f: f32, out: &mut Out) {
+        // An expansion costs about as much as summing a few dozen splat pairs exactly: small
+        // far pairs are summed point to point instead, one task per receiving leaf.
+        let count = |x: u32| {
+            let (lo, hi) = range(self.t, x);
+            (hi - lo) as u64
+        };
+        let limit = match (a & POINT != 0, b & POINT != 0) {
+            (true, true) => 0,
+            (true, false) | (false, true) => DIRECT_ONE_SIDED,
+            (false, false) => DIRECT_M2L,
+        };
+        if count(a) * count(b) <= limit {
+            self.p2p_leaves(a, b, f, out);
+            return;
+        }
         match (a & POINT != 0, b & POINT != 0) {
             (false, _) => out.node.push((
                 a,
