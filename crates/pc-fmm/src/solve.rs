@@ -230,7 +230,7 @@ pub fn emitter_direct(
             .map(|s| s.0)
             .collect();
         let probe_vis = tester.visible(&probe_rays)?;
-        // Per leaf: the probes' common answer, or None where they disagree.
+        // Per leaf: the probes' common answer, or None where they disagree or there are none.
         let mut at = 0;
         let verdicts: Vec<Option<bool>> = per
             .iter()
@@ -238,7 +238,9 @@ pub fn emitter_direct(
                 let n = leaf.iter().flatten().filter(|s| s.3).count();
                 let v = &probe_vis[at..at + n];
                 at += n;
-                if v.iter().all(|&x| x) {
+                if v.is_empty() {
+                    None // no probe faced the light: nothing to go by, cast them all
+                } else if v.iter().all(|&x| x) {
                     Some(true)
                 } else if v.iter().all(|&x| !x) {
                     Some(false)
