@@ -125,7 +125,7 @@ impl Basis {
             minus2.push(m2);
             minus_ij.push(mij);
         }
-        let degree = exps.iter().map(|e| e[0] + e[1] + e[2]).collect();
+        let degree: Vec<u8> = exps.iter().map(|e| e[0] + e[1] + e[2]).collect();
         let mut m2l = Vec::new();
         for (bi, &b) in exps.iter().enumerate() {
             for (ai, &a) in exps.iter().enumerate() {
@@ -163,7 +163,7 @@ impl Basis {
         let z = |i: u16| if i == NONE { zero } else { i };
         let recur = (0..exps.len())
             .map(|i| {
-                let m = degree_of(exps[i]) as f32;
+                let m = degree[i] as f32;
                 Recur {
                     m1: minus1[i].map(z),
                     m2: minus2[i].map(z),
@@ -230,10 +230,6 @@ impl Basis {
             out[i] = out[m[k] as usize] * v[k];
         }
     }
-}
-
-fn degree_of(e: [u8; 3]) -> u32 {
-    e.iter().map(|&x| x as u32).sum()
 }
 
 /// Taylor coefficients `g_γ = ∂^γ G(R) / γ!` of `G(d) = d dᵀ / |d|⁴` about `R`, for every γ of

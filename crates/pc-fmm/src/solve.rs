@@ -55,6 +55,27 @@ pub trait ShadowTester {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
 }
 
+/// Shadow rays on the CPU, through the renderer's packed leaf lists.
+pub struct AccelTester<'a> {
+    view: &'a OctreeView<'a>,
+    accel: pc_tree::accel::Accel,
+}
+
+impl<'a> AccelTester<'a> {
+    pub fn new(view: &'a OctreeView<'a>) -> Self {
+        AccelTester {
+            view,
+            accel: pc_tree::accel::Accel::new(view),
+        }
+    }
+}
+
+impl ShadowTester for AccelTester<'_> {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
+        Ok(self.accel.visible(self.view, rays))
+    }
+}
+
 /// Build the system: albedo from the materials, E from emission and point lights.
 ///
 /// `light_lists[l]` is the V-map's list of light `l`: `(slot, fraction)` for each V-map leaf

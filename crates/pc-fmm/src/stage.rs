@@ -10,11 +10,11 @@ use pc_artifact::radiosity::{sections, FmmParams, RadiosityMeta};
 use pc_artifact::vmap::{self as vs, Link};
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_scene::config::{Backend, LoadedConfig};
-use pc_tree::{OctreeView, Ray};
+use pc_tree::OctreeView;
 
 use crate::expansion::Basis;
 use crate::plan::{self, PlanParams};
-use crate::solve::{self, Operator, PointLight, ShadowTester};
+use crate::solve::{self, Operator, PointLight};
 use crate::{tree, CpuFmm, CpuOperator};
 
 pub const STAGE: &str = "pc-fmm";
@@ -39,18 +39,6 @@ pub struct Summary {
     pub path: PathBuf,
     pub meta: RadiosityMeta,
     pub seconds: f64,
-}
-
-/// Shadow rays on the CPU, through the renderer's packed leaf lists.
-struct Caster<'a> {
-    view: &'a OctreeView<'a>,
-    accel: pc_tree::accel::Accel,
-}
-
-impl ShadowTester for Caster<'_> {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        Ok(self.accel.visible(self.view, rays))
-    }
 }
 
 /// Progress callbacks of a run.
@@ -121,10 +109,7 @@ pub fn run(
         .collect();
     let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
     let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
-    let caster = Caster {
-        view: &view,
-        accel: pc_tree::accel::Accel::new(&view),
-    };
+    let caster = solve::AccelTester::new(&view);
     let sys = solve::system(
         &view,
         &materials,

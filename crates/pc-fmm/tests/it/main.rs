@@ -313,18 +313,6 @@ fn form_factor_rows_of_a_closed_room_sum_to_one() {
     );
 }
 
-/// Shadow rays through the renderer's acceleration structure (what pc-fmm's stage uses).
-struct AccelTester<'a> {
-    view: &'a pc_tree::OctreeView<'a>,
-    accel: pc_tree::accel::Accel,
-}
-
-impl solve::ShadowTester for AccelTester<'_> {
-    fn visible(&self, rays: &[pc_tree::Ray]) -> Result<Vec<bool>, String> {
-        Ok(self.accel.visible(self.view, rays))
-    }
-}
-
 /// Form factor from a differential area to a parallel rectangle `[x0, x1] × [z0, z1]` at
 /// height `c` above it (the receiver at the origin, facing it): the corner formula summed with
 /// signs over the four quadrants.
@@ -361,10 +349,7 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     let sc = scene(&soa, vec![diffuse(rho), emitter(le, 0.0)], 16);
     let view = sc.octree.view();
     let (_, pts) = tree::build(&view, &sc.materials);
-    let tester = AccelTester {
-        view: &view,
-        accel: pc_tree::accel::Accel::new(&view),
-    };
+    let tester = solve::AccelTester::new(&view);
     let base = || {
         let n = view.splats.len();
         let mut sys = solve::System {
