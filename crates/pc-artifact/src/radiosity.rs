@@ -77,12 +77,14 @@ pub struct RadiosityMeta {
     pub m2p: u64,
     pub p2p: u64,
     pub p2p_pairs: u64,
-    /// Emitter samples taken over all receivers, and the shadow rays they cast (the probes'
-    /// verdict settled the others).
+    /// Emitter samples taken over all receivers, the shadow rays they cast, and the samples
+    /// settled without a ray by shaft culling (the probes' verdict settled the others).
     #[serde(default)]
     pub emitter_samples: u64,
     #[serde(default)]
     pub emitter_rays: u64,
+    #[serde(default)]
+    pub emitter_settled: u64,
     pub device: String,
     pub timings: Vec<(String, f64)>,
 }

@@ -1,7 +1,7 @@
 //! Times one FMM product against the exact sum over the same plan (every splat pair the
 //! V-map's links connect, O(N²) in the worst case) on artifacts already made by the chain.
 //!
-//! `cargo run --release -p pc-fmm --example direct_speedup -- CONFIG [KEY=VALUE ...]` (after
+//! `cargo run --release -p pc-fmm --example direct_speedup -- CONFIG [--fmm-only] [KEY=VALUE ...]` (after
 //! pc-octree and pc-vmap ran on CONFIG; e.g. `fmm.order=5`). Prints both times, the speed-up and the relative L2 difference.
 
 use std::path::PathBuf;
@@ -16,7 +16,10 @@ use pc_fmm::{tree, Basis, CpuFmm};
 use pc_tree::OctreeView;
 
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    // `--fmm-only`: time the product alone (the direct sum is out of reach at 1M splats).
+    let fmm_only = args.iter().any(|a| a == "--fmm-only");
+    args.retain(|a| a != "--fmm-only");
     let config = PathBuf::from(
         args.first()
             .context("usage: direct_speedup CONFIG [KEY=VALUE ...]")?,
@@ -59,6 +62,14 @@ fn main() -> anyhow::Result<()> {
     fmm.apply(&radiance, &mut out, &mut phases);
     let t_fmm = start.elapsed().as_secs_f64();
     println!("plan {:?}; product phases {phases:?}", plan.counts);
+    if fmm_only {
+        println!(
+            "{} splats, order {}: FMM product {t_fmm:.2} s",
+            p.pos.len(),
+            f.order
+        );
+        return Ok(());
+    }
     let start = Instant::now();
     let exact = direct(&t, &p, &plan, &radiance);
     let t_direct = start.elapsed().as_secs_f64();

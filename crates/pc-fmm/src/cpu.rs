@@ -8,7 +8,8 @@
 
 use rayon::prelude::*;
 
-use crate::expansion::{self as ex, Basis, Coef, Sym};
+use crate::expansion::{self as ex, Basis, Coef};
+use crate::lanes;
 use crate::plan::{Plan, POINT};
 use crate::tree::{Points, Tree, NONE};
 
@@ -73,16 +74,12 @@ pub fn kernel_near(xi: [f32; 3], ni: [f32; 3], xj: [f32; 3], nj: [f32; 3], aj: f
 /// Scratch of one worker.
 struct Scratch {
     pow: Vec<f32>,
-    a: Vec<f32>,
-    g: Vec<Sym>,
 }
 
 impl Scratch {
     fn new(b: &Basis) -> Scratch {
         Scratch {
             pow: vec![0.0; b.len()],
-            a: vec![0.0; b.len() + 1],
-            g: vec![[0.0; 6]; b.len()],
         }
     }
 }
@@ -179,32 +176,15 @@ impl CpuFmm<'_> {
         let np = b.len();
         let mut l = vec![[0.0f32; 9]; t.nodes.len() * np];
         l.par_chunks_mut(np).enumerate().for_each_init(
-            || Scratch::new(b),
+            || lanes::Scratch::new(b),
             |s, (ci, local)| {
                 let (lo, hi) = (
                     plan.node_offsets[ci] as usize,
                     plan.node_offsets[ci + 1] as usize,
                 );
-                if lo == hi {
-                    return;
-                }
-                let ca = t.center[t.nodes[ci] as usize];
-                for task in &plan.node_tasks[lo..hi] {
-                    if task.src & POINT == 0 {
-                        let src = task.src as usize;
-                        let r = sub(t.center[src], ca);
-                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
-                        let sc = t.compact[src] as usize;
-                        ex::m2l(b, &s.g, &m[sc * np..(sc + 1) * np], task.fraction, local);
-                    } else {
-                        let j = (task.src & !POINT) as usize;
-                        let r = sub(p.pos[j], ca);
-                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
-                        for (i, g) in s.g.iter().enumerate() {
-                            let sign = if b.degree[i] % 2 == 1 { -1.0 } else { 1.0 };
-                            ex::sym_apply_add(g, &q[j], sign * task.fraction, &mut local[i]);
-                        }
-                    }
+                if lo < hi {
+                    let ca = t.center[t.nodes[ci] as usize];
+                    lanes::node(b, t, p, m, q, &plan.node_tasks[lo..hi], ca, s, local);
                 }
             },
         );
@@ -238,8 +218,9 @@ impl CpuFmm<'_> {
             );
         }
         let op = SyncPtr(out.as_mut_ptr());
+        let sl = &lanes::SplatLanes::new(p, w);
         t.leaves.par_iter().enumerate().for_each_init(
-            || Scratch::new(b),
+            || (Scratch::new(b), lanes::Scratch::new(b)),
             |s, (li, &leaf)| {
                 let ci = t.compact[leaf as usize] as usize;
                 let local = &l[ci * np..(ci + 1) * np];
@@ -253,7 +234,7 @@ impl CpuFmm<'_> {
                     let iu = i as usize;
                     let mut v = [0.0f32; 3];
                     if p.active[iu] {
-                        let f = ex::l2p(b, local, sub(p.pos[iu], c), &mut s.pow);
+                        let f = ex::l2p(b, local, sub(p.pos[iu], c), &mut s.0.pow);
                         let n = p.normal[iu];
                         for (k, vk) in v.iter_mut().enumerate() {
                             *vk = -INV_PI
@@ -266,50 +247,9 @@ impl CpuFmm<'_> {
                     plan.leaf_offsets[li] as usize,
                     plan.leaf_offsets[li + 1] as usize,
                 );
-                for task in &plan.leaf_tasks[tl..th] {
-                    if task.is_m2p() {
-                        let i = task.recv_lo as usize;
-                        let src = task.src_lo as usize;
-                        let r = sub(t.center[src], p.pos[i]);
-                        ex::kernel_coeffs(b, r, &mut s.a, &mut s.g);
-                        let sc = t.compact[src] as usize;
-                        let mut f = [0.0f32; 9];
-                        for (k, mk) in m[sc * np..(sc + 1) * np].iter().enumerate() {
-                            ex::sym_apply_add(&s.g[k], mk, 1.0, &mut f);
-                        }
-                        let n = p.normal[i];
-                        let v = &mut o[i - lo as usize];
-                        for (k, vk) in v.iter_mut().enumerate() {
-                            *vk -= task.fraction
-                                * INV_PI
-                                * (n[0] * f[k * 3] + n[1] * f[k * 3 + 1] + n[2] * f[k * 3 + 2]);
-                        }
-                    } else {
-                        for i in task.recv_lo..task.recv_hi {
-                            let iu = i as usize;
-                            if !p.active[iu] {
-                                continue;
-                            }
-                            let (xi, ni) = (p.pos[iu], p.normal[iu]);
-                            let mut acc = [0.0f32; 3];
-                            for j in task.src_lo..task.src_hi {
-                                let ju = j as usize;
-                                if j == i || !p.active[ju] {
-                                    continue;
-                                }
-                                let k = kernel_near(xi, ni, p.pos[ju], p.normal[ju], p.area[ju]);
-                                if k > 0.0 {
-                                    for (c, a) in acc.iter_mut().enumerate() {
-                                        *a += k * w[ju][c];
-                                    }
-                                }
-                            }
-                            let v = &mut o[(i - lo) as usize];
-                            for c in 0..3 {
-                                v[c] += task.fraction * acc[c];
-                            }
-                        }
-                    }
+                if tl < th {
+                    let tasks = &plan.leaf_tasks[tl..th];
+                    lanes::leaf(b, t, p, sl, m, tasks, lo, &mut s.1, o);
                 }
             },
         );

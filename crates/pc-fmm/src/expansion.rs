@@ -44,18 +44,18 @@ pub struct Basis {
     pub shift: Vec<(u16, u16, u16, f32)>,
     /// [`kernel_coeffs`]'s recurrence per index, branch-free: a `NONE` index points at the
     /// zero slot `len()` of the scratch instead.
-    recur: Vec<Recur>,
+    pub(crate) recur: Vec<Recur>,
 }
 
 /// One step of [`kernel_coeffs`]: `a_γ = (c1 Σ_k R_k a[m1_k] + c2 Σ_k a[m2_k]) / |R|²` and the
 /// six tensor components' lower indices.
 #[derive(Clone, Copy, Debug)]
-struct Recur {
-    m1: [u16; 3],
-    m2: [u16; 3],
-    mij: [u16; 6],
-    c1: f32,
-    c2: f32,
+pub(crate) struct Recur {
+    pub(crate) m1: [u16; 3],
+    pub(crate) m2: [u16; 3],
+    pub(crate) mij: [u16; 6],
+    pub(crate) c1: f32,
+    pub(crate) c2: f32,
 }
 
 pub const NONE: u16 = u16::MAX;

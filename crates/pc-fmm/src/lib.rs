@@ -11,8 +11,10 @@
 pub mod cpu;
 pub mod expansion;
 pub mod gpu;
+pub mod lanes;
 
 pub mod plan;
+pub mod shaft;
 pub mod solve;
 pub mod stage;
 pub mod tree;

@@ -475,7 +475,9 @@ pub fn build(
         }
     }
     node.par_sort_unstable_by_key(|x| (x.0, x.1.src));
-    leaf.par_sort_unstable_by_key(|x| (x.0, x.1.recv_lo, x.1.src_lo));
+    // By source within a leaf: a crease leaf's splats against one node come together (M2P
+    // batches that share the moments, crate::lanes).
+    leaf.par_sort_unstable_by_key(|x| (x.0, x.1.src_lo, x.1.recv_lo));
     let csr = |n: usize, keys: &mut dyn Iterator<Item = u32>| {
         let mut o = vec![0u32; n + 1];
         for k in keys {

@@ -16,6 +16,8 @@ use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::vmap::Link;
 use pc_tree::{OctreeView, Ray};
 
+use crate::lanes;
+use crate::shaft::{Aabb, DiskBoxes, Shaft};
 use crate::tree::Points;
 
 /// Anything that applies the transport operator `out_i = Σ_j f K(i, j) A_j L_j`.
@@ -164,33 +166,73 @@ pub fn system(
     Ok(sys)
 }
 
+/// A leaf whose shaft to the emitters holds at most this many disks tests its rays against
+/// them alone instead of walking the octree; past it the probes decide.
+pub const SHAFT_CANDIDATES: usize = 2048;
+
+/// A sample's visibility as shaft culling found it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Culled {
+    Open,
+    Blocked,
+    /// Too many disks in the leaf's shaft: left to the probes.
+    Probe,
+}
+
+/// How [`emitter_direct`] samples the emitters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EmitterSampling {
+    /// Stratified samples per receiving splat.
+    pub samples: u32,
+    /// Samples per splat that probe visibility first (0: every sample casts its ray).
+    pub probes: u32,
+    /// Shadow rays ignore hits within this many radii of either end.
+    pub self_hit: f32,
+    /// Settle leaves whose shaft to the emitters is empty without rays ([`crate::shaft`]).
+    pub shafts: bool,
+}
+
+/// What [`emitter_direct`] did: shadow rays cast, samples taken, and samples settled by shaft
+/// culling without a ray.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EmitterRays {
+    pub cast: u64,
+    pub samples: u64,
+    pub settled: u64,
+}
+
 /// Reflected direct light of the emitting splats, `D_i = ρ_i/π ∫ Lₑ cos θ_i cos θ_j / r² V dA`,
 /// by `samples` stratified samples per receiving splat of the emitting splats, drawn in
 /// proportion to their area (over the area CDF). Near pairs use the disk form factor
 /// (docs/fmm.md). Added to `sys.source`.
 ///
-/// Visibility is tested adaptively (docs/fmm.md, "Direct light of the emitters"): `probes` of
+/// Visibility (docs/fmm.md, "Direct light of the emitters"): first, an octree leaf whose shaft
+/// to the emitters no splat's disk enters sees them from every sample, without a ray
+/// ([`crate::shaft`], exact). Elsewhere it is tested adaptively: `probes` of
 /// the samples, spread over the strata (and offset by receiver, so that a leaf's receivers
 /// together probe every stratum), cast their shadow rays first; in an octree leaf where
 /// every probe of every receiver agrees (all open, or all blocked) the other samples take that
 /// answer, and only leaves where the probes disagree (a shadow edge) cast the rest.
-/// `probes` 0 (or at least `samples`) casts every sample. Returns the rays cast and the
-/// samples taken.
+/// `probes` 0 (or at least `samples`) casts every sample the shafts leave.
 pub fn emitter_direct(
     view: &OctreeView,
     pts: &Points,
     sys: &mut System,
-    samples: u32,
-    probes: u32,
-    self_hit: f32,
+    how: EmitterSampling,
     tester: &dyn ShadowTester,
-) -> Result<(u64, u64), String> {
+) -> Result<EmitterRays, String> {
+    let EmitterSampling {
+        samples,
+        probes,
+        self_hit,
+        shafts,
+    } = how;
     use rayon::prelude::*;
     let emitters: Vec<u32> = (0..view.splats.len() as u32)
         .filter(|&j| sys.emission[j as usize] != [0.0; 3] && pts.active[j as usize])
         .collect();
     if emitters.is_empty() || samples == 0 {
-        return Ok((0, 0));
+        return Ok(EmitterRays::default());
     }
     let mut cdf = Vec::with_capacity(emitters.len());
     let mut total = 0.0f64;
@@ -218,7 +260,16 @@ pub fn emitter_direct(
             start = k;
         }
     }
-    let (mut cast, mut taken) = (0u64, 0u64);
+    let (mut cast, mut taken, mut settled) = (0u64, 0u64, 0u64);
+    // Shaft culling: the emitters' box and their smallest radius.
+    let disks = DiskBoxes::new(view);
+    let mut emitter_box = Aabb::EMPTY;
+    let mut emitter_r_min = f32::INFINITY;
+    for &j in &emitters {
+        let sj = &view.splats[j as usize];
+        emitter_box.grow(sj.position.into());
+        emitter_r_min = emitter_r_min.min(sj.radius);
+    }
     // Bounded batches of rays, whole leaves at a time.
     let batch = ((1usize << 22) / samples as usize).max(1);
     let mut g0 = 0;
@@ -243,20 +294,74 @@ pub fn emitter_direct(
                     .collect()
             })
             .collect();
+        // Shaft culling: every sample of a leaf whose shaft to the emitters no disk enters is
+        // open; where a few disks enter, its rays are tested against them alone; the other
+        // leaves are left to the probes.
+        let culled: Vec<Vec<Culled>> = chunk
+            .par_iter()
+            .zip(&per)
+            .map_init(
+                || {
+                    (
+                        Vec::new(),
+                        Vec::new(),
+                        lanes::DiskLanes::default(),
+                        Vec::new(),
+                    )
+                },
+                |(stack, cands, disk_lanes, hits), (group, leaf)| {
+                    let n = leaf.iter().map(|r| r.len()).sum();
+                    let probe_all = vec![Culled::Probe; n];
+                    if !shafts || n == 0 {
+                        return probe_all;
+                    }
+                    let mut a = Aabb::EMPTY;
+                    let mut r_min = f32::INFINITY;
+                    for &i in group.iter() {
+                        let si = &view.splats[i as usize];
+                        a.grow(si.position.into());
+                        r_min = r_min.min(si.radius);
+                    }
+                    let end = self_hit * emitter_r_min;
+                    let Some(shaft) = Shaft::new(a, emitter_box, self_hit * r_min, end) else {
+                        return probe_all;
+                    };
+                    if !disks.candidates(view, &shaft, SHAFT_CANDIDATES, stack, cands) {
+                        return probe_all;
+                    }
+                    if cands.is_empty() {
+                        return vec![Culled::Open; n];
+                    }
+                    disk_lanes.load(view.splats, cands);
+                    lanes::any_hit(disk_lanes, &mut leaf.iter().flatten().map(|x| &x.0), hits);
+                    hits.iter()
+                        .map(|&h| if h { Culled::Blocked } else { Culled::Open })
+                        .collect()
+                },
+            )
+            .collect();
+        // The probes of the samples left to them.
+        let left = |leaf: &Vec<Vec<(Ray, u32, f32, bool)>>, c: &[Culled]| {
+            leaf.iter()
+                .flatten()
+                .zip(c.iter())
+                .filter(|(_, &c)| c == Culled::Probe)
+                .map(|(x, _)| *x)
+                .collect::<Vec<_>>()
+        };
         let probe_rays: Vec<Ray> = per
             .iter()
-            .flatten()
-            .flatten()
-            .filter(|s| s.3)
-            .map(|s| s.0)
+            .zip(&culled)
+            .flat_map(|(leaf, c)| left(leaf, c).into_iter().filter(|s| s.3).map(|s| s.0))
             .collect();
         let probe_vis = tester.visible(&probe_rays)?;
         // Per leaf: the probes' common answer, or None where they disagree or there are none.
         let mut at = 0;
         let verdicts: Vec<Option<bool>> = per
             .iter()
-            .map(|leaf| {
-                let n = leaf.iter().flatten().filter(|s| s.3).count();
+            .zip(&culled)
+            .map(|(leaf, c)| {
+                let n = left(leaf, c).iter().filter(|s| s.3).count();
                 let v = &probe_vis[at..at + n];
                 at += n;
                 if v.is_empty() {
@@ -272,26 +377,40 @@ pub fn emitter_direct(
             .collect();
         let rest_rays: Vec<Ray> = per
             .iter()
+            .zip(&culled)
             .zip(&verdicts)
             .filter(|(_, v)| v.is_none())
-            .flat_map(|(leaf, _)| leaf.iter().flatten().filter(|s| !s.3).map(|s| s.0))
+            .flat_map(|((leaf, c), _)| left(leaf, c).into_iter().filter(|s| !s.3).map(|s| s.0))
             .collect();
         let rest_vis = tester.visible(&rest_rays)?;
         cast += (probe_rays.len() + rest_rays.len()) as u64;
         taken += per.iter().flatten().map(|r| r.len() as u64).sum::<u64>();
+        settled += culled
+            .iter()
+            .flatten()
+            .filter(|&&c| c != Culled::Probe)
+            .count() as u64;
         let (mut pa, mut ra) = (0, 0);
-        for ((group, leaf), verdict) in chunk.iter().zip(&per).zip(&verdicts) {
+        for (((group, leaf), verdict), culled) in chunk.iter().zip(&per).zip(&verdicts).zip(&culled)
+        {
+            let mut states = culled.iter();
             for (&i, smp) in group.iter().zip(leaf) {
                 let mut e = Vec3::ZERO;
                 for &(_, j, w, probe) in smp {
-                    let seen = if probe {
-                        pa += 1;
-                        probe_vis[pa - 1]
-                    } else if let Some(v) = verdict {
-                        *v
-                    } else {
-                        ra += 1;
-                        rest_vis[ra - 1]
+                    let seen = match states.next() {
+                        Some(Culled::Open) => true,
+                        Some(Culled::Blocked) => false,
+                        _ if probe => {
+                            pa += 1;
+                            probe_vis[pa - 1]
+                        }
+                        _ => match verdict {
+                            Some(v) => *v,
+                            None => {
+                                ra += 1;
+                                rest_vis[ra - 1]
+                            }
+                        },
                     };
                     if seen {
                         e += Vec3::from(sys.emission[j as usize]) * w;
@@ -303,7 +422,11 @@ pub fn emitter_direct(
             }
         }
     }
-    Ok((cast, taken))
+    Ok(EmitterRays {
+        cast,
+        samples: taken,
+        settled,
+    })
 }
 
 /// The emitter samples of receiver `i`: stratified over the area CDF, each with its shadow ray,

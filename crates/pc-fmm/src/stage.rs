@@ -122,16 +122,20 @@ pub fn run(
     )
     .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))?;
     let mut sys = sys;
-    let (emitter_rays, emitter_samples) = solve::emitter_direct(
+    let emitter = solve::emitter_direct(
         &view,
         &pts,
         &mut sys,
-        p.emitter_samples,
-        p.emitter_probes,
-        vmeta.params.self_hit,
+        solve::EmitterSampling {
+            samples: p.emitter_samples,
+            probes: p.emitter_probes,
+            self_hit: vmeta.params.self_hit,
+            shafts: true,
+        },
         &caster,
     )
     .map_err(|e| anyhow::anyhow!("emitter shadow rays: {e}"))?;
+    let (emitter_rays, emitter_samples) = (emitter.cast, emitter.samples);
     // Caustic energy (LS⁺D, seed §8.1): the photon map's first diffuse bounce feeds the later
     // ones. It is a source of the solve, and taken out of the stored radiance again, because
     // the renderer shows it from the photon map itself.
@@ -272,6 +276,7 @@ pub fn run(
         p2p_pairs: plan.counts.p2p_pairs,
         emitter_samples,
         emitter_rays,
+        emitter_settled: emitter.settled,
         device,
         timings,
     };

@@ -218,8 +218,10 @@ fn radiosity_statistics(a: &Artifact) -> anyhow::Result<String> {
     if meta.emitter_samples > 0 {
         let _ = writeln!(
             s,
-            "emitters    {} samples, {} shadow rays ({:.1} %; the probes settled the rest)",
+            "emitters    {} samples: {} settled by empty shafts ({:.1} %), {} shadow rays ({:.1} %), the probes' verdict for the rest",
             meta.emitter_samples,
+            meta.emitter_settled,
+            100.0 * meta.emitter_settled as f64 / meta.emitter_samples as f64,
             meta.emitter_rays,
             100.0 * meta.emitter_rays as f64 / meta.emitter_samples as f64
         );

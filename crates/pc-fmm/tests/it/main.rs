@@ -366,16 +366,42 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
         }
         sys
     };
-    let direct = |probes: u32| {
+    let direct = |probes: u32, shafts: bool| {
         let mut sys = base();
-        let (rays, samples) =
-            solve::emitter_direct(&view, &pts, &mut sys, 64, probes, 0.5, &tester).unwrap();
-        (sys.source, rays, samples)
+        let how = solve::EmitterSampling {
+            samples: 64,
+            probes,
+            self_hit: 0.5,
+            shafts,
+        };
+        let r = solve::emitter_direct(&view, &pts, &mut sys, how, &tester).unwrap();
+        (sys.source, r)
     };
-    let (every, rays_all, samples) = direct(0);
-    let (probed, rays_probed, samples_probed) = direct(16);
+    let (every, all) = direct(0, false);
+    let (probed, with_probes) = direct(16, false);
+    let (culled, with_shafts) = direct(0, true);
+    let (both, with_both) = direct(16, true);
+    let (samples, rays_all, rays_probed) = (all.samples, all.cast, with_probes.cast);
     assert_eq!(rays_all, samples, "probes 0 casts every sample");
-    assert_eq!(samples_probed, samples);
+    assert_eq!(with_probes.samples, samples);
+    // Shaft culling is exact: the same light on every splat, bit for bit, with rays cast only
+    // where a leaf's shaft holds too many disks (here none: the plate is small).
+    assert_eq!(culled, every, "shaft culling changed the direct light");
+    assert_eq!(with_shafts.settled + with_shafts.cast, samples);
+    assert!(with_shafts.settled > samples / 2, "{with_shafts:?}");
+    println!(
+        "shaft culling settled {} of {samples} samples; with probes too: {with_both:?}",
+        with_shafts.settled
+    );
+    let pen = |v: &[[f32; 3]]| -> f64 {
+        view.splats
+            .iter()
+            .zip(v)
+            .filter(|(s, _)| s.material == 0 && s.position[1].abs() < 1e-3)
+            .map(|(_, x)| x[0] as f64)
+            .sum()
+    };
+    assert!((pen(&both) - pen(&every)).abs() < 1e-3 * pen(&every));
     // Floor splats: open ones (x < 0.3, outside the plate's penumbra) against the analytic
     // value ρ Lₑ F; the penumbra (0.45 < x < 1.55 under the plate's z-extent) by both methods.
     let (mut err, mut open_n) = (0.0f64, 0);

@@ -1,0 +1,230 @@
+//! Shaft culling for the emitters' shadow rays (docs/fmm.md, "Direct light of the emitters").
+//!
+//! Every shadow ray of a group of receivers (one octree leaf's) runs from a receiver's centre,
+//! inside the receivers' box `A`, to an emitter's centre, inside the emitters' box `B`, and
+//! counts a hit only between `t_min` (`self_hit` receiver radii) and `t_max` (`self_hit`
+//! emitter radii short of the end). Such a segment, with `s = t / len`, lies in the *shaft*
+//! `⋃_{s ∈ [s0, s1]} (1 − s) A + s B` with `s0 = min t_min / max len` and
+//! `s1 = 1 − min (self_hit r_e) / max len` (the convex hull of `A ∪ B` for `[0, 1]`, Haines and
+//! Wallace's shaft). When no splat's disk reaches into the shaft, no ray of the group can be
+//! blocked: all of its samples see the emitters, exactly as casting every ray would say, and
+//! none is cast. The surfaces at the two ends (the receivers' own plane, the emitters' plane)
+//! stay out of the shaft because `s0 > 0` and `s1 < 1` lift it off them.
+//!
+//! The test descends the octree with each node's box of its splats' disks (tight per normal:
+//! a disk of radius r and normal n reaches `r √(1 − n_k²)` along axis k).
+
+use glam::Vec3;
+use pc_artifact::octree::node;
+use pc_tree::OctreeView;
+
+/// Axis-aligned box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    pub min: Vec3,
+    pub max: Vec3,
+}
+
+impl Aabb {
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
+
+    pub fn grow(&mut self, p: Vec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+
+    pub fn union(self, o: Aabb) -> Aabb {
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.min.cmpgt(self.max).any()
+    }
+
+    /// The box of a disk (centre `c`, unit normal `n`, radius `r`), widened by a relative
+    /// margin against rounding in the ray-disk test.
+    pub fn of_disk(c: Vec3, n: Vec3, r: f32) -> Aabb {
+        let reach = (Vec3::ONE - n * n).max(Vec3::ZERO).powf(0.5) * r * (1.0 + 1e-4)
+            + Vec3::splat(1e-6 * r);
+        Aabb {
+            min: c - reach,
+            max: c + reach,
+        }
+    }
+}
+
+/// The shaft between a receivers' box and an emitters' box for `s ∈ [s0, s1]`.
+#[derive(Clone, Copy, Debug)]
+pub struct Shaft {
+    a: Aabb,
+    b: Aabb,
+    s0: f32,
+    s1: f32,
+}
+
+impl Shaft {
+    /// The shaft of rays from points in `a` (hits counted from `t_min` on) to points in `b`
+    /// (hits counted until `end` short of the target), or `None` when the margins leave no
+    /// room (`s0 ≥ s1`) or a box is empty.
+    pub fn new(a: Aabb, b: Aabb, t_min: f32, end: f32) -> Option<Shaft> {
+        if a.is_empty() || b.is_empty() {
+            return None;
+        }
+        let far = (b.max - a.min).abs().max((a.max - b.min).abs()).length();
+        if far <= 0.0 || !far.is_finite() {
+            return None;
+        }
+        // Half the margins: the ray test's rounding stays well inside.
+        let s0 = 0.5 * t_min / far;
+        let s1 = 1.0 - 0.5 * end / far;
+        (s0 < s1).then_some(Shaft { a, b, s0, s1 })
+    }
+
+    /// Whether the box `n` meets the shaft: some `s ∈ [s0, s1]` with `n` overlapping
+    /// `(1 − s) a + s b` on every axis (each axis bounds `s` by two linear inequalities).
+    pub fn meets(&self, n: &Aabb) -> bool {
+        let (mut lo, mut hi) = (self.s0, self.s1);
+        for k in 0..3 {
+            // n.min ≤ a.max + s (b.max − a.max)  and  n.max ≥ a.min + s (b.min − a.min).
+            for (alpha, beta) in [
+                (self.a.max[k] - n.min[k], self.b.max[k] - self.a.max[k]),
+                (n.max[k] - self.a.min[k], self.a.min[k] - self.b.min[k]),
+            ] {
+                // alpha + s beta ≥ 0
+                if beta > 0.0 {
+                    lo = lo.max(-alpha / beta);
+                } else if beta < 0.0 {
+                    hi = hi.min(alpha / -beta);
+                } else if alpha < 0.0 {
+                    return false;
+                }
+            }
+            if lo > hi {
+                return false;
+            }
+        }
+        lo <= hi
+    }
+}
+
+/// Per node-pool slot, the box of the disks of the splats under it (the leaves' own splats:
+/// every splat once).
+pub struct DiskBoxes {
+    boxes: Vec<Aabb>,
+}
+
+impl DiskBoxes {
+    pub fn new(view: &OctreeView) -> DiskBoxes {
+        let slots = view.nodes.len();
+        let mut boxes = vec![Aabb::EMPTY; slots];
+        // Children follow their parent in the pool: bottom-up is reverse slot order.
+        for slot in (0..slots).rev() {
+            let w = view.nodes[slot];
+            if node::is_empty(w) {
+                continue;
+            }
+            let mut bx = Aabb::EMPTY;
+            if node::is_leaf(w) {
+                for i in view.leaf(w).0 {
+                    let s = &view.splats[i as usize];
+                    let d = Aabb::of_disk(s.position.into(), s.normal.into(), s.radius);
+                    bx = bx.union(d);
+                }
+            } else {
+                let c = node::ptr(w) as usize;
+                for b in &boxes[c..c + 8] {
+                    bx = bx.union(*b);
+                }
+            }
+            boxes[slot] = bx;
+        }
+        DiskBoxes { boxes }
+    }
+
+    /// The splats whose disks meet the shaft, into `out`: `false` (and `out` incomplete) once
+    /// there are more than `limit`.
+    pub fn candidates(
+        &self,
+        view: &OctreeView,
+        shaft: &Shaft,
+        limit: usize,
+        stack: &mut Vec<u32>,
+        out: &mut Vec<u32>,
+    ) -> bool {
+        out.clear();
+        stack.clear();
+        stack.push(0);
+        while let Some(slot) = stack.pop() {
+            let bx = &self.boxes[slot as usize];
+            if bx.is_empty() || !shaft.meets(bx) {
+                continue;
+            }
+            let w = view.nodes[slot as usize];
+            if node::is_leaf(w) {
+                for i in view.leaf(w).0 {
+                    if shaft.meets(&disk_box(view, i)) {
+                        if out.len() == limit {
+                            return false;
+                        }
+                        out.push(i);
+                    }
+                }
+            } else {
+                let c = node::ptr(w);
+                stack.extend(c..c + 8);
+            }
+        }
+        true
+    }
+}
+
+/// The box of splat `i`'s disk.
+#[inline]
+pub fn disk_box(view: &OctreeView, i: u32) -> Aabb {
+    let s = &view.splats[i as usize];
+    Aabb::of_disk(s.position.into(), s.normal.into(), s.radius)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bx(min: [f32; 3], max: [f32; 3]) -> Aabb {
+        Aabb {
+            min: min.into(),
+            max: max.into(),
+        }
+    }
+
+    #[test]
+    fn the_shaft_holds_every_segment_and_leaves_out_what_is_beside_it() {
+        // Floor patch under a ceiling light.
+        let a = bx([0.4, 0.0, 0.4], [0.5, 0.0, 0.5]);
+        let b = bx([0.45, 1.0, 0.45], [0.55, 1.0, 0.55]);
+        let s = Shaft::new(a, b, 0.01, 0.01).unwrap();
+        // Points on segments between the boxes, inside [s0, s1].
+        for (x, y, t) in [
+            ([0.4, 0.0, 0.4], [0.55, 1.0, 0.55], 0.5),
+            ([0.5, 0.0, 0.45], [0.45, 1.0, 0.5], 0.1),
+            ([0.42, 0.0, 0.5], [0.5, 1.0, 0.45], 0.9),
+        ] {
+            let p = Vec3::from(x).lerp(Vec3::from(y), t);
+            assert!(s.meets(&bx(p.into(), p.into())), "{p}");
+        }
+        // Beside the shaft, and the two end planes.
+        assert!(!s.meets(&bx([0.7, 0.4, 0.7], [0.8, 0.6, 0.8])));
+        assert!(!s.meets(&bx([0.0, 0.0, 0.0], [1.0, 0.0, 1.0])));
+        assert!(!s.meets(&bx([0.0, 1.0, 0.0], [1.0, 1.0, 1.0])));
+        // A slab across the middle.
+        assert!(s.meets(&bx([0.0, 0.5, 0.0], [1.0, 0.5, 1.0])));
+        // A floor disk's box is flat.
+        let d = Aabb::of_disk(Vec3::new(0.45, 0.0, 0.45), Vec3::Y, 0.05);
+        assert!(d.max.y - d.min.y < 1e-6 && !s.meets(&d));
+    }
+}
