@@ -44,12 +44,7 @@ fn main() -> anyhow::Result<()> {
         },
     );
     let basis = Basis::new(f.order as usize);
-    let fmm = CpuFmm {
-        basis: &basis,
-        tree: &t,
-        points: &p,
-        plan: &plan,
-    };
+    let fmm = CpuFmm::new(&basis, &t, &p, &plan);
     let radiance: Vec<[f32; 3]> = (0..p.pos.len())
         .map(|i| {
             let x = i as f32 * 0.618;

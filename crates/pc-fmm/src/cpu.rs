@@ -17,34 +17,35 @@ const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 
 /// The source weights `w_j = A_j L_j` (zero for inactive splats).
 pub fn weights(pts: &Points, radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
-    (0..pts.pos.len())
-        .into_par_iter()
-        .map(|j| {
-            if pts.active[j] {
-                let a = pts.area[j];
-                [a * radiance[j][0], a * radiance[j][1], a * radiance[j][2]]
-            } else {
-                [0.0; 3]
-            }
-        })
-        .collect()
+    let mut w = Vec::new();
+    weights_into(pts, radiance, &mut w);
+    w
 }
 
-/// The source charges `q_j = n_j w_j`.
-pub fn charges(pts: &Points, w: &[[f32; 3]]) -> Vec<Coef> {
-    (0..pts.pos.len())
-        .into_par_iter()
-        .map(|j| {
-            let mut q = [0.0f32; 9];
-            let n = pts.normal[j];
-            for c in 0..3 {
-                for k in 0..3 {
-                    q[c * 3 + k] = n[k] * w[j][c];
-                }
+/// [`weights`] into `w`, reusing its allocation.
+pub fn weights_into(pts: &Points, radiance: &[[f32; 3]], w: &mut Vec<[f32; 3]>) {
+    w.resize(pts.pos.len(), [0.0; 3]);
+    w.par_iter_mut().enumerate().for_each(|(j, wj)| {
+        *wj = if pts.active[j] {
+            let a = pts.area[j];
+            [a * radiance[j][0], a * radiance[j][1], a * radiance[j][2]]
+        } else {
+            [0.0; 3]
+        }
+    });
+}
+
+/// The source charges `q_j = n_j w_j`, into `q` (reusing its allocation).
+pub fn charges_into(pts: &Points, w: &[[f32; 3]], q: &mut Vec<Coef>) {
+    q.resize(pts.pos.len(), [0.0; 9]);
+    q.par_iter_mut().enumerate().for_each(|(j, qj)| {
+        let n = pts.normal[j];
+        for c in 0..3 {
+            for k in 0..3 {
+                qj[c * 3 + k] = n[k] * w[j][c];
             }
-            q
-        })
-        .collect()
+        }
+    });
 }
 
 /// Clamped point-to-point kernel of the far field,
@@ -116,14 +117,38 @@ pub struct CpuFmm<'a> {
     pub tree: &'a Tree,
     pub points: &'a Points,
     pub plan: &'a Plan,
+    /// Weights, charges, moments, local expansions and splat lanes, kept from one application
+    /// to the next.
+    bufs: std::sync::Mutex<Buffers>,
+}
+
+#[derive(Default)]
+struct Buffers {
+    w: Vec<[f32; 3]>,
+    q: Vec<Coef>,
+    m: Vec<Coef>,
+    l: Vec<Coef>,
+    splats: Option<lanes::SplatLanes>,
+}
+
+impl<'a> CpuFmm<'a> {
+    pub fn new(basis: &'a Basis, tree: &'a Tree, points: &'a Points, plan: &'a Plan) -> Self {
+        CpuFmm {
+            basis,
+            tree,
+            points,
+            plan,
+            bufs: Default::default(),
+        }
+    }
 }
 
 impl CpuFmm<'_> {
     /// Upward pass: multipole moments of every node (P2M at leaves, M2M upward).
-    pub fn upward(&self, q: &[Coef]) -> Vec<Coef> {
+    pub fn upward(&self, q: &[Coef], m: &mut Vec<Coef>) {
         let (b, t, p) = (self.basis, self.tree, self.points);
         let np = b.len();
-        let mut m = vec![[0.0f32; 9]; t.nodes.len() * np];
+        zeroed(m, t.nodes.len() * np);
         let mp = SyncPtr(m.as_mut_ptr());
         t.leaves.par_iter().for_each_init(
             || Scratch::new(b),
@@ -167,14 +192,13 @@ impl CpuFmm<'_> {
                 },
             );
         }
-        m
     }
 
     /// M2L and P2L into every receiving node's local expansion.
-    pub fn interact(&self, m: &[Coef], q: &[Coef]) -> Vec<Coef> {
+    pub fn interact(&self, m: &[Coef], q: &[Coef], l: &mut Vec<Coef>) {
         let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
         let np = b.len();
-        let mut l = vec![[0.0f32; 9]; t.nodes.len() * np];
+        zeroed(l, t.nodes.len() * np);
         l.par_chunks_mut(np).enumerate().for_each_init(
             || lanes::Scratch::new(b),
             |s, (ci, local)| {
@@ -188,11 +212,16 @@ impl CpuFmm<'_> {
                 }
             },
         );
-        l
     }
 
     /// Downward pass (L2L) and the leaf phase (L2P, M2P, P2P): the operator's output per splat.
-    pub fn downward(&self, mut l: Vec<Coef>, m: &[Coef], w: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    pub fn downward(
+        &self,
+        l: &mut [Coef],
+        m: &[Coef],
+        sl: &lanes::SplatLanes,
+        out: &mut [[f32; 3]],
+    ) {
         let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
         let np = b.len();
         let lp = SyncPtr(l.as_mut_ptr());
@@ -218,7 +247,6 @@ impl CpuFmm<'_> {
             );
         }
         let op = SyncPtr(out.as_mut_ptr());
-        let sl = &lanes::SplatLanes::new(p, w);
         t.leaves.par_iter().enumerate().for_each_init(
             || (Scratch::new(b), lanes::Scratch::new(b)),
             |s, (li, &leaf)| {
@@ -257,17 +285,37 @@ impl CpuFmm<'_> {
 
     /// One application: `out_i = Σ_j f K(i, j) A_j L_j` for the radiance `L`.
     pub fn apply(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]], times: &mut PhaseTimes) {
+        // A poisoned lock only means an earlier application panicked; the buffers are
+        // rewritten in full.
+        let mut guard = self.bufs.lock().unwrap_or_else(|e| e.into_inner());
+        let bufs = &mut *guard;
         let t0 = std::time::Instant::now();
-        let w = weights(self.points, radiance);
-        let q = charges(self.points, &w);
-        let m = self.upward(&q);
+        weights_into(self.points, radiance, &mut bufs.w);
+        charges_into(self.points, &bufs.w, &mut bufs.q);
+        match &mut bufs.splats {
+            Some(sl) => sl.set_weights(&bufs.w),
+            None => bufs.splats = Some(lanes::SplatLanes::new(self.points, &bufs.w)),
+        }
+        self.upward(&bufs.q, &mut bufs.m);
         let t1 = std::time::Instant::now();
-        let l = self.interact(&m, &q);
+        self.interact(&bufs.m, &bufs.q, &mut bufs.l);
         let t2 = std::time::Instant::now();
-        self.downward(l, &m, &w, out);
+        let sl = bufs.splats.as_ref().expect("set above");
+        self.downward(&mut bufs.l, &bufs.m, sl, out);
         times.upward += (t1 - t0).as_secs_f64();
         times.m2l += (t2 - t1).as_secs_f64();
         times.downward += t2.elapsed().as_secs_f64();
+    }
+}
+
+/// `v` as `n` zero coefficients, reusing its pages (a fresh zeroed allocation faults on every
+/// first write, and with threads each fault costs a TLB shootdown).
+fn zeroed(v: &mut Vec<Coef>, n: usize) {
+    if v.len() == n {
+        v.par_iter_mut().for_each(|x| *x = [0.0; 9]);
+    } else {
+        v.clear();
+        v.resize(n, [0.0; 9]);
     }
 }
 

@@ -25,6 +25,16 @@ const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 /// How a multiply-add is done: rounded twice, or fused (the AVX2 + FMA build).
 pub(crate) trait Isa {
     fn madd(a: f32, b: f32, c: f32) -> f32;
+
+    /// Transpose: `out[e][l] = rows[l][e]` for every element `e` of the (equally long) rows.
+    #[inline(always)]
+    fn gather(rows: &[&[f32]; W], out: &mut [L]) {
+        for (e, o) in out.iter_mut().enumerate().take(rows[0].len()) {
+            for l in 0..W {
+                o[l] = rows[l][e];
+            }
+        }
+    }
 }
 
 /// `a * b + c`, two roundings: any CPU.
@@ -47,6 +57,65 @@ impl Isa for Fused {
     fn madd(a: f32, b: f32, c: f32) -> f32 {
         a.mul_add(b, c)
     }
+
+    #[inline(always)]
+    fn gather(rows: &[&[f32]; W], out: &mut [L]) {
+        let n = rows[0].len();
+        assert!(rows.iter().all(|r| r.len() == n) && out.len() >= n);
+        let mut e = 0;
+        while e + W <= n {
+            // SAFETY: Fused runs only inside functions compiled for AVX2 (and so AVX); the
+            // rows hold `n ≥ e + 8` floats and `out` at least `n` lanes (asserted).
+            unsafe { transpose8(rows, e, &mut out[e..e + W]) };
+            e += W;
+        }
+        for (k, o) in out[e..n].iter_mut().enumerate() {
+            for l in 0..W {
+                o[l] = rows[l][e + k];
+            }
+        }
+    }
+}
+
+/// `out[k][l] = rows[l][e + k]` for `k < 8`: an 8×8 transpose in AVX registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+unsafe fn transpose8(rows: &[&[f32]; W], e: usize, out: &mut [L]) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees 8 floats from `e` in every row and 8 lanes in `out`.
+    unsafe {
+        let r: [__m256; 8] = std::array::from_fn(|l| _mm256_loadu_ps(rows[l].as_ptr().add(e)));
+        let t0 = _mm256_unpacklo_ps(r[0], r[1]);
+        let t1 = _mm256_unpackhi_ps(r[0], r[1]);
+        let t2 = _mm256_unpacklo_ps(r[2], r[3]);
+        let t3 = _mm256_unpackhi_ps(r[2], r[3]);
+        let t4 = _mm256_unpacklo_ps(r[4], r[5]);
+        let t5 = _mm256_unpackhi_ps(r[4], r[5]);
+        let t6 = _mm256_unpacklo_ps(r[6], r[7]);
+        let t7 = _mm256_unpackhi_ps(r[6], r[7]);
+        let s0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+        let s1 = _mm256_shuffle_ps::<0xEE>(t0, t2);
+        let s2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+        let s3 = _mm256_shuffle_ps::<0xEE>(t1, t3);
+        let s4 = _mm256_shuffle_ps::<0x44>(t4, t6);
+        let s5 = _mm256_shuffle_ps::<0xEE>(t4, t6);
+        let s6 = _mm256_shuffle_ps::<0x44>(t5, t7);
+        let s7 = _mm256_shuffle_ps::<0xEE>(t5, t7);
+        let c = [
+            _mm256_permute2f128_ps::<0x20>(s0, s4),
+            _mm256_permute2f128_ps::<0x20>(s1, s5),
+            _mm256_permute2f128_ps::<0x20>(s2, s6),
+            _mm256_permute2f128_ps::<0x20>(s3, s7),
+            _mm256_permute2f128_ps::<0x31>(s0, s4),
+            _mm256_permute2f128_ps::<0x31>(s1, s5),
+            _mm256_permute2f128_ps::<0x31>(s2, s6),
+            _mm256_permute2f128_ps::<0x31>(s3, s7),
+        ];
+        for (o, v) in out.iter_mut().zip(c) {
+            _mm256_storeu_ps(o.as_mut_ptr(), v);
+        }
+    }
 }
 
 /// Whether this CPU runs the AVX2 + FMA build of the kernels.
@@ -64,6 +133,8 @@ pub fn fused() -> bool {
 /// Scratch of one worker: kernel coefficients, gathered source moments and accumulators, all
 /// per lane.
 pub struct Scratch {
+    /// Zero moments for the lanes a batch leaves empty.
+    zero: Vec<f32>,
     a: Vec<L>,
     g: Vec<[L; 6]>,
     ms: Vec<[L; 9]>,
@@ -73,6 +144,7 @@ pub struct Scratch {
 impl Scratch {
     pub fn new(b: &Basis) -> Scratch {
         Scratch {
+            zero: vec![0.0; b.len() * 9],
             a: vec![Z; b.len() + 1],
             g: vec![[Z; 6]; b.len()],
             ms: vec![[Z; 9]; b.len()],
@@ -107,6 +179,17 @@ impl SplatLanes {
             area: col(&|i| p.area[i]),
             active: col(&|i| if p.active[i] { 1.0 } else { 0.0 }),
             w: [0, 1, 2].map(|c| col(&|i| w[i][c])),
+        }
+    }
+
+    /// New source weights, in place.
+    pub fn set_weights(&mut self, w: &[[f32; 3]]) {
+        use rayon::prelude::*;
+        for (c, col) in self.w.iter_mut().enumerate() {
+            col[..w.len()]
+                .par_iter_mut()
+                .zip(w)
+                .for_each(|(x, wi)| *x = wi[c]);
         }
     }
 }
@@ -210,35 +293,42 @@ fn m2l_batch<I: Isa>(
 ) {
     let np = b.len();
     let mut r = [Z; 3];
+    let mut f = Z;
+    let mut rows: [&[f32]; W] = [&s.zero; W];
     for l in 0..W {
-        if let Some(&(src, f)) = batch.get(l) {
+        if let Some(&(src, fl)) = batch.get(l) {
             let c = t.center[src as usize];
             for k in 0..3 {
                 r[k][l] = c[k] - ca[k];
             }
             let sc = t.compact[src as usize] as usize;
-            for (a, mm) in m[sc * np..(sc + 1) * np].iter().enumerate() {
-                for k in 0..9 {
-                    s.ms[a][k][l] = mm[k] * f;
-                }
-            }
+            rows[l] = m[sc * np..(sc + 1) * np].as_flattened();
+            f[l] = fl;
         } else {
             r[0][l] = 1.0;
-            for ma in s.ms.iter_mut() {
-                for mk in ma.iter_mut() {
-                    mk[l] = 0.0;
-                }
+        }
+    }
+    I::gather(&rows, s.ms.as_flattened_mut());
+    kernel_coeffs(b, &r, &mut s.a, &mut s.g);
+    // The fractions scale the kernel (one vector per coefficient) instead of the moments.
+    for gi in s.g.iter_mut() {
+        for gc in gi.iter_mut() {
+            for l in 0..W {
+                gc[l] *= f[l];
             }
         }
     }
-    kernel_coeffs(b, &r, &mut s.a, &mut s.g);
-    for &(a, bb, gi, c) in &b.m2l {
-        apply::<I>(
-            c,
-            &s.g[gi as usize],
-            &s.ms[a as usize],
-            &mut s.acc[bb as usize],
-        );
+    // The terms come sorted by β: each β's sum stays in registers.
+    let mut k = 0;
+    while k < b.m2l.len() {
+        let bb = b.m2l[k].1;
+        let mut acc = s.acc[bb as usize];
+        while k < b.m2l.len() && b.m2l[k].1 == bb {
+            let (a, _, gi, c) = b.m2l[k];
+            apply::<I>(c, &s.g[gi as usize], &s.ms[a as usize], &mut acc);
+            k += 1;
+        }
+        s.acc[bb as usize] = acc;
     }
 }
 
@@ -388,30 +478,21 @@ fn m2p_batch<I: Isa>(
     // reads the same moments, and they need no gathering.
     let uniform = batch.iter().all(|x| x.1 == src0);
     let mut r = [Z; 3];
+    let mut rows: [&[f32]; W] = [&s.zero; W];
     for l in 0..W {
         if let Some(&(i, src, _)) = batch.get(l) {
             let (c, x) = (t.center[src as usize], p.pos[i as usize]);
             for k in 0..3 {
                 r[k][l] = c[k] - x[k];
             }
-            if !uniform {
-                let sc = t.compact[src as usize] as usize;
-                for (a, mm) in m[sc * np..(sc + 1) * np].iter().enumerate() {
-                    for k in 0..9 {
-                        s.ms[a][k][l] = mm[k];
-                    }
-                }
-            }
+            let sc = t.compact[src as usize] as usize;
+            rows[l] = m[sc * np..(sc + 1) * np].as_flattened();
         } else {
             r[0][l] = 1.0;
-            if !uniform {
-                for ma in s.ms.iter_mut() {
-                    for mk in ma.iter_mut() {
-                        mk[l] = 0.0;
-                    }
-                }
-            }
         }
+    }
+    if !uniform {
+        I::gather(&rows, s.ms.as_flattened_mut());
     }
     kernel_coeffs(b, &r, &mut s.a, &mut s.g);
     let mut field = [Z; 9];
@@ -632,18 +713,21 @@ unsafe fn leaf_fused(
 }
 
 /// Disks as structure of arrays for [`any_hit`], padded to whole batches with disks no ray
-/// meets: centre, normal, squared radius, border clip.
+/// meets (centre, normal, squared radius, border clip), and a tree of boxes over them: level 0
+/// holds the box of each batch of [`W`] disks, level `k + 1` the box of each batch of [`W`]
+/// level-`k` boxes, up to a level of at most [`W`]. The disks come in the order the octree
+/// listed them, so a batch is compact.
 #[derive(Default)]
 pub struct DiskLanes {
     v: [Vec<f32>; 11],
-    /// Per batch of [`W`] disks, the box of their disks (min xyz, max xyz), padded to whole
-    /// batches of boxes with empty ones.
-    b: [Vec<f32>; 6],
+    /// Per level: min xyz, max xyz, padded to whole batches with empty boxes.
+    levels: Vec<[Vec<f32>; 6]>,
 }
 
 impl DiskLanes {
     /// Load the splats `ids` of `splats`.
     pub fn load(&mut self, splats: &[pc_artifact::octree::Splat], ids: &[u32]) {
+        use crate::shaft::Aabb;
         for v in self.v.iter_mut() {
             v.clear();
         }
@@ -673,55 +757,72 @@ impl DiskLanes {
                 v.push(if k == 6 { -1.0 } else { 0.0 });
             }
         }
-        for v in self.b.iter_mut() {
-            v.clear();
-        }
-        for batch in ids.chunks(W) {
-            let mut bx = crate::shaft::Aabb::EMPTY;
-            for &i in batch {
-                let s = &splats[i as usize];
-                bx = bx.union(crate::shaft::Aabb::of_disk(
-                    s.position.into(),
-                    s.normal.into(),
-                    s.radius,
-                ));
+        let mut boxes: Vec<Aabb> = ids
+            .chunks(W)
+            .map(|batch| {
+                batch.iter().fold(Aabb::EMPTY, |bx, &i| {
+                    let s = &splats[i as usize];
+                    bx.union(Aabb::of_disk(s.position.into(), s.normal.into(), s.radius))
+                })
+            })
+            .collect();
+        self.levels.clear();
+        loop {
+            let mut level: [Vec<f32>; 6] = Default::default();
+            for bx in &boxes {
+                for k in 0..3 {
+                    level[k].push(bx.min[k]);
+                    level[k + 3].push(bx.max[k]);
+                }
             }
-            for k in 0..3 {
-                self.b[k].push(bx.min[k]);
-                self.b[k + 3].push(bx.max[k]);
+            while !level[0].len().is_multiple_of(W) {
+                for (k, v) in level.iter_mut().enumerate() {
+                    v.push(if k < 3 {
+                        f32::INFINITY
+                    } else {
+                        f32::NEG_INFINITY
+                    });
+                }
             }
-        }
-        while !self.b[0].len().is_multiple_of(W) {
-            for (k, v) in self.b.iter_mut().enumerate() {
-                v.push(if k < 3 {
-                    f32::INFINITY
-                } else {
-                    f32::NEG_INFINITY
-                });
+            self.levels.push(level);
+            if boxes.len() <= W {
+                break;
             }
+            boxes = boxes
+                .chunks(W)
+                .map(|c| c.iter().fold(Aabb::EMPTY, |a, &b| a.union(b)))
+                .collect();
         }
     }
 }
 
 /// Whether any disk of `d` blocks the ray (a hit in `[t_min, t_max]`): the ray-disk test of the
-/// octree walk (`pc_tree::accel`), the same operations in the same order, eight disks at a time.
+/// octree walk (`pc_tree::accel`), the same operations in the same order, eight disks at a time,
+/// under slab tests of eight boxes at a time down the box tree.
 #[inline(always)]
 fn any_hit_impl(d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
-    let (o, dir) = (ray.origin, ray.dir);
-    // Slab test of eight batch boxes at a time (a zero direction component gets a huge finite
-    // inverse, so no 0 · ∞ arises), then the disks of the boxes the ray meets.
-    let inv = dir.to_array().map(|x| {
+    let Some(top) = d.levels.len().checked_sub(1) else {
+        return false;
+    };
+    // A zero direction component gets a huge finite inverse, so no 0 · ∞ arises.
+    let inv = ray.dir.to_array().map(|x| {
         if x.abs() < 1e-20 {
             1e20f32.copysign(x)
         } else {
             1.0 / x
         }
     });
-    let o3 = o.to_array();
-    let nb = d.b[0].len();
-    let mut b0 = 0;
-    while b0 < nb {
-        let lb = |k: usize| -> [f32; W] { d.b[k][b0..b0 + W].try_into().unwrap() };
+    let o3 = ray.origin.to_array();
+    // (level, first box of the batch); at most W entries per level.
+    let mut stack = [(0u32, 0u32); 16 * W];
+    stack[0] = (top as u32, 0);
+    let mut sp = 1;
+    while sp > 0 {
+        sp -= 1;
+        let (lvl, b0) = stack[sp];
+        let (lvl, b0) = (lvl as usize, b0 as usize);
+        let level = &d.levels[lvl];
+        let lb = |k: usize| -> [f32; W] { level[k][b0..b0 + W].try_into().unwrap() };
         let (lo, hi) = ([lb(0), lb(1), lb(2)], [lb(3), lb(4), lb(5)]);
         let mut meets = [false; W];
         for l in 0..W {
@@ -735,12 +836,28 @@ fn any_hit_impl(d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
             // (Padding boxes are empty: min above max.)
             meets[l] = (near <= far) & (lo[0][l] <= hi[0][l]);
         }
-        for (l, _) in meets.iter().enumerate().filter(|(_, &m)| m) {
-            if batch_hit(d, (b0 + l) * W, ray) {
-                return true;
+        for l in (0..W).filter(|&l| meets[l]) {
+            let child = (b0 + l) * W;
+            if lvl == 0 {
+                if batch_hit(d, child, ray) {
+                    return true;
+                }
+            } else if sp < stack.len() {
+                stack[sp] = ((lvl - 1) as u32, child as u32);
+                sp += 1;
+            } else {
+                // Deeper than any list the shafts make: test the subtree's disks directly.
+                let span = W.pow(lvl as u32 + 1);
+                let end = (child / W * span + span).min(d.v[0].len());
+                let mut j = child / W * span;
+                while j < end {
+                    if batch_hit(d, j, ray) {
+                        return true;
+                    }
+                    j += W;
+                }
             }
         }
-        b0 += W;
     }
     false
 }
@@ -796,6 +913,29 @@ unsafe fn any_hit_avx2(
 mod tests {
     use super::*;
     use crate::expansion;
+
+    #[test]
+    fn the_gather_transposes() {
+        for n in [4, 8, 20, 180, 183] {
+            let data: Vec<Vec<f32>> = (0..W)
+                .map(|l| (0..n).map(|e| (l * 1000 + e) as f32).collect())
+                .collect();
+            let rows: [&[f32]; W] = std::array::from_fn(|l| data[l].as_slice());
+            let mut want = vec![Z; n];
+            Plain::gather(&rows, &mut want);
+            for (e, o) in want.iter().enumerate() {
+                for l in 0..W {
+                    assert_eq!(o[l], (l * 1000 + e) as f32);
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
+            if fused() {
+                let mut got = vec![Z; n];
+                Fused::gather(&rows, &mut got);
+                assert_eq!(got, want, "{n} elements");
+            }
+        }
+    }
 
     #[test]
     fn lane_kernel_coeffs_match_the_scalar_ones() {

@@ -447,23 +447,20 @@ pub fn build(
         )
         .map(|(o, _)| o)
         .collect();
-    // One allocation per kind, receivers as compact indices.
+    // Counting sort by receiver (compact node, compact leaf) straight into one allocation per
+    // kind, then each receiver's tasks sorted by source: the order fixes the product's sums,
+    // whichever worker found a task.
     let mut counts = TaskCounts::default();
-    let mut node: Vec<(u32, NodeTask)> =
-        Vec::with_capacity(parts.iter().map(|o| o.node.len()).sum());
-    let mut leaf: Vec<(u32, LeafTask)> =
-        Vec::with_capacity(parts.iter().map(|o| o.leaf.len()).sum());
-    for o in parts {
+    for o in &parts {
         counts.dropped_facing_away += o.dropped;
-        for (a, task) in o.node {
+        for (_, task) in &o.node {
             if task.src & POINT != 0 {
                 counts.p2l += 1;
             } else {
                 counts.m2l += 1;
             }
-            node.push((t.compact[a as usize], task));
         }
-        for (l, task) in o.leaf {
+        for (_, task) in &o.leaf {
             if task.is_m2p() {
                 counts.m2p += 1;
             } else {
@@ -471,30 +468,101 @@ pub fn build(
                 counts.p2p_pairs +=
                     (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
             }
-            leaf.push((t.leaf_index[l as usize], task));
         }
     }
-    node.par_sort_unstable_by_key(|x| (x.0, x.1.src));
+    let (node_offsets, mut node_tasks) = bucket(
+        &parts,
+        |o| o.node.as_slice(),
+        |slot| t.compact[slot as usize],
+        t.nodes.len(),
+    );
+    let (leaf_offsets, mut leaf_tasks) = bucket(
+        &parts,
+        |o| o.leaf.as_slice(),
+        |slot| t.leaf_index[slot as usize],
+        t.leaves.len(),
+    );
+    drop(parts);
+    for_each_run(&node_offsets, &mut node_tasks, |run| {
+        run.sort_unstable_by_key(|x| (x.src, x.fraction.to_bits()))
+    });
     // By source within a leaf: a crease leaf's splats against one node come together (M2P
     // batches that share the moments, crate::lanes).
-    leaf.par_sort_unstable_by_key(|x| (x.0, x.1.src_lo, x.1.recv_lo));
-    let csr = |n: usize, keys: &mut dyn Iterator<Item = u32>| {
-        let mut o = vec![0u32; n + 1];
-        for k in keys {
-            o[k as usize + 1] += 1;
-        }
-        for i in 0..n {
-            o[i + 1] += o[i];
-        }
-        o
-    };
-    let node_offsets = csr(t.nodes.len(), &mut node.iter().map(|x| x.0));
-    let leaf_offsets = csr(t.leaves.len(), &mut leaf.iter().map(|x| x.0));
+    for_each_run(&leaf_offsets, &mut leaf_tasks, |run| {
+        run.sort_unstable_by_key(|x| {
+            (
+                x.src_lo,
+                x.recv_lo,
+                x.src_hi,
+                x.recv_hi,
+                x.fraction.to_bits(),
+            )
+        })
+    });
     Plan {
         node_offsets,
-        node_tasks: node.into_iter().map(|x| x.1).collect(),
+        node_tasks,
         leaf_offsets,
-        leaf_tasks: leaf.into_iter().map(|x| x.1).collect(),
+        leaf_tasks,
         counts,
     }
+}
+
+/// Counting sort of the workers' `(receiver slot, task)` lists by `key(slot)` (below `n`): the
+/// CSR offsets and the tasks, in parallel.
+fn bucket<T: Copy + Send + Sync + bytemuck::Zeroable>(
+    parts: &[Out],
+    list: impl Fn(&Out) -> &[(u32, T)] + Sync,
+    key: impl Fn(u32) -> u32 + Sync,
+    n: usize,
+) -> (Vec<u32>, Vec<T>) {
+    use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
+    let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+    parts.par_iter().for_each(|o| {
+        for &(slot, _) in list(o) {
+            counts[key(slot) as usize].fetch_add(1, Relaxed);
+        }
+    });
+    let mut offsets = vec![0u32; n + 1];
+    for i in 0..n {
+        offsets[i + 1] = offsets[i] + counts[i].load(Relaxed);
+    }
+    let cursor: Vec<AtomicU32> = offsets[..n].iter().map(|&o| AtomicU32::new(o)).collect();
+    let mut tasks = vec![T::zeroed(); offsets[n] as usize];
+    let out = SyncSlice(tasks.as_mut_ptr());
+    parts.par_iter().for_each(|o| {
+        for &(slot, task) in list(o) {
+            let k = cursor[key(slot) as usize].fetch_add(1, Relaxed) as usize;
+            // SAFETY: each cursor hands out the distinct indices of its key's run, all below
+            // the total.
+            unsafe { out.write(k, task) };
+        }
+    });
+    (offsets, tasks)
+}
+
+/// Raw pointer for the scatter of [`bucket`].
+#[derive(Clone, Copy)]
+struct SyncSlice<T>(*mut T);
+unsafe impl<T> Send for SyncSlice<T> {}
+unsafe impl<T> Sync for SyncSlice<T> {}
+
+impl<T> SyncSlice<T> {
+    /// # Safety
+    /// `k` inside the allocation, and no other thread writing it.
+    unsafe fn write(self, k: usize, v: T) {
+        unsafe { self.0.add(k).write(v) }
+    }
+}
+
+/// `f` on every CSR run of `tasks`, in parallel.
+fn for_each_run<T: Send>(offsets: &[u32], tasks: &mut [T], f: impl Fn(&mut [T]) + Sync) {
+    let mut runs = Vec::with_capacity(offsets.len().saturating_sub(1));
+    let mut rest = tasks;
+    for w in offsets.windows(2) {
+        let (a, b) = rest.split_at_mut((w[1] - w[0]) as usize);
+        runs.push(a);
+        rest = b;
+    }
+    runs.into_par_iter().for_each(|r| f(r));
 }

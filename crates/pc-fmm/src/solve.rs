@@ -168,7 +168,7 @@ pub fn system(
 
 /// A leaf whose shaft to the emitters holds at most this many disks tests its rays against
 /// them alone instead of walking the octree; past it the probes decide.
-pub const SHAFT_CANDIDATES: usize = 2048;
+pub const SHAFT_CANDIDATES: usize = 65536;
 
 /// A sample's visibility as shaft culling found it.
 #[derive(Clone, Copy, Debug, PartialEq)]

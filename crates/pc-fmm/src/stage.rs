@@ -179,12 +179,7 @@ pub fn run(
 
     let basis = Basis::new(p.order as usize);
     let cpu_op = || CpuOperator {
-        fmm: CpuFmm {
-            basis: &basis,
-            tree: &tree,
-            points: &pts,
-            plan: &plan,
-        },
+        fmm: CpuFmm::new(&basis, &tree, &pts, &plan),
         times: Default::default(),
         applications: 0,
     };

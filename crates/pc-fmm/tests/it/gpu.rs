@@ -54,12 +54,7 @@ fn gpu_product_matches_the_cpu() {
     // Order 6 passes too (1.7e-8) but compiles for a minute on llvmpipe.
     for order in [0usize, 2, 4] {
         let basis = Basis::new(order);
-        let cpu = CpuFmm {
-            basis: &basis,
-            tree: &f.tree,
-            points: &f.points,
-            plan: &f.plan,
-        };
+        let cpu = CpuFmm::new(&basis, &f.tree, &f.points, &f.plan);
         let mut want = vec![[0.0f32; 3]; n];
         let t = Instant::now();
         cpu.apply(&radiance, &mut want, &mut PhaseTimes::default());
@@ -128,12 +123,7 @@ fn gpu_solve_matches_the_cpu() {
         albedo,
     };
     let mut cpu = CpuOperator {
-        fmm: CpuFmm {
-            basis: &basis,
-            tree: &f.tree,
-            points: &f.points,
-            plan: &f.plan,
-        },
+        fmm: CpuFmm::new(&basis, &f.tree, &f.points, &f.plan),
         times: Default::default(),
         applications: 0,
     };

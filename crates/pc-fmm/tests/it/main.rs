@@ -123,12 +123,7 @@ pub fn tree_and_plan(
 fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) -> (f64, f64) {
     let (t, p, plan) = tree_and_plan(sc, theta, pc_scene::config::FmmConfig::default().clamp_tol);
     let basis = Basis::new(order);
-    let fmm = CpuFmm {
-        basis: &basis,
-        tree: &t,
-        points: &p,
-        plan: &plan,
-    };
+    let fmm = CpuFmm::new(&basis, &t, &p, &plan);
     let mut out = vec![[0.0f32; 3]; radiance.len()];
     fmm.apply(radiance, &mut out, &mut PhaseTimes::default());
     let exact = direct(&t, &p, &plan, radiance);
@@ -196,12 +191,7 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
         let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
         let basis = Basis::new(4);
         let mut op = CpuOperator {
-            fmm: CpuFmm {
-                basis: &basis,
-                tree: &t,
-                points: &p,
-                plan: &plan,
-            },
+            fmm: CpuFmm::new(&basis, &t, &p, &plan),
             times: Default::default(),
             applications: 0,
         };
