@@ -712,27 +712,16 @@ unsafe fn leaf_fused(
     leaf_impl::<Fused>(b, t, p, sl, m, tasks, lo, s, o)
 }
 
-/// Disks as structure of arrays for [`any_hit`], padded to whole batches with disks no ray
-/// meets (centre, normal, squared radius, border clip), and a tree of boxes over them: level 0
-/// holds the box of each batch of [`W`] disks, level `k + 1` the box of each batch of [`W`]
-/// level-`k` boxes, up to a level of at most [`W`]. The disks come in the order the octree
-/// listed them, so a batch is compact.
-#[derive(Default)]
+/// Every splat's disk as structure of arrays for [`any_hit`] (centre, normal, squared radius,
+/// border clip), in data-pool order, padded with [`W`] disks no ray meets.
 pub struct DiskLanes {
     v: [Vec<f32>; 11],
-    /// Per level: min xyz, max xyz, padded to whole batches with empty boxes.
-    levels: Vec<[Vec<f32>; 6]>,
 }
 
 impl DiskLanes {
-    /// Load the splats `ids` of `splats`.
-    pub fn load(&mut self, splats: &[pc_artifact::octree::Splat], ids: &[u32]) {
-        use crate::shaft::Aabb;
-        for v in self.v.iter_mut() {
-            v.clear();
-        }
-        for &i in ids {
-            let s = &splats[i as usize];
+    pub fn new(splats: &[pc_artifact::octree::Splat]) -> DiskLanes {
+        let mut v: [Vec<f32>; 11] = Default::default();
+        for s in splats {
             let vals = [
                 s.position[0],
                 s.position[1],
@@ -746,26 +735,37 @@ impl DiskLanes {
                 s.clip[2],
                 s.clip[3],
             ];
-            for (v, x) in self.v.iter_mut().zip(vals) {
-                v.push(x);
+            for (c, x) in v.iter_mut().zip(vals) {
+                c.push(x);
             }
         }
         // Padding: a zero normal fails the parallel test, and a negative squared radius the
         // disk test.
-        while !self.v[0].len().is_multiple_of(W) {
-            for (k, v) in self.v.iter_mut().enumerate() {
-                v.push(if k == 6 { -1.0 } else { 0.0 });
-            }
+        for (k, c) in v.iter_mut().enumerate() {
+            c.extend(std::iter::repeat_n(if k == 6 { -1.0 } else { 0.0 }, W));
         }
-        let mut boxes: Vec<Aabb> = ids
-            .chunks(W)
-            .map(|batch| {
-                batch.iter().fold(Aabb::EMPTY, |bx, &i| {
-                    let s = &splats[i as usize];
-                    bx.union(Aabb::of_disk(s.position.into(), s.normal.into(), s.radius))
-                })
-            })
-            .collect();
+        DiskLanes { v }
+    }
+}
+
+/// The octree leaves a shaft holds, for [`any_hit`]: each leaf's splat range and the box of
+/// its disks, and a tree of boxes over them (level 0 the leaves' boxes, level `k + 1` the box
+/// of each batch of [`W`] level-`k` boxes, up to a level of at most [`W`]). The leaves come in
+/// the order the octree listed them, so a batch is compact.
+#[derive(Default)]
+pub struct LeafLanes {
+    ranges: Vec<(u32, u32)>,
+    /// Per level: min xyz, max xyz, padded to whole batches with empty boxes.
+    levels: Vec<[Vec<f32>; 6]>,
+}
+
+impl LeafLanes {
+    /// Load the leaves `(splat range, disk box)`.
+    pub fn load(&mut self, leaves: &[((u32, u32), crate::shaft::Aabb)]) {
+        use crate::shaft::Aabb;
+        self.ranges.clear();
+        self.ranges.extend(leaves.iter().map(|x| x.0));
+        let mut boxes: Vec<Aabb> = leaves.iter().map(|x| x.1).collect();
         self.levels.clear();
         loop {
             let mut level: [Vec<f32>; 6] = Default::default();
@@ -796,12 +796,12 @@ impl DiskLanes {
     }
 }
 
-/// Whether any disk of `d` blocks the ray (a hit in `[t_min, t_max]`): the ray-disk test of the
-/// octree walk (`pc_tree::accel`), the same operations in the same order, eight disks at a time,
-/// under slab tests of eight boxes at a time down the box tree.
+/// Whether any disk of the leaves `c` blocks the ray (a hit in `[t_min, t_max]`): slab tests of
+/// eight boxes at a time down the box tree, then the ray-disk test of the octree walk
+/// (`pc_tree::accel`), the same operations in the same order, eight disks at a time.
 #[inline(always)]
-fn any_hit_impl(d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
-    let Some(top) = d.levels.len().checked_sub(1) else {
+fn any_hit_impl(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
+    let Some(top) = c.levels.len().checked_sub(1) else {
         return false;
     };
     // A zero direction component gets a huge finite inverse, so no 0 · ∞ arises.
@@ -813,15 +813,16 @@ fn any_hit_impl(d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
         }
     });
     let o3 = ray.origin.to_array();
-    // (level, first box of the batch); at most W entries per level.
-    let mut stack = [(0u32, 0u32); 16 * W];
+    // (level, first box of the batch): at most W − 1 entries per level wait at a time, and a
+    // list of u32 leaves has at most 11 levels.
+    let mut stack = [(0u32, 0u32); 12 * W];
     stack[0] = (top as u32, 0);
     let mut sp = 1;
     while sp > 0 {
         sp -= 1;
         let (lvl, b0) = stack[sp];
         let (lvl, b0) = (lvl as usize, b0 as usize);
-        let level = &d.levels[lvl];
+        let level = &c.levels[lvl];
         let lb = |k: usize| -> [f32; W] { level[k][b0..b0 + W].try_into().unwrap() };
         let (lo, hi) = ([lb(0), lb(1), lb(2)], [lb(3), lb(4), lb(5)]);
         let mut meets = [false; W];
@@ -837,36 +838,27 @@ fn any_hit_impl(d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
             meets[l] = (near <= far) & (lo[0][l] <= hi[0][l]);
         }
         for l in (0..W).filter(|&l| meets[l]) {
-            let child = (b0 + l) * W;
             if lvl == 0 {
-                if batch_hit(d, child, ray) {
+                let (a, b) = c.ranges[b0 + l];
+                if range_hit(d, a as usize, b as usize, ray) {
                     return true;
                 }
-            } else if sp < stack.len() {
-                stack[sp] = ((lvl - 1) as u32, child as u32);
-                sp += 1;
             } else {
-                // Deeper than any list the shafts make: test the subtree's disks directly.
-                let span = W.pow(lvl as u32 + 1);
-                let end = (child / W * span + span).min(d.v[0].len());
-                let mut j = child / W * span;
-                while j < end {
-                    if batch_hit(d, j, ray) {
-                        return true;
-                    }
-                    j += W;
-                }
+                stack[sp] = ((lvl - 1) as u32, ((b0 + l) * W) as u32);
+                sp += 1;
             }
         }
     }
     false
 }
 
-/// The disks `j0..j0 + W` of `d` against the ray.
+/// The disks `lo..hi` of `d` against the ray, eight at a time.
 #[inline(always)]
-fn batch_hit(d: &DiskLanes, j0: usize, ray: &pc_tree::Ray) -> bool {
+fn range_hit(d: &DiskLanes, lo: usize, hi: usize, ray: &pc_tree::Ray) -> bool {
     let (o, dir) = (ray.origin, ray.dir);
-    {
+    let mut j0 = lo;
+    while j0 < hi {
+        // DiskLanes is padded with W disks, so a batch never reads past its end.
         let ld = |k: usize| -> [f32; W] { d.v[k][j0..j0 + W].try_into().unwrap() };
         let (px, py, pz) = (ld(0), ld(1), ld(2));
         let (nx, ny, nz) = (ld(3), ld(4), ld(5));
@@ -881,32 +873,47 @@ fn batch_hit(d: &DiskLanes, j0: usize, ray: &pc_tree::Ray) -> bool {
             let (dx, dy, dz) = (xx - px[l], xy - py[l], xz - pz[l]);
             let inside = dx * dx + dy * dy + dz * dz <= r2[l];
             let kept = dx * kx[l] + dy * ky[l] + dz * kz[l] <= kw[l];
-            hit[l] = (denom.abs() >= 1e-8) & (th >= ray.t_min) & (th <= ray.t_max) & inside & kept;
+            hit[l] = (denom.abs() >= 1e-8)
+                & (th >= ray.t_min)
+                & (th <= ray.t_max)
+                & inside
+                & kept
+                & (j0 + l < hi);
         }
-        hit.iter().any(|&h| h)
+        if hit.iter().any(|&h| h) {
+            return true;
+        }
+        j0 += W;
     }
+    false
 }
 
-/// For each ray, whether a disk of `d` blocks it, into `out` (cleared first). No fused
-/// multiply-adds: the answers are those of the octree walk, bit for bit.
-pub fn any_hit(d: &DiskLanes, rays: &mut dyn Iterator<Item = &pc_tree::Ray>, out: &mut Vec<bool>) {
+/// For each ray, whether a disk of the leaves `c` blocks it, into `out` (cleared first). No
+/// fused multiply-adds: the answers are those of the octree walk, bit for bit.
+pub fn any_hit(
+    c: &LeafLanes,
+    d: &DiskLanes,
+    rays: &mut dyn Iterator<Item = &pc_tree::Ray>,
+    out: &mut Vec<bool>,
+) {
     out.clear();
     #[cfg(target_arch = "x86_64")]
     if fused() {
         // SAFETY: the CPU has AVX2.
-        return unsafe { any_hit_avx2(d, rays, out) };
+        return unsafe { any_hit_avx2(c, d, rays, out) };
     }
-    out.extend(rays.map(|r| any_hit_impl(d, r)));
+    out.extend(rays.map(|r| any_hit_impl(c, d, r)));
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn any_hit_avx2(
+    c: &LeafLanes,
     d: &DiskLanes,
     rays: &mut dyn Iterator<Item = &pc_tree::Ray>,
     out: &mut Vec<bool>,
 ) {
-    out.extend(rays.map(|r| any_hit_impl(d, r)));
+    out.extend(rays.map(|r| any_hit_impl(c, d, r)));
 }
 
 #[cfg(test)]

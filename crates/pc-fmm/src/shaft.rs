@@ -12,7 +12,10 @@
 //! stay out of the shaft because `s0 > 0` and `s1 < 1` lift it off them.
 //!
 //! The test descends the octree with each node's box of its splats' disks (tight per normal:
-//! a disk of radius r and normal n reaches `r √(1 − n_k²)` along axis k).
+//! a disk of radius r and normal n reaches `r √(1 − n_k²)` along axis k) and collects the
+//! leaves whose box meets the shaft; the group's rays are then tested against those leaves'
+//! disks alone ([`crate::lanes::any_hit`], the octree walk's ray-disk test, eight at a time).
+//! No leaf: every ray is open without a test.
 
 use glam::Vec3;
 use pc_artifact::octree::node;
@@ -147,19 +150,20 @@ impl DiskBoxes {
         DiskBoxes { boxes }
     }
 
-    /// The splats whose disks meet the shaft, into `out`: `false` (and `out` incomplete) once
-    /// there are more than `limit`.
-    pub fn candidates(
+    /// The octree leaves whose disks' box meets the shaft, as (splat range, box), into `out`:
+    /// `false` (and `out` incomplete) once their splats number more than `limit`.
+    pub fn leaves(
         &self,
         view: &OctreeView,
         shaft: &Shaft,
         limit: usize,
         stack: &mut Vec<u32>,
-        out: &mut Vec<u32>,
+        out: &mut Vec<((u32, u32), Aabb)>,
     ) -> bool {
         out.clear();
         stack.clear();
         stack.push(0);
+        let mut splats = 0usize;
         while let Some(slot) = stack.pop() {
             let bx = &self.boxes[slot as usize];
             if bx.is_empty() || !shaft.meets(bx) {
@@ -167,14 +171,12 @@ impl DiskBoxes {
             }
             let w = view.nodes[slot as usize];
             if node::is_leaf(w) {
-                for i in view.leaf(w).0 {
-                    if shaft.meets(&disk_box(view, i)) {
-                        if out.len() == limit {
-                            return false;
-                        }
-                        out.push(i);
-                    }
+                let r = view.leaf(w).0;
+                splats += r.len();
+                if splats > limit {
+                    return false;
                 }
+                out.push(((r.start, r.end), *bx));
             } else {
                 let c = node::ptr(w);
                 stack.extend(c..c + 8);
@@ -182,13 +184,6 @@ impl DiskBoxes {
         }
         true
     }
-}
-
-/// The box of splat `i`'s disk.
-#[inline]
-pub fn disk_box(view: &OctreeView, i: u32) -> Aabb {
-    let s = &view.splats[i as usize];
-    Aabb::of_disk(s.position.into(), s.normal.into(), s.radius)
 }
 
 #[cfg(test)]

@@ -166,18 +166,9 @@ pub fn system(
     Ok(sys)
 }
 
-/// A leaf whose shaft to the emitters holds at most this many disks tests its rays against
-/// them alone instead of walking the octree; past it the probes decide.
+/// A leaf whose shaft to the emitters holds the leaves of at most this many disks tests its
+/// rays against them alone instead of walking the octree; past it the probes decide.
 pub const SHAFT_CANDIDATES: usize = 65536;
-
-/// A sample's visibility as shaft culling found it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Culled {
-    Open,
-    Blocked,
-    /// Too many disks in the leaf's shaft: left to the probes.
-    Probe,
-}
 
 /// How [`emitter_direct`] samples the emitters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -263,6 +254,7 @@ pub fn emitter_direct(
     let (mut cast, mut taken, mut settled) = (0u64, 0u64, 0u64);
     // Shaft culling: the emitters' box and their smallest radius.
     let disks = DiskBoxes::new(view);
+    let disk_lanes = lanes::DiskLanes::new(view.splats);
     let mut emitter_box = Aabb::EMPTY;
     let mut emitter_r_min = f32::INFINITY;
     for &j in &emitters {
@@ -270,7 +262,26 @@ pub fn emitter_direct(
         emitter_box.grow(sj.position.into());
         emitter_r_min = emitter_r_min.min(sj.radius);
     }
-    // Bounded batches of rays, whole leaves at a time.
+    let sampler = Sampler {
+        view,
+        emitters: &emitters,
+        cdf: &cdf,
+        total,
+        samples,
+        every,
+        self_hit,
+    };
+    // The light a receiver takes from its samples, given their visibility.
+    let gather = |smp: &[Sample], seen: &mut dyn FnMut(usize) -> bool| -> Vec3 {
+        let mut e = Vec3::ZERO;
+        for (k, &(_, j, w, _)) in smp.iter().enumerate() {
+            if seen(k) {
+                e += Vec3::from(sys.emission[j as usize]) * w;
+            }
+        }
+        e
+    };
+    // Bounded batches of leaves (the samples of leaves left to the probes are kept).
     let batch = ((1usize << 22) / samples as usize).max(1);
     let mut g0 = 0;
     while g0 < groups.len() {
@@ -282,86 +293,97 @@ pub fn emitter_direct(
         }
         let chunk = &groups[g0..g1];
         g0 = g1;
-        // Per leaf, per receiver: its samples (ray, emitter, weight, probe).
-        let per: Vec<Vec<Vec<(Ray, u32, f32, bool)>>> = chunk
+        // Per leaf: its samples, and shaft culling (every sample of a leaf whose shaft to the
+        // emitters no disk enters is open; where disks enter, its rays are tested against
+        // them alone). A culled leaf's light is summed at once; the others wait for the
+        // probes.
+        let leaves: Vec<LeafLight> = chunk
             .par_iter()
-            .map(|group| {
-                group
-                    .iter()
-                    .map(|&i| {
-                        emitter_samples(view, &emitters, &cdf, total, i, samples, every, self_hit)
-                    })
-                    .collect()
-            })
-            .collect();
-        // Shaft culling: every sample of a leaf whose shaft to the emitters no disk enters is
-        // open; where a few disks enter, its rays are tested against them alone; the other
-        // leaves are left to the probes.
-        let culled: Vec<Vec<Culled>> = chunk
-            .par_iter()
-            .zip(&per)
             .map_init(
                 || {
                     (
                         Vec::new(),
                         Vec::new(),
-                        lanes::DiskLanes::default(),
+                        lanes::LeafLanes::default(),
                         Vec::new(),
                     )
                 },
-                |(stack, cands, disk_lanes, hits), (group, leaf)| {
-                    let n = leaf.iter().map(|r| r.len()).sum();
-                    let probe_all = vec![Culled::Probe; n];
-                    if !shafts || n == 0 {
-                        return probe_all;
-                    }
-                    let mut a = Aabb::EMPTY;
-                    let mut r_min = f32::INFINITY;
+                |(stack, cands, leaf_lanes, hits), group| {
+                    let mut smp = Vec::new();
+                    let mut ends = Vec::with_capacity(group.len());
                     for &i in group.iter() {
-                        let si = &view.splats[i as usize];
-                        a.grow(si.position.into());
-                        r_min = r_min.min(si.radius);
+                        sampler.push(i, &mut smp);
+                        ends.push(smp.len());
                     }
-                    let end = self_hit * emitter_r_min;
-                    let Some(shaft) = Shaft::new(a, emitter_box, self_hit * r_min, end) else {
-                        return probe_all;
+                    let culled = shafts && !smp.is_empty() && {
+                        let mut a = Aabb::EMPTY;
+                        let mut r_min = f32::INFINITY;
+                        for &i in group.iter() {
+                            let si = &view.splats[i as usize];
+                            a.grow(si.position.into());
+                            r_min = r_min.min(si.radius);
+                        }
+                        let end = self_hit * emitter_r_min;
+                        Shaft::new(a, emitter_box, self_hit * r_min, end).is_some_and(|shaft| {
+                            disks.leaves(view, &shaft, SHAFT_CANDIDATES, stack, cands)
+                        })
                     };
-                    if !disks.candidates(view, &shaft, SHAFT_CANDIDATES, stack, cands) {
-                        return probe_all;
+                    if !culled {
+                        return LeafLight::Pending { smp, ends };
                     }
                     if cands.is_empty() {
-                        return vec![Culled::Open; n];
+                        hits.clear();
+                        hits.resize(smp.len(), false);
+                    } else {
+                        leaf_lanes.load(cands);
+                        let rays = &mut smp.iter().map(|x| &x.0);
+                        lanes::any_hit(leaf_lanes, &disk_lanes, rays, hits);
                     }
-                    disk_lanes.load(view.splats, cands);
-                    lanes::any_hit(disk_lanes, &mut leaf.iter().flatten().map(|x| &x.0), hits);
-                    hits.iter()
-                        .map(|&h| if h { Culled::Blocked } else { Culled::Open })
-                        .collect()
+                    let mut start = 0;
+                    let light = group
+                        .iter()
+                        .zip(&ends)
+                        .map(|(&i, &end)| {
+                            let blocked = &hits[start..end];
+                            let e = gather(&smp[start..end], &mut |k| !blocked[k]);
+                            start = end;
+                            (i, e)
+                        })
+                        .collect();
+                    LeafLight::Done {
+                        light,
+                        samples: smp.len(),
+                    }
                 },
             )
             .collect();
-        // The probes of the samples left to them.
-        let left = |leaf: &Vec<Vec<(Ray, u32, f32, bool)>>, c: &[Culled]| {
-            leaf.iter()
-                .flatten()
-                .zip(c.iter())
-                .filter(|(_, &c)| c == Culled::Probe)
-                .map(|(x, _)| *x)
-                .collect::<Vec<_>>()
-        };
-        let probe_rays: Vec<Ray> = per
+        let mut light: Vec<(u32, Vec3)> = Vec::new();
+        let mut pending: Vec<(&[u32], &[Sample], &[usize])> = Vec::new();
+        for (group, leaf) in chunk.iter().zip(&leaves) {
+            match leaf {
+                LeafLight::Done { light: l, samples } => {
+                    light.extend_from_slice(l);
+                    settled += *samples as u64;
+                    taken += *samples as u64;
+                }
+                LeafLight::Pending { smp, ends } => {
+                    pending.push((group, smp, ends));
+                    taken += smp.len() as u64;
+                }
+            }
+        }
+        // Probes for the leaves culling left: their shadow rays first; a leaf whose probes all
+        // agree gives the rest their answer, the others cast every ray.
+        let probe_rays: Vec<Ray> = pending
             .iter()
-            .zip(&culled)
-            .flat_map(|(leaf, c)| left(leaf, c).into_iter().filter(|s| s.3).map(|s| s.0))
+            .flat_map(|(_, smp, _)| smp.iter().filter(|s| s.3).map(|s| s.0))
             .collect();
         let probe_vis = tester.visible(&probe_rays)?;
-        // Per leaf: the probes' common answer, or None where they disagree or there are none.
         let mut at = 0;
-        let verdicts: Vec<Option<bool>> = per
+        let verdicts: Vec<Option<bool>> = pending
             .iter()
-            .zip(&culled)
-            .map(|(leaf, c)| {
-                let n = left(leaf, c).iter().filter(|s| s.3).count();
+            .map(|(_, smp, _)| {
+                let n = smp.iter().filter(|s| s.3).count();
                 let v = &probe_vis[at..at + n];
                 at += n;
                 if v.is_empty() {
@@ -375,51 +397,38 @@ pub fn emitter_direct(
                 }
             })
             .collect();
-        let rest_rays: Vec<Ray> = per
+        let rest_rays: Vec<Ray> = pending
             .iter()
-            .zip(&culled)
             .zip(&verdicts)
             .filter(|(_, v)| v.is_none())
-            .flat_map(|((leaf, c), _)| left(leaf, c).into_iter().filter(|s| !s.3).map(|s| s.0))
+            .flat_map(|((_, smp, _), _)| smp.iter().filter(|s| !s.3).map(|s| s.0))
             .collect();
         let rest_vis = tester.visible(&rest_rays)?;
         cast += (probe_rays.len() + rest_rays.len()) as u64;
-        taken += per.iter().flatten().map(|r| r.len() as u64).sum::<u64>();
-        settled += culled
-            .iter()
-            .flatten()
-            .filter(|&&c| c != Culled::Probe)
-            .count() as u64;
         let (mut pa, mut ra) = (0, 0);
-        for (((group, leaf), verdict), culled) in chunk.iter().zip(&per).zip(&verdicts).zip(&culled)
-        {
-            let mut states = culled.iter();
-            for (&i, smp) in group.iter().zip(leaf) {
-                let mut e = Vec3::ZERO;
-                for &(_, j, w, probe) in smp {
-                    let seen = match states.next() {
-                        Some(Culled::Open) => true,
-                        Some(Culled::Blocked) => false,
-                        _ if probe => {
-                            pa += 1;
-                            probe_vis[pa - 1]
-                        }
-                        _ => match verdict {
-                            Some(v) => *v,
-                            None => {
-                                ra += 1;
-                                rest_vis[ra - 1]
-                            }
-                        },
-                    };
-                    if seen {
-                        e += Vec3::from(sys.emission[j as usize]) * w;
+        for ((group, smp, ends), verdict) in pending.iter().zip(&verdicts) {
+            let mut start = 0;
+            for (&i, &end) in group.iter().zip(ends.iter()) {
+                let own = &smp[start..end];
+                start = end;
+                let e = gather(own, &mut |k| {
+                    if own[k].3 {
+                        pa += 1;
+                        probe_vis[pa - 1]
+                    } else if let Some(v) = verdict {
+                        *v
+                    } else {
+                        ra += 1;
+                        rest_vis[ra - 1]
                     }
-                }
-                let iu = i as usize;
-                let add = Vec3::from(sys.albedo[iu]) * e;
-                sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
+                });
+                light.push((i, e));
             }
+        }
+        for (i, e) in light {
+            let iu = i as usize;
+            let add = Vec3::from(sys.albedo[iu]) * e;
+            sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
         }
     }
     Ok(EmitterRays {
@@ -429,60 +438,80 @@ pub fn emitter_direct(
     })
 }
 
-/// The emitter samples of receiver `i`: stratified over the area CDF, each with its shadow ray,
-/// the emitter splat, the estimator's weight and whether it is a probe. Samples that face away
-/// (or draw `i` itself) are left out.
-#[allow(clippy::too_many_arguments)]
-fn emitter_samples(
-    view: &OctreeView,
-    emitters: &[u32],
-    cdf: &[f64],
+/// One emitter sample of a receiver: its shadow ray, the emitter splat, the estimator's weight
+/// and whether it is a probe.
+type Sample = (Ray, u32, f32, bool);
+
+/// A leaf's direct light: summed (culled), or its samples for the probes.
+enum LeafLight {
+    Done {
+        light: Vec<(u32, Vec3)>,
+        samples: usize,
+    },
+    Pending {
+        smp: Vec<Sample>,
+        /// Per receiver, the end of its samples.
+        ends: Vec<usize>,
+    },
+}
+
+/// Stratified samples of the emitters over their area CDF.
+struct Sampler<'a> {
+    view: &'a OctreeView<'a>,
+    emitters: &'a [u32],
+    cdf: &'a [f64],
     total: f64,
-    i: u32,
     samples: u32,
     every: u32,
     self_hit: f32,
-) -> Vec<(Ray, u32, f32, bool)> {
-    let si = &view.splats[i as usize];
-    let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
-    let mut out = Vec::with_capacity(samples as usize);
-    for k in 0..samples {
-        let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
-        let e = cdf
-            .partition_point(|&c| c < u * total)
-            .min(emitters.len() - 1);
-        let j = emitters[e];
-        if j == i {
-            continue;
+}
+
+impl Sampler<'_> {
+    /// The samples of receiver `i`, appended to `out`. Samples that face away (or draw `i`
+    /// itself) are left out.
+    fn push(&self, i: u32, out: &mut Vec<Sample>) {
+        let view = self.view;
+        let si = &view.splats[i as usize];
+        let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
+        let (samples, total) = (self.samples, self.total);
+        for k in 0..samples {
+            let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
+            let e = self
+                .cdf
+                .partition_point(|&c| c < u * total)
+                .min(self.emitters.len() - 1);
+            let j = self.emitters[e];
+            if j == i {
+                continue;
+            }
+            let sj = &view.splats[j as usize];
+            let d = Vec3::from(sj.position) - xi;
+            let r2 = d.length_squared();
+            let len = r2.sqrt();
+            if len <= 0.0 {
+                continue;
+            }
+            let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
+            if ci <= 0.0 || cj <= 0.0 {
+                continue;
+            }
+            // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
+            let aj = view.splat_area[j as usize];
+            let w = ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
+            let t_min = self.self_hit * si.radius;
+            out.push((
+                Ray {
+                    origin: xi,
+                    dir: d / len,
+                    t_min,
+                    t_max: (len - self.self_hit * sj.radius).max(t_min),
+                },
+                j,
+                w,
+                (k + i) % self.every == 0,
+            ));
         }
-        let sj = &view.splats[j as usize];
-        let d = Vec3::from(sj.position) - xi;
-        let r2 = d.length_squared();
-        let len = r2.sqrt();
-        if len <= 0.0 {
-            continue;
-        }
-        let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
-        if ci <= 0.0 || cj <= 0.0 {
-            continue;
-        }
-        // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
-        let aj = view.splat_area[j as usize];
-        let w = ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
-        let t_min = self_hit * si.radius;
-        out.push((
-            Ray {
-                origin: xi,
-                dir: d / len,
-                t_min,
-                t_max: (len - self_hit * sj.radius).max(t_min),
-            },
-            j,
-            w,
-            (k + i) % every == 0,
-        ));
     }
-    out
 }
 
 /// Result of a solve.
