@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use crate::expansion::{self as ex, Basis, Coef};
+use crate::expansion::{Basis, Coef};
 use crate::lanes;
 use crate::plan::{Plan, POINT};
 use crate::tree::{Points, Tree, NONE};
@@ -159,7 +159,7 @@ impl CpuFmm<'_> {
                 let c = t.center[leaf as usize];
                 for j in t.lo[leaf as usize]..t.hi[leaf as usize] {
                     if p.active[j as usize] {
-                        ex::p2m(
+                        lanes::p2m(
                             b,
                             &q[j as usize],
                             sub(p.pos[j as usize], c),
@@ -187,7 +187,8 @@ impl CpuFmm<'_> {
                         let child = unsafe {
                             std::slice::from_raw_parts(mp.at(kc * np) as *const Coef, np)
                         };
-                        ex::m2m(b, child, sub(t.center[k as usize], c), &mut s.pow, out);
+                        let delta = sub(t.center[k as usize], c);
+                        lanes::shift(b, child, delta, &mut s.pow, out, true);
                     }
                 },
             );
@@ -236,13 +237,8 @@ impl CpuFmm<'_> {
                     let src =
                         unsafe { std::slice::from_raw_parts(lp.at(pc * np) as *const Coef, np) };
                     let dst = unsafe { std::slice::from_raw_parts_mut(lp.at(ci * np), np) };
-                    ex::l2l(
-                        b,
-                        src,
-                        sub(t.center[slot as usize], t.center[parent]),
-                        &mut s.pow,
-                        dst,
-                    );
+                    let delta = sub(t.center[slot as usize], t.center[parent]);
+                    lanes::shift(b, src, delta, &mut s.pow, dst, false);
                 },
             );
         }
@@ -262,7 +258,7 @@ impl CpuFmm<'_> {
                     let iu = i as usize;
                     let mut v = [0.0f32; 3];
                     if p.active[iu] {
-                        let f = ex::l2p(b, local, sub(p.pos[iu], c), &mut s.0.pow);
+                        let f = lanes::l2p(b, local, sub(p.pos[iu], c), &mut s.0.pow);
                         let n = p.normal[iu];
                         for (k, vk) in v.iter_mut().enumerate() {
                             *vk = -INV_PI

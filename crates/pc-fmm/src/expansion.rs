@@ -306,54 +306,26 @@ pub fn m2l(basis: &Basis, g: &[Sym], m: &[Coef], f: f32, local: &mut [Coef]) {
 /// M2M: add the moments `child` (about a centre `delta` from the parent's) to `parent`.
 #[inline]
 pub fn m2m(basis: &Basis, child: &[Coef], delta: [f32; 3], pow: &mut [f32], parent: &mut [Coef]) {
-    basis.monomials(delta, pow);
-    for &(big, small, d, c) in &basis.shift {
-        let w = c * pow[d as usize];
-        let (src, dst) = (&child[small as usize], &mut parent[big as usize]);
-        for k in 0..9 {
-            dst[k] += w * src[k];
-        }
-    }
+    crate::lanes::shift(basis, child, delta, pow, parent, true)
 }
 
 /// L2L: add the parent's local expansion, re-expanded about a child centre `delta` from the
 /// parent's, to `child`.
 #[inline]
 pub fn l2l(basis: &Basis, parent: &[Coef], delta: [f32; 3], pow: &mut [f32], child: &mut [Coef]) {
-    basis.monomials(delta, pow);
-    for &(big, small, d, c) in &basis.shift {
-        let w = c * pow[d as usize];
-        let (src, dst) = (&parent[big as usize], &mut child[small as usize]);
-        for k in 0..9 {
-            dst[k] += w * src[k];
-        }
-    }
+    crate::lanes::shift(basis, parent, delta, pow, child, false)
 }
 
 /// Evaluate a local expansion at offset `t` from its centre: the field `F` (3 per colour).
 #[inline]
 pub fn l2p(basis: &Basis, local: &[Coef], t: [f32; 3], pow: &mut [f32]) -> Coef {
-    basis.monomials(t, pow);
-    let mut out = [0.0f32; 9];
-    for (i, l) in local.iter().enumerate() {
-        let w = pow[i];
-        for k in 0..9 {
-            out[k] += w * l[k];
-        }
-    }
-    out
+    crate::lanes::l2p(basis, local, t, pow)
 }
 
 /// P2M: add a source `q` at offset `s` from the centre to the moments.
 #[inline]
 pub fn p2m(basis: &Basis, q: &Coef, s: [f32; 3], pow: &mut [f32], m: &mut [Coef]) {
-    basis.monomials(s, pow);
-    for (i, mi) in m.iter_mut().enumerate() {
-        let w = pow[i];
-        for k in 0..9 {
-            mi[k] += w * q[k];
-        }
-    }
+    crate::lanes::p2m(basis, q, s, pow, m)
 }
 
 /// Unclamped tensor `G(d) = d dᵀ / |d|⁴`.

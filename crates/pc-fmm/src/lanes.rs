@@ -130,6 +130,109 @@ pub fn fused() -> bool {
     }
 }
 
+/// A kernel as a function for any CPU and a twin compiled for AVX2 and FMA, picked at run time:
+/// `dispatched!(pub fn name / name_fused / name_impl(args) -> ret)` over a generic
+/// `name_impl::<I: Isa>`.
+macro_rules! dispatched {
+    ($(#[$m:meta])* $vis:vis fn $name:ident / $fused:ident / $imp:ident
+        ($($a:ident : $t:ty),* $(,)?) $(-> $r:ty)?) => {
+        $(#[$m])*
+        #[allow(clippy::too_many_arguments)]
+        $vis fn $name($($a: $t),*) $(-> $r)? {
+            #[cfg(target_arch = "x86_64")]
+            if fused() {
+                // SAFETY: the CPU has AVX2 and FMA.
+                return unsafe { $fused($($a),*) };
+            }
+            $imp::<Plain>($($a),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $fused($($a: $t),*) $(-> $r)? {
+            $imp::<Fused>($($a),*)
+        }
+    };
+}
+
+dispatched!(
+    /// M2M (`up`: add the moments `src` of a child a `delta` from the parent's centre to the
+    /// parent's `dst`) or L2L (add the parent's local expansion `src`, re-expanded about a
+    /// child centre `delta` from the parent's, to the child's `dst`).
+    pub fn shift / shift_fused / shift_impl(
+        b: &Basis,
+        src: &[Coef],
+        delta: [f32; 3],
+        pow: &mut [f32],
+        dst: &mut [Coef],
+        up: bool,
+    )
+);
+
+#[inline(always)]
+fn shift_impl<I: Isa>(
+    b: &Basis,
+    src: &[Coef],
+    delta: [f32; 3],
+    pow: &mut [f32],
+    dst: &mut [Coef],
+    up: bool,
+) {
+    b.monomials(delta, pow);
+    for &(big, small, d, c) in &b.shift {
+        let w = c * pow[d as usize];
+        let (from, to) = if up { (small, big) } else { (big, small) };
+        let (x, y) = (&src[from as usize], &mut dst[to as usize]);
+        for k in 0..9 {
+            y[k] = I::madd(w, x[k], y[k]);
+        }
+    }
+}
+
+dispatched!(
+    /// P2M: add a source `q` at offset `off` from the centre to the moments `m`.
+    pub fn p2m / p2m_fused / p2m_impl(
+        b: &Basis,
+        q: &Coef,
+        off: [f32; 3],
+        pow: &mut [f32],
+        m: &mut [Coef],
+    )
+);
+
+#[inline(always)]
+fn p2m_impl<I: Isa>(b: &Basis, q: &Coef, off: [f32; 3], pow: &mut [f32], m: &mut [Coef]) {
+    b.monomials(off, pow);
+    for (mi, &w) in m.iter_mut().zip(pow.iter()) {
+        for k in 0..9 {
+            mi[k] = I::madd(w, q[k], mi[k]);
+        }
+    }
+}
+
+dispatched!(
+    /// L2P: the field of a local expansion at offset `off` from its centre (3 per colour).
+    pub fn l2p / l2p_fused / l2p_impl(
+        b: &Basis,
+        local: &[Coef],
+        off: [f32; 3],
+        pow: &mut [f32],
+    ) -> Coef
+);
+
+#[inline(always)]
+fn l2p_impl<I: Isa>(b: &Basis, local: &[Coef], off: [f32; 3], pow: &mut [f32]) -> Coef {
+    b.monomials(off, pow);
+    let mut out = [0.0f32; 9];
+    for (l, &w) in local.iter().zip(pow.iter()) {
+        for k in 0..9 {
+            out[k] = I::madd(w, l[k], out[k]);
+        }
+    }
+    out
+}
+
 /// Scratch of one worker: kernel coefficients, gathered source moments and accumulators, all
 /// per lane.
 pub struct Scratch {
