@@ -262,10 +262,12 @@ pub fn emitter_direct(
         emitter_box.grow(sj.position.into());
         emitter_r_min = emitter_r_min.min(sj.radius);
     }
+    let slices = emitters.len().max(1);
     let sampler = Sampler {
         view,
         emitters: &emitters,
         cdf: &cdf,
+        guide: guide(&cdf, total, slices),
         total,
         samples,
         every,
@@ -455,11 +457,41 @@ enum LeafLight {
     },
 }
 
+/// The guide table of a CDF (last value `total`): per slice `b` of `slices` equal slices of
+/// the total, the first index whose value reaches the slice's start.
+fn guide(cdf: &[f64], total: f64, slices: usize) -> Vec<u32> {
+    (0..slices)
+        .map(|b| {
+            let start = b as f64 / slices as f64 * total;
+            cdf.partition_point(|&c| c < start).min(cdf.len() - 1) as u32
+        })
+        .collect()
+}
+
+/// The first index whose CDF value reaches `target` (clamped to the last): the binary search's
+/// answer, from the guide table's slice and a short scan.
+#[inline]
+fn draw(cdf: &[f64], guide: &[u32], total: f64, target: f64) -> usize {
+    let (n, g) = (cdf.len(), guide.len());
+    let b = ((target / total * g as f64) as usize).min(g - 1);
+    let mut e = guide[b] as usize;
+    while e > 0 && cdf[e - 1] >= target {
+        e -= 1;
+    }
+    while e < n - 1 && cdf[e] < target {
+        e += 1;
+    }
+    e
+}
+
 /// Stratified samples of the emitters over their area CDF.
 struct Sampler<'a> {
     view: &'a OctreeView<'a>,
     emitters: &'a [u32],
     cdf: &'a [f64],
+    /// Per slice `b` of `guide.len()` equal slices of the total: the first emitter whose CDF
+    /// value reaches its start.
+    guide: Vec<u32>,
     total: f64,
     samples: u32,
     every: u32,
@@ -467,6 +499,11 @@ struct Sampler<'a> {
 }
 
 impl Sampler<'_> {
+    #[inline]
+    fn draw(&self, target: f64) -> usize {
+        draw(self.cdf, &self.guide, self.total, target)
+    }
+
     /// The samples of receiver `i`, appended to `out`. Samples that face away (or draw `i`
     /// itself) are left out.
     fn push(&self, i: u32, out: &mut Vec<Sample>) {
@@ -476,10 +513,7 @@ impl Sampler<'_> {
         let (samples, total) = (self.samples, self.total);
         for k in 0..samples {
             let u = (k as f64 + pc_tree::rng::rand(0x6d1, i, k, 0) as f64) / samples as f64;
-            let e = self
-                .cdf
-                .partition_point(|&c| c < u * total)
-                .min(self.emitters.len() - 1);
+            let e = self.draw(u * total);
             let j = self.emitters[e];
             if j == i {
                 continue;
@@ -777,6 +811,42 @@ fn update(
             for (xi, v) in x.iter_mut().zip(&basis[j]) {
                 xi[c] += yj * v[c];
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_guide_table_draws_what_the_binary_search_draws() {
+        // Uneven areas, some zero, so that slices hold none or many emitters.
+        let areas: Vec<f64> = (0..97)
+            .map(|i| {
+                if i % 7 == 3 {
+                    0.0
+                } else {
+                    1.0 + (i * 37 % 11) as f64
+                }
+            })
+            .collect();
+        let mut cdf = Vec::new();
+        let mut total = 0.0;
+        for a in &areas {
+            total += a;
+            cdf.push(total);
+        }
+        let g = guide(&cdf, total, areas.len());
+        for k in 0..=10_000u32 {
+            let target = k as f64 / 10_000.0 * total;
+            let want = cdf.partition_point(|&c| c < target).min(cdf.len() - 1);
+            assert_eq!(draw(&cdf, &g, total, target), want, "target {target}");
+        }
+        // Exactly on every CDF value.
+        for &c in &cdf {
+            let want = cdf.partition_point(|&x| x < c).min(cdf.len() - 1);
+            assert_eq!(draw(&cdf, &g, total, c), want);
         }
     }
 }
