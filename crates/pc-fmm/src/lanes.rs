@@ -991,32 +991,19 @@ fn range_hit(d: &DiskLanes, lo: usize, hi: usize, ray: &pc_tree::Ray) -> bool {
     false
 }
 
-/// For each ray, whether a disk of the leaves `c` blocks it, into `out` (cleared first). No
-/// fused multiply-adds: the answers are those of the octree walk, bit for bit.
-pub fn any_hit(
-    c: &LeafLanes,
-    d: &DiskLanes,
-    rays: &mut dyn Iterator<Item = &pc_tree::Ray>,
-    out: &mut Vec<bool>,
-) {
-    out.clear();
-    #[cfg(target_arch = "x86_64")]
-    if fused() {
-        // SAFETY: the CPU has AVX2.
-        return unsafe { any_hit_avx2(c, d, rays, out) };
-    }
-    out.extend(rays.map(|r| any_hit_impl(c, d, r)));
-}
+dispatched!(
+    /// Whether a disk of the leaves `c` blocks the ray. No fused multiply-adds (the compiler
+    /// never contracts without being asked): the answer is the octree walk's, bit for bit.
+    pub fn blocked / blocked_fused / blocked_impl(
+        c: &LeafLanes,
+        d: &DiskLanes,
+        ray: &pc_tree::Ray,
+    ) -> bool
+);
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn any_hit_avx2(
-    c: &LeafLanes,
-    d: &DiskLanes,
-    rays: &mut dyn Iterator<Item = &pc_tree::Ray>,
-    out: &mut Vec<bool>,
-) {
-    out.extend(rays.map(|r| any_hit_impl(c, d, r)));
+#[inline(always)]
+fn blocked_impl<I: Isa>(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
+    any_hit_impl(c, d, ray)
 }
 
 #[cfg(test)]

@@ -302,60 +302,64 @@ pub fn emitter_direct(
         let leaves: Vec<LeafLight> = chunk
             .par_iter()
             .map_init(
-                || {
-                    (
-                        Vec::new(),
-                        Vec::new(),
-                        lanes::LeafLanes::default(),
-                        Vec::new(),
-                    )
-                },
-                |(stack, cands, leaf_lanes, hits), group| {
-                    let mut smp = Vec::new();
-                    let mut ends = Vec::with_capacity(group.len());
+                || (Vec::new(), Vec::new(), lanes::LeafLanes::default()),
+                |(stack, cands, leaf_lanes), group| {
+                    let end = self_hit * emitter_r_min;
+                    let mut a = Aabb::EMPTY;
+                    let mut r_min = f32::INFINITY;
+                    let mut faces = false;
                     for &i in group.iter() {
-                        sampler.push(i, &mut smp);
-                        ends.push(smp.len());
+                        let si = &view.splats[i as usize];
+                        let (x, n) = (Vec3::from(si.position), Vec3::from(si.normal));
+                        a.grow(x);
+                        r_min = r_min.min(si.radius);
+                        // Some point of the emitters' box in front of the receiver?
+                        let c = (emitter_box.min + emitter_box.max) * 0.5;
+                        let h = (emitter_box.max - emitter_box.min) * 0.5;
+                        faces |= n.dot(c - x) + n.abs().dot(h) > 0.0;
                     }
-                    let culled = shafts && !smp.is_empty() && {
-                        let mut a = Aabb::EMPTY;
-                        let mut r_min = f32::INFINITY;
-                        for &i in group.iter() {
-                            let si = &view.splats[i as usize];
-                            a.grow(si.position.into());
-                            r_min = r_min.min(si.radius);
-                        }
-                        let end = self_hit * emitter_r_min;
-                        Shaft::new(a, emitter_box, self_hit * r_min, end).is_some_and(|shaft| {
+                    if !faces {
+                        // Every sample would face away: none is taken.
+                        return LeafLight::Done {
+                            light: Vec::new(),
+                            samples: 0,
+                        };
+                    }
+                    let culled = shafts
+                        && Shaft::new(a, emitter_box, self_hit * r_min, end).is_some_and(|shaft| {
                             disks.leaves(view, &shaft, SHAFT_CANDIDATES, stack, cands)
-                        })
-                    };
+                        });
                     if !culled {
+                        let mut smp = Vec::new();
+                        let mut ends = Vec::with_capacity(group.len());
+                        for &i in group.iter() {
+                            sampler.each(i, |x| smp.push(x));
+                            ends.push(smp.len());
+                        }
                         return LeafLight::Pending { smp, ends };
                     }
-                    if cands.is_empty() {
-                        hits.clear();
-                        hits.resize(smp.len(), false);
-                    } else {
+                    // Culled: the samples are summed as they are drawn, each ray tested against
+                    // the disks of the shaft's leaves (none: all open).
+                    if !cands.is_empty() {
                         leaf_lanes.load(cands);
-                        let rays = &mut smp.iter().map(|x| &x.0);
-                        lanes::any_hit(leaf_lanes, &disk_lanes, rays, hits);
                     }
-                    let mut start = 0;
+                    let mut samples = 0;
                     let light = group
                         .iter()
-                        .zip(&ends)
-                        .map(|(&i, &end)| {
-                            let blocked = &hits[start..end];
-                            let e = gather(&smp[start..end], &mut |k| !blocked[k]);
-                            start = end;
+                        .map(|&i| {
+                            let mut e = Vec3::ZERO;
+                            sampler.each(i, |(ray, j, w, _)| {
+                                samples += 1;
+                                if cands.is_empty()
+                                    || !lanes::blocked(leaf_lanes, &disk_lanes, &ray)
+                                {
+                                    e += Vec3::from(sys.emission[j as usize]) * w;
+                                }
+                            });
                             (i, e)
                         })
                         .collect();
-                    LeafLight::Done {
-                        light,
-                        samples: smp.len(),
-                    }
+                    LeafLight::Done { light, samples }
                 },
             )
             .collect();
@@ -504,9 +508,10 @@ impl Sampler<'_> {
         draw(self.cdf, &self.guide, self.total, target)
     }
 
-    /// The samples of receiver `i`, appended to `out`. Samples that face away (or draw `i`
+    /// The samples of receiver `i`, each handed to `f`. Samples that face away (or draw `i`
     /// itself) are left out.
-    fn push(&self, i: u32, out: &mut Vec<Sample>) {
+    #[inline]
+    fn each(&self, i: u32, mut f: impl FnMut(Sample)) {
         let view = self.view;
         let si = &view.splats[i as usize];
         let (xi, ni) = (Vec3::from(si.position), Vec3::from(si.normal));
@@ -533,7 +538,7 @@ impl Sampler<'_> {
             let aj = view.splat_area[j as usize];
             let w = ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
             let t_min = self.self_hit * si.radius;
-            out.push((
+            f((
                 Ray {
                     origin: xi,
                     dir: d / len,
