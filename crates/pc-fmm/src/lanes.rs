@@ -131,11 +131,12 @@ pub fn fused() -> bool {
 }
 
 /// A kernel as a function for any CPU and a twin compiled for AVX2 and FMA, picked at run time:
-/// `dispatched!(pub fn name / name_fused / name_impl(args) -> ret)` over a generic
-/// `name_impl::<I: Isa>`.
+/// `dispatched!(pub fn name / name_fused / name_impl(args) -> ret { body })` makes the generic
+/// `name_impl::<I: Isa>` with the body (which names the arithmetic `I`), its AVX2+FMA
+/// instance `name_fused`, and `name`, which picks one.
 macro_rules! dispatched {
     ($(#[$m:meta])* $vis:vis fn $name:ident / $fused:ident / $imp:ident
-        ($($a:ident : $t:ty),* $(,)?) $(-> $r:ty)?) => {
+        ($($a:ident : $t:ty),* $(,)?) $(-> $r:ty)? $body:block) => {
         $(#[$m])*
         #[allow(clippy::too_many_arguments)]
         $vis fn $name($($a: $t),*) $(-> $r)? {
@@ -153,6 +154,10 @@ macro_rules! dispatched {
         unsafe fn $fused($($a: $t),*) $(-> $r)? {
             $imp::<Fused>($($a),*)
         }
+
+        #[inline(always)]
+        #[allow(clippy::too_many_arguments)]
+        fn $imp<I: Isa>($($a: $t),*) $(-> $r)? $body
     };
 }
 
@@ -167,18 +172,7 @@ dispatched!(
         pow: &mut [f32],
         dst: &mut [Coef],
         up: bool,
-    )
-);
-
-#[inline(always)]
-fn shift_impl<I: Isa>(
-    b: &Basis,
-    src: &[Coef],
-    delta: [f32; 3],
-    pow: &mut [f32],
-    dst: &mut [Coef],
-    up: bool,
-) {
+    ) {
     b.monomials(delta, pow);
     for &(big, small, d, c) in &b.shift {
         let w = c * pow[d as usize];
@@ -189,6 +183,7 @@ fn shift_impl<I: Isa>(
         }
     }
 }
+);
 
 dispatched!(
     /// P2M: add a source `q` at offset `off` from the centre to the moments `m`.
@@ -198,11 +193,7 @@ dispatched!(
         off: [f32; 3],
         pow: &mut [f32],
         m: &mut [Coef],
-    )
-);
-
-#[inline(always)]
-fn p2m_impl<I: Isa>(b: &Basis, q: &Coef, off: [f32; 3], pow: &mut [f32], m: &mut [Coef]) {
+    ) {
     b.monomials(off, pow);
     for (mi, &w) in m.iter_mut().zip(pow.iter()) {
         for k in 0..9 {
@@ -210,6 +201,7 @@ fn p2m_impl<I: Isa>(b: &Basis, q: &Coef, off: [f32; 3], pow: &mut [f32], m: &mut
         }
     }
 }
+);
 
 dispatched!(
     /// L2P: the field of a local expansion at offset `off` from its centre (3 per colour).
@@ -218,11 +210,7 @@ dispatched!(
         local: &[Coef],
         off: [f32; 3],
         pow: &mut [f32],
-    ) -> Coef
-);
-
-#[inline(always)]
-fn l2p_impl<I: Isa>(b: &Basis, local: &[Coef], off: [f32; 3], pow: &mut [f32]) -> Coef {
+    ) -> Coef {
     b.monomials(off, pow);
     let mut out = [0.0f32; 9];
     for (l, &w) in local.iter().zip(pow.iter()) {
@@ -232,6 +220,7 @@ fn l2p_impl<I: Isa>(b: &Basis, local: &[Coef], off: [f32; 3], pow: &mut [f32]) -
     }
     out
 }
+);
 
 /// Scratch of one worker: kernel coefficients, gathered source moments and accumulators, all
 /// per lane.
@@ -473,21 +462,20 @@ fn p2l_batch<I: Isa>(
     }
 }
 
-/// Everything one receiving node takes in: M2L from nodes and P2L from splats, added to its
-/// local expansion `local` (centre `ca`).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn node_impl<I: Isa>(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    m: &[Coef],
-    q: &[Coef],
-    tasks: &[NodeTask],
-    ca: [f32; 3],
-    s: &mut Scratch,
-    local: &mut [Coef],
-) {
+dispatched!(
+    /// M2L and P2L into one receiving node's local expansion (centre `ca`): eight tasks at a
+    /// time.
+    pub fn node / node_fused / node_impl(
+        b: &Basis,
+        t: &Tree,
+        p: &Points,
+        m: &[Coef],
+        q: &[Coef],
+        tasks: &[NodeTask],
+        ca: [f32; 3],
+        s: &mut Scratch,
+        local: &mut [Coef],
+    ) {
     for acc in s.acc.iter_mut() {
         *acc = [Z; 9];
     }
@@ -522,44 +510,7 @@ fn node_impl<I: Isa>(
         }
     }
 }
-
-/// M2L and P2L into one receiving node's local expansion (centre `ca`): eight tasks at a time.
-#[allow(clippy::too_many_arguments)]
-pub fn node(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    m: &[Coef],
-    q: &[Coef],
-    tasks: &[NodeTask],
-    ca: [f32; 3],
-    s: &mut Scratch,
-    local: &mut [Coef],
-) {
-    #[cfg(target_arch = "x86_64")]
-    if fused() {
-        // SAFETY: the CPU has AVX2 and FMA.
-        return unsafe { node_fused(b, t, p, m, q, tasks, ca, s, local) };
-    }
-    node_impl::<Plain>(b, t, p, m, q, tasks, ca, s, local)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn node_fused(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    m: &[Coef],
-    q: &[Coef],
-    tasks: &[NodeTask],
-    ca: [f32; 3],
-    s: &mut Scratch,
-    local: &mut [Coef],
-) {
-    node_impl::<Fused>(b, t, p, m, q, tasks, ca, s, local)
-}
+);
 
 /// M2P of up to eight `(splat, source node, fraction)`: the far field of each node's moments at
 /// its splat, added to `o` (indexed from the leaf's first splat `lo`).
@@ -641,22 +592,38 @@ fn p2p<I: Isa>(p: &Points, sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [[
     }
 }
 
+/// Positions and normals of the splats `at..at + W` (SplatLanes is padded with W splats, so a
+/// batch never reads past its end).
+#[inline(always)]
+fn splat_lanes(sl: &SplatLanes, at: usize) -> ([L; 3], [L; 3]) {
+    let lane = |v: &Vec<f32>| -> L { v[at..at + W].try_into().unwrap() };
+    (sl.pos.each_ref().map(lane), sl.normal.each_ref().map(lane))
+}
+
+/// The near kernel of one pair from `d = x_j − x_i` ([`crate::cpu::kernel_near`]), or 0 where
+/// `ok` fails or either side faces away.
+#[inline(always)]
+fn near_pair(d: [f32; 3], ni: [f32; 3], nj: [f32; 3], aj: f32, ok: bool) -> f32 {
+    const PI: f32 = std::f32::consts::PI;
+    let ci = ni[0] * d[0] + ni[1] * d[1] + ni[2] * d[2];
+    let cj = -(nj[0] * d[0] + nj[1] * d[1] + nj[2] * d[2]);
+    let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    let v = ci * cj / (r2 * (PI * r2 + aj));
+    if ok & (ci > 0.0) & (cj > 0.0) {
+        v
+    } else {
+        0.0
+    }
+}
+
 /// P2P with lanes over receivers: per source, eight receivers at a time.
 #[inline(always)]
 fn p2p_by_receivers<I: Isa>(sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [[f32; 3]]) {
-    const PI: f32 = std::f32::consts::PI;
     let (ilo, ihi) = (task.recv_lo as usize, task.recv_hi as usize);
     let mut i0 = ilo;
     while i0 < ihi {
-        // SplatLanes is padded with W splats, so a batch never reads past its end.
-        let lane = |v: &Vec<f32>| -> [f32; W] { v[i0..i0 + W].try_into().unwrap() };
-        let (px, py, pz) = (lane(&sl.pos[0]), lane(&sl.pos[1]), lane(&sl.pos[2]));
-        let (nx, ny, nz) = (
-            lane(&sl.normal[0]),
-            lane(&sl.normal[1]),
-            lane(&sl.normal[2]),
-        );
-        let active = lane(&sl.active);
+        let (x, n) = splat_lanes(sl, i0);
+        let active: L = sl.active[i0..i0 + W].try_into().unwrap();
         let mut acc = [Z; 3];
         for j in task.src_lo as usize..task.src_hi as usize {
             let xj = [sl.pos[0][j], sl.pos[1][j], sl.pos[2][j]];
@@ -664,14 +631,10 @@ fn p2p_by_receivers<I: Isa>(sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [
             let (aj, wj) = (sl.area[j], [sl.w[0][j], sl.w[1][j], sl.w[2][j]]);
             let mut k = Z;
             for l in 0..W {
-                let (dx, dy, dz) = (xj[0] - px[l], xj[1] - py[l], xj[2] - pz[l]);
-                let ci = nx[l] * dx + ny[l] * dy + nz[l] * dz;
-                let cj = -(nj[0] * dx + nj[1] * dy + nj[2] * dz);
-                let r2 = dx * dx + dy * dy + dz * dz;
+                let d = [xj[0] - x[0][l], xj[1] - x[1][l], xj[2] - x[2][l]];
+                let ni = [n[0][l], n[1][l], n[2][l]];
                 let i = i0 + l;
-                let ok = (ci > 0.0) & (cj > 0.0) & (i < ihi) & (i != j) & (active[l] > 0.0);
-                let v = ci * cj / (r2 * (PI * r2 + aj));
-                k[l] = if ok { v } else { 0.0 };
+                k[l] = near_pair(d, ni, nj, aj, (i < ihi) & (i != j) & (active[l] > 0.0));
             }
             for c in 0..3 {
                 for l in 0..W {
@@ -698,7 +661,6 @@ fn p2p_by_sources<I: Isa>(
     lo: u32,
     o: &mut [[f32; 3]],
 ) {
-    const PI: f32 = std::f32::consts::PI;
     let (jlo, jhi) = (task.src_lo as usize, task.src_hi as usize);
     for i in task.recv_lo..task.recv_hi {
         let iu = i as usize;
@@ -709,26 +671,16 @@ fn p2p_by_sources<I: Isa>(
         let mut acc = [Z; 3];
         let mut j0 = jlo;
         while j0 < jhi {
-            // SplatLanes is padded with W splats, so a batch never reads past its end.
-            let lane = |v: &Vec<f32>| -> [f32; W] { v[j0..j0 + W].try_into().unwrap() };
-            let (px, py, pz) = (lane(&sl.pos[0]), lane(&sl.pos[1]), lane(&sl.pos[2]));
-            let (nx, ny, nz) = (
-                lane(&sl.normal[0]),
-                lane(&sl.normal[1]),
-                lane(&sl.normal[2]),
-            );
+            let (x, n) = splat_lanes(sl, j0);
+            let lane = |v: &Vec<f32>| -> L { v[j0..j0 + W].try_into().unwrap() };
             let area = lane(&sl.area);
-            let w = [lane(&sl.w[0]), lane(&sl.w[1]), lane(&sl.w[2])];
+            let w = sl.w.each_ref().map(lane);
             let mut k = Z;
             for l in 0..W {
-                let (dx, dy, dz) = (px[l] - xi[0], py[l] - xi[1], pz[l] - xi[2]);
-                let ci = ni[0] * dx + ni[1] * dy + ni[2] * dz;
-                let cj = -(nx[l] * dx + ny[l] * dy + nz[l] * dz);
-                let r2 = dx * dx + dy * dy + dz * dz;
+                let d = [x[0][l] - xi[0], x[1][l] - xi[1], x[2][l] - xi[2]];
+                let nj = [n[0][l], n[1][l], n[2][l]];
                 let j = j0 + l;
-                let ok = (ci > 0.0) & (cj > 0.0) & (j < jhi) & (j != iu);
-                let v = ci * cj / (r2 * (PI * r2 + area[l]));
-                k[l] = if ok { v } else { 0.0 };
+                k[l] = near_pair(d, ni, nj, area[l], (j < jhi) & (j != iu));
             }
             for c in 0..3 {
                 for l in 0..W {
@@ -744,20 +696,19 @@ fn p2p_by_sources<I: Isa>(
     }
 }
 
-/// The tasks of one receiving leaf (first splat `lo`): M2P eight at a time, P2P per task.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn leaf_impl<I: Isa>(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    sl: &SplatLanes,
-    m: &[Coef],
-    tasks: &[LeafTask],
-    lo: u32,
-    s: &mut Scratch,
-    o: &mut [[f32; 3]],
-) {
+dispatched!(
+    /// M2P and P2P into one leaf's splats `o` (first splat `lo`).
+    pub fn leaf / leaf_fused / leaf_impl(
+        b: &Basis,
+        t: &Tree,
+        p: &Points,
+        sl: &SplatLanes,
+        m: &[Coef],
+        tasks: &[LeafTask],
+        lo: u32,
+        s: &mut Scratch,
+        o: &mut [[f32; 3]],
+    ) {
     let mut batch = [(0u32, 0u32, 0.0f32); W];
     let mut nb = 0;
     for task in tasks {
@@ -776,44 +727,7 @@ fn leaf_impl<I: Isa>(
         m2p_batch::<I>(b, t, p, m, &batch[..nb], lo, s, o);
     }
 }
-
-/// M2P and P2P into one leaf's splats `o` (first splat `lo`).
-#[allow(clippy::too_many_arguments)]
-pub fn leaf(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    sl: &SplatLanes,
-    m: &[Coef],
-    tasks: &[LeafTask],
-    lo: u32,
-    s: &mut Scratch,
-    o: &mut [[f32; 3]],
-) {
-    #[cfg(target_arch = "x86_64")]
-    if fused() {
-        // SAFETY: the CPU has AVX2 and FMA.
-        return unsafe { leaf_fused(b, t, p, sl, m, tasks, lo, s, o) };
-    }
-    leaf_impl::<Plain>(b, t, p, sl, m, tasks, lo, s, o)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn leaf_fused(
-    b: &Basis,
-    t: &Tree,
-    p: &Points,
-    sl: &SplatLanes,
-    m: &[Coef],
-    tasks: &[LeafTask],
-    lo: u32,
-    s: &mut Scratch,
-    o: &mut [[f32; 3]],
-) {
-    leaf_impl::<Fused>(b, t, p, sl, m, tasks, lo, s, o)
-}
+);
 
 /// Every splat's disk as structure of arrays for [`any_hit`] (centre, normal, squared radius,
 /// border clip), in data-pool order, padded with [`W`] disks no ray meets.
@@ -998,13 +912,10 @@ dispatched!(
         c: &LeafLanes,
         d: &DiskLanes,
         ray: &pc_tree::Ray,
-    ) -> bool
-);
-
-#[inline(always)]
-fn blocked_impl<I: Isa>(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
+    ) -> bool {
     any_hit_impl(c, d, ray)
 }
+);
 
 #[cfg(test)]
 mod tests {
