@@ -576,7 +576,7 @@ fn m2p_batch<I: Isa>(
 /// Share of the lanes a run of `n` keeps busy, in eighths.
 #[inline(always)]
 fn busy(n: usize) -> usize {
-    n * W / (n.div_ceil(W) * W)
+    n * W / (n.div_ceil(W) * W).max(1)
 }
 
 /// P2P of one task with the near kernel [`crate::cpu::kernel_near`]: eight sources at a time
@@ -634,7 +634,8 @@ fn p2p_by_receivers<I: Isa>(sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [
                 let d = [xj[0] - x[0][l], xj[1] - x[1][l], xj[2] - x[2][l]];
                 let ni = [n[0][l], n[1][l], n[2][l]];
                 let i = i0 + l;
-                k[l] = near_pair(d, ni, nj, aj, (i < ihi) & (i != j) & (active[l] > 0.0));
+                let ok = (i < ihi) & (i != j) & (active[l] > 0.0) & (sl.active[j] > 0.0);
+                k[l] = near_pair(d, ni, nj, aj, ok);
             }
             for c in 0..3 {
                 for l in 0..W {
@@ -673,14 +674,14 @@ fn p2p_by_sources<I: Isa>(
         while j0 < jhi {
             let (x, n) = splat_lanes(sl, j0);
             let lane = |v: &Vec<f32>| -> L { v[j0..j0 + W].try_into().unwrap() };
-            let area = lane(&sl.area);
+            let (area, on) = (lane(&sl.area), lane(&sl.active));
             let w = sl.w.each_ref().map(lane);
             let mut k = Z;
             for l in 0..W {
                 let d = [x[0][l] - xi[0], x[1][l] - xi[1], x[2][l] - xi[2]];
                 let nj = [n[0][l], n[1][l], n[2][l]];
                 let j = j0 + l;
-                k[l] = near_pair(d, ni, nj, area[l], (j < jhi) & (j != iu));
+                k[l] = near_pair(d, ni, nj, area[l], (j < jhi) & (j != iu) & (on[l] > 0.0));
             }
             for c in 0..3 {
                 for l in 0..W {

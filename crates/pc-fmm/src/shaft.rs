@@ -50,11 +50,17 @@ impl Aabb {
         self.min.cmpgt(self.max).any()
     }
 
-    /// The box of a disk (centre `c`, unit normal `n`, radius `r`), widened by a relative
-    /// margin against rounding in the ray-disk test.
+    /// The box of a disk (centre `c`, normal `n`, radius `r`), widened against rounding in
+    /// the ray-disk test. Along axis k the disk reaches `r √(n_i² + n_j²) / |n|` (the other
+    /// two components: no cancellation when `n` is nearly along the axis); the margin is
+    /// relative to the radius and absolute to the coordinates' precision.
     pub fn of_disk(c: Vec3, n: Vec3, r: f32) -> Aabb {
-        let reach = (Vec3::ONE - n * n).max(Vec3::ZERO).powf(0.5) * r * (1.0 + 1e-4)
-            + Vec3::splat(1e-6 * r);
+        let n2 = n * n;
+        let len = n.length().max(f32::MIN_POSITIVE);
+        let side = Vec3::new(n2.y + n2.z, n2.x + n2.z, n2.x + n2.y).powf(0.5) / len;
+        let reach = side.min(Vec3::ONE) * r * (1.0 + 1e-4)
+            + Vec3::splat(1e-6 * r + 4.0 * f32::EPSILON * r)
+            + c.abs() * (4.0 * f32::EPSILON);
         Aabb {
             min: c - reach,
             max: c + reach,
@@ -86,7 +92,24 @@ impl Shaft {
         // Half the margins: the ray test's rounding stays well inside.
         let s0 = 0.5 * t_min / far;
         let s1 = 1.0 - 0.5 * end / far;
-        (s0 < s1).then_some(Shaft { a, b, s0, s1 })
+        // The float rays drift from the exact segments by a few units in the last place of
+        // their coordinates and length: widen both ends by that much.
+        let scale = a
+            .min
+            .abs()
+            .max(a.max.abs())
+            .max(b.min.abs().max(b.max.abs()));
+        let eps = Vec3::splat(8.0 * f32::EPSILON * (scale.max_element() + far));
+        let grow = |x: Aabb| Aabb {
+            min: x.min - eps,
+            max: x.max + eps,
+        };
+        (s0 < s1).then_some(Shaft {
+            a: grow(a),
+            b: grow(b),
+            s0,
+            s1,
+        })
     }
 
     /// Whether the box `n` meets the shaft: some `s ∈ [s0, s1]` with `n` overlapping
@@ -218,6 +241,10 @@ mod tests {
         assert!(!s.meets(&bx([0.0, 1.0, 0.0], [1.0, 1.0, 1.0])));
         // A slab across the middle.
         assert!(s.meets(&bx([0.0, 0.5, 0.0], [1.0, 0.5, 1.0])));
+        // A disk tilted a hair off an axis keeps its thickness (1 − n_y² would round to 0).
+        let n = Vec3::new(2e-4, 1.0, 0.0).normalize();
+        let t = Aabb::of_disk(Vec3::ZERO, n, 1.0);
+        assert!(t.max.y >= 1.9e-4 && t.min.y <= -1.9e-4, "{t:?}");
         // A floor disk's box is flat.
         let d = Aabb::of_disk(Vec3::new(0.45, 0.0, 0.45), Vec3::Y, 0.05);
         assert!(d.max.y - d.min.y < 1e-6 && !s.meets(&d));

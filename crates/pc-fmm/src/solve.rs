@@ -316,7 +316,9 @@ pub fn emitter_direct(
                         // Some point of the emitters' box in front of the receiver?
                         let c = (emitter_box.min + emitter_box.max) * 0.5;
                         let h = (emitter_box.max - emitter_box.min) * 0.5;
-                        faces |= n.dot(c - x) + n.abs().dot(h) > 0.0;
+                        // (With a rounding margin: a sample's own cosine test decides.)
+                        let slack = 1e-5 * (n.abs().dot(h) + (c - x).length());
+                        faces |= n.dot(c - x) + n.abs().dot(h) > -slack;
                     }
                     if !faces {
                         // Every sample would face away: none is taken.
