@@ -78,7 +78,8 @@ pub struct RadiosityMeta {
     pub p2p: u64,
     pub p2p_pairs: u64,
     /// Emitter samples taken over all receivers, the shadow rays they cast, and the samples
-    /// settled without a ray by shaft culling (the probes' verdict settled the others).
+    /// settled by shaft culling, without a walk through the octree (the probes' verdict
+    /// settled the others).
     #[serde(default)]
     pub emitter_samples: u64,
     #[serde(default)]

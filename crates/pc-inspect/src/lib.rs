@@ -218,7 +218,7 @@ fn radiosity_statistics(a: &Artifact) -> anyhow::Result<String> {
     if meta.emitter_samples > 0 {
         let _ = writeln!(
             s,
-            "emitters    {} samples: {} settled by empty shafts ({:.1} %), {} shadow rays ({:.1} %), the probes' verdict for the rest",
+            "emitters    {} samples: {} settled by shaft culling ({:.1} %), {} shadow rays through the octree ({:.1} %), the probes' verdict for the rest",
             meta.emitter_samples,
             meta.emitter_settled,
             100.0 * meta.emitter_settled as f64 / meta.emitter_samples as f64,
