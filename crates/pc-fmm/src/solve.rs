@@ -14,6 +14,7 @@
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::vmap::Link;
+use pc_tree::caster::Caster;
 use pc_tree::{OctreeView, Ray};
 
 use crate::lanes;
@@ -51,33 +52,6 @@ pub struct PointLight {
     pub intensity: Vec3,
 }
 
-/// Which splats see a light: for each V-map light list (vleaf slot, visible fraction), the
-/// splats of the vleaf; partly visible vleaves resolve each splat with a shadow ray.
-pub trait ShadowTester {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
-}
-
-/// Shadow rays on the CPU, through the renderer's packed leaf lists.
-pub struct AccelTester<'a> {
-    view: &'a OctreeView<'a>,
-    accel: pc_tree::accel::Accel,
-}
-
-impl<'a> AccelTester<'a> {
-    pub fn new(view: &'a OctreeView<'a>) -> Self {
-        AccelTester {
-            view,
-            accel: pc_tree::accel::Accel::new(view),
-        }
-    }
-}
-
-impl ShadowTester for AccelTester<'_> {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        Ok(self.accel.visible(self.view, rays))
-    }
-}
-
 /// Build the system: albedo from the materials, E from emission and point lights.
 ///
 /// `light_lists[l]` is the V-map's list of light `l`: `(slot, fraction)` for each V-map leaf
@@ -93,7 +67,7 @@ pub fn system(
     light_lists: &[&[Link]],
     ranges: &dyn Fn(u32) -> (u32, u32),
     self_hit: f32,
-    tester: &dyn ShadowTester,
+    tester: &dyn Caster,
 ) -> Result<System, String> {
     let n = view.splats.len();
     let mut sys = System {
@@ -210,7 +184,7 @@ pub fn emitter_direct(
     pts: &Points,
     sys: &mut System,
     how: EmitterSampling,
-    tester: &dyn ShadowTester,
+    tester: &dyn Caster,
 ) -> Result<EmitterRays, String> {
     let EmitterSampling {
         samples,

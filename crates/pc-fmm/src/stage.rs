@@ -109,7 +109,7 @@ pub fn run(
         .collect();
     let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
     let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
-    let caster = solve::AccelTester::new(&view);
+    let caster = pc_tree::caster::CpuCaster::new(&view);
     let sys = solve::system(
         &view,
         &materials,

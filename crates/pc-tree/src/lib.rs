@@ -12,6 +12,7 @@ use pc_artifact::octree::{node, sections, tangent_frame, BeginEnd, Frame, NodeIn
 use pc_artifact::{Artifact, ArtifactError};
 
 pub mod accel;
+pub mod caster;
 pub mod gpu;
 pub mod optics;
 pub mod ray;

@@ -13,55 +13,9 @@ use pc_tree::rng::{pcg, rand};
 use pc_tree::{OctreeView, Ray};
 use rayon::prelude::*;
 
-/// Casts batches of visibility rays: `true` where the segment `[t_min, t_max]` is unoccluded.
-pub trait Caster: Sync {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
-    fn name(&self) -> String;
-}
-
-/// The CPU caster: the renderer's traversal over packed leaf lists, rayon across rays.
-pub struct CpuCaster<'a> {
-    pub view: &'a OctreeView<'a>,
-    pub accel: pc_tree::accel::Accel,
-}
-
-impl<'a> CpuCaster<'a> {
-    pub fn new(view: &'a OctreeView<'a>) -> Self {
-        CpuCaster {
-            view,
-            accel: pc_tree::accel::Accel::new(view),
-        }
-    }
-}
-
-impl Caster for CpuCaster<'_> {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        Ok(self.accel.visible(self.view, rays))
-    }
-    fn name(&self) -> String {
-        format!("CPU, {} threads", rayon::current_num_threads())
-    }
-}
-
-/// The GPU caster: `shaders/tree/cast.wgsl` with any-hit rays.
-pub struct GpuCaster {
-    pub ctx: pc_gpu::GpuContext,
-    pub caster: pc_tree::gpu::RayCaster,
-}
-
-impl Caster for GpuCaster {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
-        let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
-        let hits = self
-            .caster
-            .cast(&self.ctx, &input, true)
-            .map_err(|e| e.to_string())?;
-        Ok(hits.iter().map(Option::is_none).collect())
-    }
-    fn name(&self) -> String {
-        self.ctx.describe()
-    }
-}
+// The casters live in pc-tree, shared with pc-fmm's shadow rays; re-exported here, where the
+// V-map's callers have always found them.
+pub use pc_tree::caster::{Caster, CpuCaster, GpuCaster};
 
 /// What the V-map needs per node-pool slot.
 #[derive(Clone, Copy, Debug, Default)]

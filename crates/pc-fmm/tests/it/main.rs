@@ -339,7 +339,7 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     let sc = scene(&soa, vec![diffuse(rho), emitter(le, 0.0)], 16);
     let view = sc.octree.view();
     let (_, pts) = tree::build(&view, &sc.materials);
-    let tester = solve::AccelTester::new(&view);
+    let tester = pc_tree::caster::CpuCaster::new(&view);
     let base = || {
         let n = view.splats.len();
         let mut sys = solve::System {
