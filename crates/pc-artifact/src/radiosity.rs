@@ -39,6 +39,10 @@ pub struct FmmParams {
     /// The iterative method (absent in artifacts made before it was a choice: Jacobi).
     #[serde(default = "Solver::jacobi")]
     pub solver: Solver,
+    /// GMRES took later products at a lower order as the residual fell (absent in artifacts
+    /// made before it existed: every product at `order`).
+    #[serde(default)]
+    pub relax: bool,
 }
 
 /// The iterative method of the radiosity solve (docs/fmm.md).
@@ -70,6 +74,10 @@ pub struct RadiosityMeta {
     pub iterations: u32,
     pub converged: bool,
     pub residuals: Vec<f64>,
+    /// Expansion order of each iteration's product (empty in artifacts made before relaxed
+    /// products: all at `params.order`).
+    #[serde(default)]
+    pub orders: Vec<u32>,
     /// Splats that take part (diffuse and emitting).
     pub active_splats: u64,
     pub m2l: u64,

@@ -15,6 +15,10 @@ use crate::tree::{Points, Tree, NONE};
 
 const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 
+/// Least growth of the product error per expansion order taken away, whatever θ
+/// ([`CpuFmm::order_within`]).
+pub const RELAX_GROWTH_MIN: f64 = 8.0;
+
 /// The source weights `w_j = A_j L_j` (zero for inactive splats).
 pub fn weights(pts: &Points, radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
     let mut w = Vec::new();
@@ -113,7 +117,11 @@ pub struct PhaseTimes {
 
 /// The FMM on the CPU.
 pub struct CpuFmm<'a> {
+    /// The configured order's basis.
     pub basis: &'a Basis,
+    /// The bases of orders 1 to `basis.order − 1`, for relaxed products
+    /// ([`CpuFmm::apply_order`]).
+    lower: Vec<Basis>,
     pub tree: &'a Tree,
     pub points: &'a Points,
     pub plan: &'a Plan,
@@ -135,6 +143,7 @@ impl<'a> CpuFmm<'a> {
     pub fn new(basis: &'a Basis, tree: &'a Tree, points: &'a Points, plan: &'a Plan) -> Self {
         CpuFmm {
             basis,
+            lower: (1..basis.order).map(Basis::new).collect(),
             tree,
             points,
             plan,
@@ -144,9 +153,33 @@ impl<'a> CpuFmm<'a> {
 }
 
 impl CpuFmm<'_> {
+    /// The basis of order `order` (at least 1, at most the configured one; the configured one
+    /// when that is 0).
+    pub fn basis_of(&self, order: usize) -> &Basis {
+        if order >= self.basis.order || order == 0 {
+            self.basis
+        } else {
+            &self.lower[order - 1]
+        }
+    }
+
+    /// The lowest order whose product error is at most `relax` (≥ 1) times the configured
+    /// order's, by the truncation model of docs/fmm.md ("Relaxed products"): each order less
+    /// multiplies the error by `max(8, θ⁻³)`; never below order 1.
+    pub fn order_within(&self, relax: f64) -> usize {
+        let growth = (1.0 / (self.plan.theta as f64).powi(3)).max(RELAX_GROWTH_MIN);
+        let mut q = self.basis.order;
+        let mut err = 1.0;
+        while q > 1 && err * growth <= relax {
+            err *= growth;
+            q -= 1;
+        }
+        q
+    }
+
     /// Upward pass: multipole moments of every node (P2M at leaves, M2M upward).
-    pub fn upward(&self, q: &[Coef], m: &mut Vec<Coef>) {
-        let (b, t, p) = (self.basis, self.tree, self.points);
+    pub fn upward(&self, b: &Basis, q: &[Coef], m: &mut Vec<Coef>) {
+        let (t, p) = (self.tree, self.points);
         let np = b.len();
         zeroed(m, t.nodes.len() * np);
         let mp = SyncPtr(m.as_mut_ptr());
@@ -196,8 +229,8 @@ impl CpuFmm<'_> {
     }
 
     /// M2L and P2L into every receiving node's local expansion.
-    pub fn interact(&self, m: &[Coef], q: &[Coef], l: &mut Vec<Coef>) {
-        let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
+    pub fn interact(&self, b: &Basis, m: &[Coef], q: &[Coef], l: &mut Vec<Coef>) {
+        let (t, p, plan) = (self.tree, self.points, self.plan);
         let np = b.len();
         zeroed(l, t.nodes.len() * np);
         l.par_chunks_mut(np).enumerate().for_each_init(
@@ -218,12 +251,13 @@ impl CpuFmm<'_> {
     /// Downward pass (L2L) and the leaf phase (L2P, M2P, P2P): the operator's output per splat.
     pub fn downward(
         &self,
+        b: &Basis,
         l: &mut [Coef],
         m: &[Coef],
         sl: &lanes::SplatLanes,
         out: &mut [[f32; 3]],
     ) {
-        let (b, t, p, plan) = (self.basis, self.tree, self.points, self.plan);
+        let (t, p, plan) = (self.tree, self.points, self.plan);
         let np = b.len();
         let lp = SyncPtr(l.as_mut_ptr());
         for level in t.levels.iter().skip(1) {
@@ -281,6 +315,20 @@ impl CpuFmm<'_> {
 
     /// One application: `out_i = Σ_j f K(i, j) A_j L_j` for the radiance `L`.
     pub fn apply(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]], times: &mut PhaseTimes) {
+        self.apply_order(self.basis.order, radiance, out, times)
+    }
+
+    /// [`CpuFmm::apply`] with the expansions truncated at `order` (clamped to
+    /// `1..=basis.order`): the same plan, cheaper and less accurate below the configured order
+    /// (graded bases: a lower order's coefficients are a prefix of a higher one's).
+    pub fn apply_order(
+        &self,
+        order: usize,
+        radiance: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        times: &mut PhaseTimes,
+    ) {
+        let b = self.basis_of(order);
         // A poisoned lock only means an earlier application panicked; the buffers are
         // rewritten in full.
         let mut guard = self.bufs.lock().unwrap_or_else(|e| e.into_inner());
@@ -292,12 +340,12 @@ impl CpuFmm<'_> {
             Some(sl) => sl.set_weights(&bufs.w),
             None => bufs.splats = Some(lanes::SplatLanes::new(self.points, &bufs.w)),
         }
-        self.upward(&bufs.q, &mut bufs.m);
+        self.upward(b, &bufs.q, &mut bufs.m);
         let t1 = std::time::Instant::now();
-        self.interact(&bufs.m, &bufs.q, &mut bufs.l);
+        self.interact(b, &bufs.m, &bufs.q, &mut bufs.l);
         let t2 = std::time::Instant::now();
         let sl = bufs.splats.as_ref().expect("set above");
-        self.downward(&mut bufs.l, &bufs.m, sl, out);
+        self.downward(b, &mut bufs.l, &bufs.m, sl, out);
         times.upward += (t1 - t0).as_secs_f64();
         times.m2l += (t2 - t1).as_secs_f64();
         times.downward += t2.elapsed().as_secs_f64();
@@ -305,10 +353,14 @@ impl CpuFmm<'_> {
 }
 
 /// `v` as `n` zero coefficients, reusing its pages (a fresh zeroed allocation faults on every
-/// first write, and with threads each fault costs a TLB shootdown).
+/// first write, and with threads each fault costs a TLB shootdown); products of a lower order
+/// keep the larger allocation.
 fn zeroed(v: &mut Vec<Coef>, n: usize) {
-    if v.len() == n {
+    if v.capacity() >= n {
+        v.truncate(n);
         v.par_iter_mut().for_each(|x| *x = [0.0; 9]);
+        // (Within the capacity: pages the larger order touched.)
+        v.resize(n, [0.0; 9]);
     } else {
         v.clear();
         v.resize(n, [0.0; 9]);

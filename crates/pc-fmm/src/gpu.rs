@@ -466,6 +466,8 @@ pub struct GpuFmm {
     pub times: PhaseTimes,
     /// [`loop_bound`] of the plan: the most loop iterations of one invocation group, and where.
     pub loop_bound: (u64, &'static str),
+    /// The expansion order the kernels were compiled for (the GPU has no relaxed products).
+    order: u32,
     /// The context, buffers and kernels, owned by the closure that runs one application.
     run: Box<ApplyFn>,
 }
@@ -730,6 +732,7 @@ impl GpuFmm {
             applications: 0,
             times: PhaseTimes::default(),
             loop_bound: bound,
+            order: basis.order as u32,
             run: Box::new(run),
         })
     }
@@ -740,6 +743,10 @@ impl crate::Operator for GpuFmm {
         (self.run)(radiance, out, &mut self.times)?;
         self.applications += 1;
         Ok(())
+    }
+
+    fn order(&self) -> u32 {
+        self.order
     }
 
     fn device(&self) -> String {

@@ -38,6 +38,20 @@ impl Operator for CpuOperator<'_> {
         self.applications += 1;
         Ok(())
     }
+    fn apply_relaxed(
+        &mut self,
+        radiance: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        relax: f64,
+    ) -> Result<u32, String> {
+        let order = self.fmm.order_within(relax);
+        self.fmm.apply_order(order, radiance, out, &mut self.times);
+        self.applications += 1;
+        Ok(order as u32)
+    }
+    fn order(&self) -> u32 {
+        self.fmm.basis.order as u32
+    }
     fn device(&self) -> String {
         format!("CPU ({} threads)", rayon::current_num_threads())
     }

@@ -81,6 +81,8 @@ pub struct Plan {
     pub leaf_offsets: Vec<u32>,
     pub leaf_tasks: Vec<LeafTask>,
     pub counts: TaskCounts,
+    /// The separation the plan was refined for ([`PlanParams::theta`]).
+    pub theta: f32,
 }
 
 /// How many tasks of each kind the plan holds, and how many splat pairs P2P covers.
@@ -530,6 +532,7 @@ pub fn build(
         leaf_offsets,
         leaf_tasks,
         counts,
+        theta: params.theta,
     }
 }
 

@@ -24,6 +24,21 @@ use crate::tree::Points;
 /// Anything that applies the transport operator `out_i = Σ_j f K(i, j) A_j L_j`.
 pub trait Operator {
     fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String>;
+    /// An application whose error may be up to `relax` (≥ 1) times [`Operator::apply`]'s: an
+    /// operator with cheaper, coarser forms takes the cheapest within it (relaxed products of
+    /// inexact Krylov methods, docs/fmm.md). Returns the expansion order used.
+    fn apply_relaxed(
+        &mut self,
+        radiance: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        relax: f64,
+    ) -> Result<u32, String> {
+        let _ = relax;
+        self.apply(radiance, out)?;
+        Ok(self.order())
+    }
+    /// The expansion order of [`Operator::apply`].
+    fn order(&self) -> u32;
     /// What runs it, for reports.
     fn device(&self) -> String;
 }
@@ -535,6 +550,8 @@ pub struct Solution {
     pub radiance: Vec<[f32; 3]>,
     /// Relative residual after each iteration.
     pub residuals: Vec<f64>,
+    /// Expansion order of each iteration's product.
+    pub orders: Vec<u32>,
     pub converged: bool,
 }
 
@@ -572,6 +589,7 @@ pub fn solve(
             }
         }
         op.apply(&reflected, &mut t)?;
+        sol.orders.push(op.order());
         let (mut dn, mut nn) = (0.0f64, 0.0f64);
         for i in 0..n {
             if !pts.active[i] {
@@ -613,6 +631,14 @@ pub const GMRES_RESTART: usize = 16;
 /// few eigenvalues out to the scene's mean albedo, where Krylov methods converge much faster
 /// than Jacobi's fixed rate (docs/fmm.md). `restart` bounds the stored basis (`restart` + 1
 /// vectors of N RGB doubles).
+///
+/// `relaxed`: the product of Arnoldi step k may be `1 / ‖r_{k−1}‖` times less accurate than the
+/// configured order's (‖r‖ the largest channel's relative residual so far in the cycle): an
+/// error in that product moves the answer by about its size times `‖r_{k−1}‖`, so late products
+/// at a lower order add no more error than each full one carries (Bouras & Frayssé 2005,
+/// Simoncini & Szyld 2003; docs/fmm.md, "Relaxed products"). A restart's residual is always
+/// computed at the full order.
+#[allow(clippy::too_many_arguments)]
 pub fn solve_gmres(
     op: &mut dyn Operator,
     sys: &System,
@@ -620,6 +646,7 @@ pub fn solve_gmres(
     tolerance: f64,
     max_iterations: u32,
     restart: usize,
+    relaxed: bool,
     progress: &mut dyn FnMut(u32, f64),
 ) -> Result<Solution, String> {
     let n = sys.source.len();
@@ -648,11 +675,16 @@ pub fn solve_gmres(
     // y = (I − ρT) v on the active splats.
     let mut v32 = vec![[0.0f32; 3]; n];
     let mut t = vec![[0.0f32; 3]; n];
-    let mut apply = |v: &[[f64; 3]], out: &mut Vec<[f64; 3]>| -> Result<(), String> {
+    let mut apply = |v: &[[f64; 3]], out: &mut Vec<[f64; 3]>, relax: f64| -> Result<u32, String> {
         for i in 0..n {
             v32[i] = v[i].map(|x| x as f32);
         }
-        op.apply(&v32, &mut t)?;
+        let order = if relax > 1.0 {
+            op.apply_relaxed(&v32, &mut t, relax)?
+        } else {
+            op.apply(&v32, &mut t)?;
+            op.order()
+        };
         out.clear();
         out.extend((0..n).map(|i| {
             if weight[i] == 0.0 {
@@ -661,9 +693,10 @@ pub fn solve_gmres(
                 std::array::from_fn(|c| v[i][c] - sys.albedo[i][c] as f64 * t[i][c] as f64)
             }
         }));
-        Ok(())
+        Ok(order)
     };
     let b_norm = (0..3).map(|c| dot(&b, &b, c)).sum::<f64>().sqrt();
+    let b_channel: [f64; 3] = std::array::from_fn(|c| dot(&b, &b, c).sqrt());
     // x0 = 0, so the first cycle starts from r0 = b without a product; a restart costs one
     // product more (not counted as an iteration: it adds no Krylov vector).
     let mut x = vec![[0.0f64; 3]; n];
@@ -674,7 +707,7 @@ pub fn solve_gmres(
         let r0: Vec<[f64; 3]> = if it == 0 {
             b.clone()
         } else {
-            apply(&x, &mut w)?;
+            apply(&x, &mut w, 1.0)?;
             (0..n)
                 .map(|i| std::array::from_fn(|c| b[i][c] - w[i][c]))
                 .collect()
@@ -694,7 +727,17 @@ pub fn solve_gmres(
         g[0] = beta;
         let mut k = 0;
         while k < m && it < max_iterations {
-            apply(&basis[k], &mut w)?;
+            // The largest channel's relative residual before this step.
+            let r_prev = (0..3)
+                .filter(|&c| b_channel[c] > 0.0)
+                .map(|c| g[k][c].abs() / b_channel[c])
+                .fold(0.0f64, f64::max);
+            let relax = if relaxed && r_prev > 0.0 {
+                (1.0 / r_prev).max(1.0)
+            } else {
+                1.0
+            };
+            sol.orders.push(apply(&basis[k], &mut w, relax)?);
             it += 1;
             for c in 0..3 {
                 // Modified Gram-Schmidt.

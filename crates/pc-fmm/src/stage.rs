@@ -31,6 +31,7 @@ pub fn params(cfg: &LoadedConfig) -> FmmParams {
         emitter_samples: f.emitter_samples,
         emitter_probes: f.emitter_probes,
         solver: f.solver,
+        relax: f.relax,
     }
 }
 
@@ -212,6 +213,7 @@ pub fn run(
             p.tolerance as f64,
             p.max_iterations,
             solve::GMRES_RESTART,
+            p.relax,
             &mut report,
         ),
         Solver::Jacobi => solve::solve(
@@ -263,6 +265,7 @@ pub fn run(
         iterations: sol.residuals.len() as u32,
         converged: sol.converged,
         residuals: sol.residuals.clone(),
+        orders: sol.orders.clone(),
         active_splats: active,
         m2l: plan.counts.m2l,
         p2l: plan.counts.p2l,

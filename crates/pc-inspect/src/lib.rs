@@ -201,6 +201,22 @@ fn radiosity_statistics(a: &Artifact) -> anyhow::Result<String> {
             .collect::<Vec<_>>()
             .join(" ")
     );
+    if !meta.orders.is_empty() {
+        let _ = writeln!(
+            s,
+            "orders      {}{}",
+            meta.orders
+                .iter()
+                .map(|o| o.to_string())
+                .collect::<Vec<_>>()
+                .join(" "),
+            if meta.params.relax {
+                " (relaxed products)"
+            } else {
+                ""
+            }
+        );
+    }
     let _ = writeln!(
         s,
         "operator    {} M2L, {} P2L, {} M2P, {} P2P ({} splat pairs)",

@@ -338,6 +338,8 @@ pub struct FmmConfig {
     pub emitter_probes: u32,
     /// The iterative method: "gmres" (default) or "jacobi".
     pub solver: pc_artifact::radiosity::Solver,
+    /// GMRES: later products at a lower order as the residual falls (relaxed products).
+    pub relax: bool,
     /// Where the FMM passes run.
     pub backend: Backend,
     /// Artifact file name inside `output.dir`.
@@ -355,6 +357,7 @@ impl Default for FmmConfig {
             emitter_samples: 64,
             emitter_probes: 16,
             solver: pc_artifact::radiosity::Solver::Gmres,
+            relax: true,
             backend: Backend::Auto,
             file: PathBuf::from("radiosity.pcgi"),
         }

@@ -211,6 +211,7 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
             1e-5,
             500,
             solve::GMRES_RESTART,
+            false,
             &mut |_, _| {},
         )
         .unwrap();
@@ -242,6 +243,120 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
             gmres.residuals.len(),
             jacobi.residuals.len()
         );
+    }
+}
+
+#[test]
+fn relaxed_products_lower_the_order_and_keep_the_answer() {
+    let sci = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.2e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let soa = box_scene(0.035);
+    let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
+    let view = sc.octree.view();
+    let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
+    let order = pc_scene::config::FmmConfig::default().order as usize;
+    let basis = Basis::new(order);
+    let mut op = CpuOperator {
+        fmm: CpuFmm::new(&basis, &t, &p, &plan),
+        times: Default::default(),
+        applications: 0,
+    };
+    let albedo: Vec<[f32; 3]> = (0..soa.len())
+        .map(|i| sc.materials[view.splats[i].material as usize].color)
+        .collect();
+    // A lamp: the ceiling's middle emits.
+    let source: Vec<[f32; 3]> = view
+        .splats
+        .iter()
+        .map(|s| {
+            let x = Vec3::from(s.position);
+            let n = Vec3::from(s.normal);
+            let lamp = n.y < -0.9 && x.x.abs() < 0.3 && x.z.abs() < 0.3;
+            [if lamp { 10.0 } else { 0.0 }; 3]
+        })
+        .collect();
+    let sys = solve::System {
+        source: source.clone(),
+        emission: vec![[0.0; 3]; soa.len()],
+        albedo,
+    };
+    // The configured order's own product error against the direct sum.
+    let (err_p, _) = product_error(&sc, order, 0.5, &varied_radiance(soa.len()));
+    // The default tolerance, and one below what the order can deliver.
+    for tol in [
+        pc_scene::config::FmmConfig::default().tolerance as f64,
+        1e-5,
+    ] {
+        let run = |op: &mut CpuOperator, relaxed| {
+            solve::solve_gmres(
+                op,
+                &sys,
+                &p,
+                tol,
+                100,
+                solve::GMRES_RESTART,
+                relaxed,
+                &mut |_, _| {},
+            )
+            .unwrap()
+        };
+        let full = run(&mut op, false);
+        let relaxed = run(&mut op, true);
+        println!(
+            "tolerance {tol:.0e}: full: orders {:?} residuals {}; relaxed: orders {:?} residuals {}",
+            full.orders,
+            sci(&full.residuals),
+            relaxed.orders,
+            sci(&relaxed.residuals)
+        );
+        assert!(full.converged && relaxed.converged);
+        assert!(full.orders.iter().all(|&o| o as usize == order));
+        assert_eq!(relaxed.orders[0] as usize, order);
+        assert!(relaxed.orders.windows(2).all(|w| w[1] <= w[0]));
+        assert!(relaxed.orders.iter().all(|&o| o >= 1));
+        assert!(
+            relaxed.orders.last().is_some_and(|&o| (o as usize) < order),
+            "the last products are cheaper: {:?}",
+            relaxed.orders
+        );
+        // Distance between the answers in the residual's norm (relative to the source), and
+        // relative to the light the operator carried.
+        let (mut d, mut ind, mut src) = (0.0f64, 0.0f64, 0.0f64);
+        for i in 0..soa.len() {
+            let a = if p.active[i] { p.area[i] as f64 } else { 0.0 };
+            for c in 0..3 {
+                d += a * ((relaxed.radiance[i][c] - full.radiance[i][c]) as f64).powi(2);
+                ind += a * ((full.radiance[i][c] - source[i][c]) as f64).powi(2);
+                src += a * (source[i][c] as f64).powi(2);
+            }
+        }
+        let (dist, dist_carried) = ((d / src).sqrt(), (d / ind).sqrt());
+        // The true residual of the relaxed answer, with a full-order product.
+        let mut tl = vec![[0.0f32; 3]; soa.len()];
+        op.apply(&relaxed.radiance, &mut tl).unwrap();
+        let (mut r2, mut b2) = (0.0f64, 0.0f64);
+        for i in 0..soa.len() {
+            let a = if p.active[i] { p.area[i] as f64 } else { 0.0 };
+            for c in 0..3 {
+                let l = relaxed.radiance[i][c] as f64;
+                let r = source[i][c] as f64 - (l - sys.albedo[i][c] as f64 * tl[i][c] as f64);
+                r2 += a * r * r;
+                b2 += a * (source[i][c] as f64).powi(2);
+            }
+        }
+        let true_residual = (r2 / b2).sqrt();
+        println!(
+            "  order {order} product error {err_p:.2e}; relaxed vs full answer {dist:.2e} ({dist_carried:.2e} of the carried light); true residual {true_residual:.2e}"
+        );
+        // Relaxation assumes the tolerance is no tighter than the order: the relaxed answer is
+        // as good as whichever is larger.
+        let bound = tol.max(err_p);
+        assert!(true_residual < bound, "true residual {true_residual:.3e}");
+        assert!(dist < bound, "{dist:.3e} vs {bound:.3e}");
     }
 }
 
