@@ -106,6 +106,8 @@ struct Geo {
     bmax: Vec3,
     axis: Vec3,
     cone_cos: f32,
+    /// `sin` of the normal cone's half-angle (`√(1 − cone_cos²)`, 1 past a hemisphere).
+    cone_sin: f32,
     area: f32,
     /// Internal node (splits into children).
     internal: bool,
@@ -133,6 +135,7 @@ fn geo(t: &Tree, p: &Points, x: u32) -> Geo {
             bmax: Vec3::from(p.pos[i]),
             axis: Vec3::from(p.normal[i]),
             cone_cos: 1.0,
+            cone_sin: 0.0,
             area: if p.active[i] { p.area[i] } else { 0.0 },
             internal: false,
             point: true,
@@ -147,6 +150,10 @@ fn geo(t: &Tree, p: &Points, x: u32) -> Geo {
             bmax: Vec3::from(t.bmax[s]),
             axis: Vec3::from(t.axis[s]),
             cone_cos: t.cone_cos[s],
+            cone_sin: {
+                let c = t.cone_cos[s].clamp(-1.0, 1.0);
+                (1.0 - c * c).max(0.0).sqrt()
+            },
             area: t.area[s],
             internal: t.first_child[s] != NONE,
             point: false,
@@ -169,17 +176,26 @@ fn range(t: &Tree, x: u32) -> (u32, u32) {
 /// with sine `spread_sin`, at most a right angle): `cos(max(0, ang − δ))` and
 /// `cos(min(π, ang + δ))` with `ang` the angle between the axes and `δ` the two half-angles'
 /// sum, by the angle-sum formulas (no trigonometric calls: the plan makes tens of millions).
+/// `cone_sin` and `spread_cos` are the cosines' complements (`√(1 − c²)`), computed once per
+/// node and per pair.
 #[inline]
-fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread_sin: f32) -> (f32, f32) {
+fn cos_bounds(
+    axis: Vec3,
+    cone_cos: f32,
+    cone_sin: f32,
+    dir: Vec3,
+    spread_sin: f32,
+    spread_cos: f32,
+) -> (f32, f32) {
     if cone_cos <= -1.0 || axis == Vec3::ZERO {
         return (-1.0, 1.0);
     }
     let ca = axis.dot(dir).clamp(-1.0, 1.0);
     let sa = (1.0 - ca * ca).max(0.0).sqrt();
     let ch = cone_cos.clamp(-1.0, 1.0);
-    let sh = (1.0 - ch * ch).max(0.0).sqrt();
+    let sh = cone_sin;
     let ss = spread_sin.clamp(0.0, 1.0);
-    let cs = (1.0 - ss * ss).max(0.0).sqrt();
+    let cs = spread_cos;
     // δ = half + spread lies in [0, 3π/2]; past π every direction is possible.
     let cd = ch * cs - sh * ss;
     let sd = sh * cs + ch * ss;
@@ -196,9 +212,11 @@ fn cos_bounds(axis: Vec3, cone_cos: f32, dir: Vec3, spread_sin: f32) -> (f32, f3
 /// `dmin ≤ |d| ≤ dmax`. The box difference `[to.min − from.max, to.max − from.min]` bounds
 /// `axis · d` exactly; the cone adds at most `sin(half) |d|`.
 #[inline]
+#[allow(clippy::too_many_arguments)]
 fn box_cos_bounds(
     axis: Vec3,
     cone_cos: f32,
+    cone_sin: f32,
     from: (Vec3, Vec3),
     to: (Vec3, Vec3),
     dmin: f32,
@@ -214,8 +232,7 @@ fn box_cos_bounds(
     let b = axis * hi_d;
     let smin = a.min(b).element_sum();
     let smax = a.max(b).element_sum();
-    let c = cone_cos.clamp(-1.0, 1.0);
-    let s = (1.0 - c * c).max(0.0).sqrt();
+    let (c, s) = (cone_cos.clamp(-1.0, 1.0), cone_sin);
     let nlo = c * smin - s * dmax;
     let nhi = c * smax + s * dmax;
     let lo = if nlo >= 0.0 { nlo / dmax } else { nlo / dmin };
@@ -393,13 +410,30 @@ impl Refiner<'_> {
             }
             let dir = d / dist;
             let spread_sin = (sum_r / dist).min(1.0);
+            let spread_cos = (1.0 - spread_sin * spread_sin).max(0.0).sqrt();
             let (dmin, dmax) = (dist - sum_r, dist + sum_r);
             let (ba, bb) = ((ga.bmin, ga.bmax), (gb.bmin, gb.bmax));
-            let (lo_a, hi_a) = cos_bounds(ga.axis, ga.cone_cos, dir, spread_sin);
-            let (lo_a2, hi_a2) = box_cos_bounds(ga.axis, ga.cone_cos, ba, bb, dmin, dmax);
+            let (lo_a, hi_a) = cos_bounds(
+                ga.axis,
+                ga.cone_cos,
+                ga.cone_sin,
+                dir,
+                spread_sin,
+                spread_cos,
+            );
+            let (lo_a2, hi_a2) =
+                box_cos_bounds(ga.axis, ga.cone_cos, ga.cone_sin, ba, bb, dmin, dmax);
             let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
-            let (lo_b, hi_b) = cos_bounds(gb.axis, gb.cone_cos, -dir, spread_sin);
-            let (lo_b2, hi_b2) = box_cos_bounds(gb.axis, gb.cone_cos, bb, ba, dmin, dmax);
+            let (lo_b, hi_b) = cos_bounds(
+                gb.axis,
+                gb.cone_cos,
+                gb.cone_sin,
+                -dir,
+                spread_sin,
+                spread_cos,
+            );
+            let (lo_b2, hi_b2) =
+                box_cos_bounds(gb.axis, gb.cone_cos, gb.cone_sin, bb, ba, dmin, dmax);
             let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
             if hi_a <= 0.0 || hi_b <= 0.0 {
                 out.dropped += 1;
@@ -423,7 +457,6 @@ impl Refiner<'_> {
             // narrows the directions). Split a side of the first kind, the more straddling one
             // first; else the larger cluster.
             // (A half-angle above the spread's: a cosine below its cosine.)
-            let spread_cos = (1.0 - spread_sin * spread_sin).max(0.0).sqrt();
             let a_mixed = lo_a < 0.0 && !ga.point && ga.cone_cos < spread_cos;
             let b_mixed = lo_b < 0.0 && !gb.point && gb.cone_cos < spread_cos;
             let split_a = if a_mixed && b_mixed {

@@ -255,6 +255,18 @@ pub fn emitter_direct(
     let sampler = Sampler {
         view,
         emitters: &emitters,
+        points: emitters
+            .iter()
+            .map(|&j| {
+                let sj = &view.splats[j as usize];
+                EmitterPoint {
+                    position: sj.position.into(),
+                    normal: sj.normal.into(),
+                    area: view.splat_area[j as usize],
+                    radius: sj.radius,
+                }
+            })
+            .collect(),
         cdf: &cdf,
         guide: guide(&cdf, total, slices),
         total,
@@ -479,10 +491,21 @@ fn draw(cdf: &[f64], guide: &[u32], total: f64, target: f64) -> usize {
     e
 }
 
+/// An emitter splat as a sample reads it.
+#[derive(Clone, Copy)]
+struct EmitterPoint {
+    position: Vec3,
+    normal: Vec3,
+    area: f32,
+    radius: f32,
+}
+
 /// Stratified samples of the emitters over their area CDF.
 struct Sampler<'a> {
     view: &'a OctreeView<'a>,
     emitters: &'a [u32],
+    /// What a sample reads of each emitter, in one place (not the whole splat and its area).
+    points: Vec<EmitterPoint>,
     cdf: &'a [f64],
     /// Per slice `b` of `guide.len()` equal slices of the total: the first emitter whose CDF
     /// value reaches its start.
@@ -514,19 +537,19 @@ impl Sampler<'_> {
             if j == i {
                 continue;
             }
-            let sj = &view.splats[j as usize];
-            let d = Vec3::from(sj.position) - xi;
+            let sj = &self.points[e];
+            let d = sj.position - xi;
             let r2 = d.length_squared();
             let len = r2.sqrt();
             if len <= 0.0 {
                 continue;
             }
-            let (ci, cj) = (ni.dot(d) / len, -Vec3::from(sj.normal).dot(d) / len);
+            let (ci, cj) = (ni.dot(d) / len, -sj.normal.dot(d) / len);
             if ci <= 0.0 || cj <= 0.0 {
                 continue;
             }
             // Estimator of ∫ ... dA with pdf A_j / A_total per drawn splat.
-            let aj = view.splat_area[j as usize];
+            let aj = sj.area;
             let w = ci * cj / (std::f32::consts::PI * r2 + aj) * total as f32 / samples as f32;
             let t_min = self.self_hit * si.radius;
             f((
