@@ -47,7 +47,7 @@ fn room_photons(n: usize) -> Vec<Photon> {
             } else if i % 2 == 0 {
                 let (r, a) = (
                     0.15 * rng.random::<f32>().sqrt(),
-                    rng.random_range(0.0f32..6.283),
+                    rng.random_range(0.0f32..std::f32::consts::TAU),
                 );
                 (
                     [0.3 + r * a.cos(), -1.0, 0.2 + r * a.sin()],
