@@ -702,12 +702,8 @@ pub fn solve_gmres(
         for i in 0..n {
             v32[i] = v[i].map(|x| x as f32);
         }
-        let order = if relax > 1.0 {
-            op.apply_relaxed(&v32, &mut t, relax)?
-        } else {
-            op.apply(&v32, &mut t)?;
-            op.order()
-        };
+        // (At 1, every operator's configured order.)
+        let order = op.apply_relaxed(&v32, &mut t, relax)?;
         out.clear();
         out.extend((0..n).map(|i| {
             if weight[i] == 0.0 {
