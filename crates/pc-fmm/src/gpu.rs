@@ -291,9 +291,9 @@ pub const KIND_P2P_RANGE: u32 = 2;
 
 /// The plan's leaf tasks regrouped by receiving splat: CSR offsets over splats and the tasks.
 /// Each splat's block keeps the plan's order. A P2P task to a whole leaf is listed once, under
-/// the leaf's first splat, as [`KIND_P2P_RANGE`]; every other task has one receiving splat.
-/// Errs on a task the kernel cannot run (a P2P receiver range other than one splat or its whole
-/// leaf, a receiver outside its leaf).
+/// the leaf's first splat, as [`KIND_P2P_RANGE`]; a P2P task to part of a leaf (the plan merges
+/// tasks, [`crate::plan`]) once under each of its splats, as [`KIND_P2P`]; every other task has
+/// one receiving splat. Errs on a receiver range outside its leaf.
 pub fn splat_tasks(
     tree: &Tree,
     points: &Points,
@@ -305,15 +305,20 @@ pub fn splat_tasks(
         let leaf = tree.leaves[li] as usize;
         let (lo, hi) = (tree.lo[leaf], tree.hi[leaf]);
         for t in &plan.leaf_tasks[w[0] as usize..w[1] as usize] {
-            let single = t.is_m2p() || t.recv_hi == t.recv_lo + 1;
-            let whole = t.recv_lo == lo && t.recv_hi == hi;
-            if t.recv_lo < lo || t.recv_lo >= hi || !(single || whole) {
+            let end = if t.is_m2p() { t.recv_lo + 1 } else { t.recv_hi };
+            if t.recv_lo < lo || end > hi || end <= t.recv_lo {
                 return Err(format!(
-                    "FMM on the GPU: a leaf task to splats {}..{} of the leaf of splats {lo}..{hi}: the kernels run tasks to one splat or to a whole leaf",
-                    t.recv_lo, t.recv_hi
+                    "FMM on the GPU: a leaf task to splats {}..{end} of the leaf of splats {lo}..{hi}: the receivers must lie in the leaf",
+                    t.recv_lo
                 ));
             }
-            count[t.recv_lo as usize + 1] += 1;
+            if t.is_m2p() || (t.recv_lo, t.recv_hi) == (lo, hi) {
+                count[t.recv_lo as usize + 1] += 1;
+            } else {
+                for i in t.recv_lo..t.recv_hi {
+                    count[i as usize + 1] += 1;
+                }
+            }
         }
     }
     for i in 0..n {
@@ -321,25 +326,30 @@ pub fn splat_tasks(
     }
     let offsets = count.clone();
     let mut next = count;
-    let mut tasks = vec![SplatTask::default(); plan.leaf_tasks.len()];
-    // The plan's tasks of a leaf are sorted by receiver, so a stable scatter keeps each block in
-    // the plan's order.
-    for t in &plan.leaf_tasks {
-        let kind = if t.is_m2p() {
-            KIND_M2P
-        } else if t.recv_hi == t.recv_lo + 1 {
-            KIND_P2P
-        } else {
-            KIND_P2P_RANGE
-        };
-        let at = &mut next[t.recv_lo as usize];
-        tasks[*at as usize] = SplatTask {
-            src_lo: t.src_lo,
-            src_hi: t.src_hi,
-            fraction: t.fraction,
-            kind,
-        };
-        *at += 1;
+    let mut tasks = vec![SplatTask::default(); offsets[n] as usize];
+    // A stable scatter keeps each splat's block in the plan's order.
+    for (li, w) in plan.leaf_offsets.windows(2).enumerate() {
+        let leaf = tree.leaves[li] as usize;
+        let (lo, hi) = (tree.lo[leaf], tree.hi[leaf]);
+        for t in &plan.leaf_tasks[w[0] as usize..w[1] as usize] {
+            let (kind, receivers) = if t.is_m2p() {
+                (KIND_M2P, t.recv_lo..t.recv_lo + 1)
+            } else if (t.recv_lo, t.recv_hi) == (lo, hi) && hi - lo > 1 {
+                (KIND_P2P_RANGE, t.recv_lo..t.recv_lo + 1)
+            } else {
+                (KIND_P2P, t.recv_lo..t.recv_hi)
+            };
+            for i in receivers {
+                let at = &mut next[i as usize];
+                tasks[*at as usize] = SplatTask {
+                    src_lo: t.src_lo,
+                    src_hi: t.src_hi,
+                    fraction: t.fraction,
+                    kind,
+                };
+                *at += 1;
+            }
+        }
     }
     Ok((offsets, tasks))
 }
@@ -856,30 +866,34 @@ mod tests {
             _pad: [0; 3],
         };
         let plan = Plan {
-            leaf_offsets: vec![0, 4],
+            leaf_offsets: vec![0, 5],
             leaf_tasks: vec![
                 task(0, 3, 5, 9),
                 task(0, 1, 12, 13),
                 task(2, 0, 7, 0),
                 task(2, 3, 20, 21),
+                // Part of the leaf (a merged task): under each of its splats.
+                task(1, 3, 30, 34),
             ],
             ..Default::default()
         };
         let (offsets, tasks) = splat_tasks(&tree, &points, &plan).unwrap();
-        assert_eq!(offsets, vec![0, 2, 2, 4]);
+        assert_eq!(offsets, vec![0, 2, 3, 6]);
         let kinds: Vec<(u32, u32)> = tasks.iter().map(|t| (t.kind, t.src_lo)).collect();
         assert_eq!(
             kinds,
             vec![
                 (KIND_P2P_RANGE, 5),
                 (KIND_P2P, 12),
+                (KIND_P2P, 30),
                 (KIND_M2P, 7),
-                (KIND_P2P, 20)
+                (KIND_P2P, 20),
+                (KIND_P2P, 30)
             ]
         );
         let bad = Plan {
             leaf_offsets: vec![0, 1],
-            leaf_tasks: vec![task(1, 3, 5, 9)],
+            leaf_tasks: vec![task(1, 4, 5, 9)],
             ..Default::default()
         };
         assert!(splat_tasks(&tree, &points, &bad).is_err());

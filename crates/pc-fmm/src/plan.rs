@@ -35,6 +35,9 @@ pub const NEAR_DISKS: f32 = 4.0;
 pub const DIRECT_ONE_SIDED: u64 = 32;
 pub const DIRECT_M2L: u64 = 128;
 
+/// How many of the link's last leaf tasks a new P2P task may merge with.
+const MERGE_BACK: usize = 4;
+
 /// Plan parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct PlanParams {
@@ -247,6 +250,8 @@ struct Out {
     node: Vec<(u32, NodeTask)>,
     leaf: Vec<(u32, LeafTask)>,
     dropped: u64,
+    /// Where the current link's leaf tasks start.
+    link_start: usize,
 }
 
 struct Refiner<'a> {
@@ -292,6 +297,35 @@ impl Refiner<'_> {
         let (rlo, rhi) = range(self.t, a);
         let (slo, shi) = range(self.t, b);
         let leaf = self.p.leaf[rlo as usize];
+        // The same pairs as one task with one of the last few of this link (a leaf split splat by
+        // splat against one source, or one receiver against sibling leaves): fewer and fuller
+        // tasks. Within one link only, so the tasks do not depend on how the workers split the
+        // links.
+        let n = out.leaf.len();
+        let from = n.saturating_sub(MERGE_BACK).max(out.link_start);
+        for (l, q) in out.leaf[from..].iter_mut().rev() {
+            if *l == leaf && !q.is_m2p() && q.fraction.to_bits() == f.to_bits() {
+                if (q.src_lo, q.src_hi) == (slo, shi) {
+                    if q.recv_hi == rlo {
+                        q.recv_hi = rhi;
+                        return;
+                    }
+                    if rhi == q.recv_lo {
+                        q.recv_lo = rlo;
+                        return;
+                    }
+                } else if (q.recv_lo, q.recv_hi) == (rlo, rhi) {
+                    if q.src_hi == slo {
+                        q.src_hi = shi;
+                        return;
+                    }
+                    if shi == q.src_lo {
+                        q.src_lo = slo;
+                        return;
+                    }
+                }
+            }
+        }
         out.leaf.push((
             leaf,
             LeafTask {
@@ -365,6 +399,7 @@ impl Refiner<'_> {
         let mut kids_b = Vec::new();
         stack.clear();
         stack.push((a0, b0));
+        out.link_start = out.leaf.len();
         while let Some((a, b)) = stack.pop() {
             if !self.receives(a) {
                 continue;
