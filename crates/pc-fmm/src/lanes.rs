@@ -730,7 +730,7 @@ dispatched!(
 }
 );
 
-/// Every splat's disk as structure of arrays for [`any_hit`] (centre, normal, squared radius,
+/// Every splat's disk as structure of arrays for [`blocked`] (centre, normal, squared radius,
 /// border clip), in data-pool order, padded with [`W`] disks no ray meets.
 pub struct DiskLanes {
     v: [Vec<f32>; 11],
@@ -766,7 +766,7 @@ impl DiskLanes {
     }
 }
 
-/// The octree leaves a shaft holds, for [`any_hit`]: each leaf's splat range and the box of
+/// The octree leaves a shaft holds, for [`blocked`]: each leaf's splat range, slab and the box of
 /// its disks, and a tree of boxes over them (level 0 the leaves' boxes, level `k + 1` the box
 /// of each batch of [`W`] level-`k` boxes, up to a level of at most [`W`]). The leaves come in
 /// the order the octree listed them, so a batch is compact.
@@ -775,14 +775,33 @@ pub struct LeafLanes {
     ranges: Vec<(u32, u32)>,
     /// Per level: min xyz, max xyz, padded to whole batches with empty boxes.
     levels: Vec<[Vec<f32>; 6]>,
+    /// Per leaf (level 0's order and padding): the slab of its disks, normal xyz, lo, hi.
+    slabs: [Vec<f32>; 5],
 }
 
 impl LeafLanes {
-    /// Load the leaves `(splat range, disk box)`.
-    pub fn load(&mut self, leaves: &[((u32, u32), crate::shaft::Aabb)]) {
+    /// Load the leaves `(splat range, disk box, disk slab)`.
+    pub fn load(&mut self, leaves: &[((u32, u32), crate::shaft::Aabb, crate::shaft::Slab)]) {
         use crate::shaft::Aabb;
         self.ranges.clear();
         self.ranges.extend(leaves.iter().map(|x| x.0));
+        for v in self.slabs.iter_mut() {
+            v.clear();
+        }
+        for (_, _, sl) in leaves {
+            for (v, x) in self
+                .slabs
+                .iter_mut()
+                .zip([sl.n.x, sl.n.y, sl.n.z, sl.lo, sl.hi])
+            {
+                v.push(x);
+            }
+        }
+        while !self.slabs[0].len().is_multiple_of(W) {
+            for (v, x) in self.slabs.iter_mut().zip([0.0, 0.0, 0.0, -1.0, 1.0]) {
+                v.push(x);
+            }
+        }
         let mut boxes: Vec<Aabb> = leaves.iter().map(|x| x.1).collect();
         self.levels.clear();
         loop {
@@ -815,8 +834,10 @@ impl LeafLanes {
 }
 
 /// Whether any disk of the leaves `c` blocks the ray (a hit in `[t_min, t_max]`): slab tests of
-/// eight boxes at a time down the box tree, then the ray-disk test of the octree walk
-/// (`pc_tree::accel`), the same operations in the same order, eight disks at a time.
+/// eight boxes at a time down the box tree, at a leaf also whether the ray's stretch in its box
+/// reaches the slab of its disks ([`crate::shaft::Slab`], widened past the rounding: a
+/// conservative skip), then the ray-disk test of the octree walk (`pc_tree::accel`), the same
+/// operations in the same order, eight disks at a time.
 #[inline(always)]
 fn any_hit_impl(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
     let Some(top) = c.levels.len().checked_sub(1) else {
@@ -844,6 +865,7 @@ fn any_hit_impl(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
         let lb = |k: usize| -> [f32; W] { level[k][b0..b0 + W].try_into().unwrap() };
         let (lo, hi) = ([lb(0), lb(1), lb(2)], [lb(3), lb(4), lb(5)]);
         let mut meets = [false; W];
+        let mut span = [(0.0f32, 0.0f32); W];
         for l in 0..W {
             let (mut near, mut far) = (ray.t_min, ray.t_max);
             for k in 0..3 {
@@ -854,6 +876,18 @@ fn any_hit_impl(c: &LeafLanes, d: &DiskLanes, ray: &pc_tree::Ray) -> bool {
             }
             // (Padding boxes are empty: min above max.)
             meets[l] = (near <= far) & (lo[0][l] <= hi[0][l]);
+            span[l] = (near, far);
+        }
+        if lvl == 0 {
+            // The ray's stretch inside a leaf's box must reach the slab of its disks.
+            let sl = |k: usize| -> [f32; W] { c.slabs[k][b0..b0 + W].try_into().unwrap() };
+            let (nx, ny, nz, slo, shi) = (sl(0), sl(1), sl(2), sl(3), sl(4));
+            for l in 0..W {
+                let a = nx[l] * o3[0] + ny[l] * o3[1] + nz[l] * o3[2];
+                let b = nx[l] * ray.dir.x + ny[l] * ray.dir.y + nz[l] * ray.dir.z;
+                let (s1, s2) = (a + b * span[l].0, a + b * span[l].1);
+                meets[l] &= (s1.max(s2) >= slo[l]) & (s1.min(s2) <= shi[l]);
+            }
         }
         for l in (0..W).filter(|&l| meets[l]) {
             if lvl == 0 {

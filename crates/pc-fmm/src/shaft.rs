@@ -14,8 +14,9 @@
 //! The test descends the octree with each node's box of its splats' disks (tight per normal:
 //! a disk of radius r and normal n reaches `r √(1 − n_k²)` along axis k) and collects the
 //! leaves whose box meets the shaft; the group's rays are then tested against those leaves'
-//! disks alone ([`crate::lanes::any_hit`], the octree walk's ray-disk test, eight at a time).
-//! No leaf: every ray is open without a test.
+//! disks alone ([`crate::lanes::blocked`], the octree walk's ray-disk test, eight at a time),
+//! a leaf's disks only when the ray's stretch in its box reaches the slab of its disks
+//! ([`Slab`]). No leaf: every ray is open without a test.
 
 use glam::Vec3;
 use pc_artifact::octree::node;
@@ -139,16 +140,68 @@ impl Shaft {
     }
 }
 
+/// The slab `lo ≤ n · x ≤ hi` that holds every disk of a leaf, `n` the leaf's mean normal: a
+/// flat leaf's is as thin as its disks' rounding, where its box (a tilted face's) may be deep.
+/// A ray whose stretch inside the leaf's box stays on one side of it meets none of its disks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Slab {
+    pub n: Vec3,
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl Slab {
+    /// No bound (a leaf whose normals cancel).
+    pub const ALL: Slab = Slab {
+        n: Vec3::ZERO,
+        lo: f32::NEG_INFINITY,
+        hi: f32::INFINITY,
+    };
+
+    /// The slab of disks (centre, normal, radius) along their mean normal, widened by
+    /// `margin`, and relative to each radius against rounding in the ray-disk test.
+    pub fn of_disks(disks: impl Iterator<Item = (Vec3, Vec3, f32)> + Clone, margin: f32) -> Slab {
+        let sum: Vec3 = disks.clone().map(|(_, m, _)| m.normalize_or_zero()).sum();
+        let Some(n) = sum.try_normalize() else {
+            return Slab::ALL;
+        };
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for (c, m, r) in disks {
+            // A disk of normal m reaches r |n × m| along n (no cancellation near parallel).
+            let reach =
+                r * n.cross(m.normalize_or_zero()).length().min(1.0) * (1.0 + 1e-4) + 1e-4 * r;
+            let d = n.dot(c);
+            lo = lo.min(d - reach);
+            hi = hi.max(d + reach);
+        }
+        Slab {
+            n,
+            lo: lo - margin,
+            hi: hi + margin,
+        }
+    }
+}
+
 /// Per node-pool slot, the box of the disks of the splats under it (the leaves' own splats:
-/// every splat once).
+/// every splat once), and per leaf the slab of its disks.
 pub struct DiskBoxes {
     boxes: Vec<Aabb>,
+    slabs: Vec<Slab>,
 }
 
 impl DiskBoxes {
     pub fn new(view: &OctreeView) -> DiskBoxes {
         let slots = view.nodes.len();
         let mut boxes = vec![Aabb::EMPTY; slots];
+        let mut slabs = vec![Slab::ALL; slots];
+        // Rounding of a ray's points along a slab's normal: a few units in the last place of the
+        // scene's largest coordinate (rays run inside the scene, a few of its sizes long).
+        let scale = view
+            .splats
+            .iter()
+            .map(|s| Vec3::from(s.position).abs().max_element() + s.radius)
+            .fold(0.0f32, f32::max);
+        let margin = 64.0 * f32::EPSILON * scale;
         // Children follow their parent in the pool: bottom-up is reverse slot order.
         for slot in (0..slots).rev() {
             let w = view.nodes[slot];
@@ -157,11 +210,15 @@ impl DiskBoxes {
             }
             let mut bx = Aabb::EMPTY;
             if node::is_leaf(w) {
-                for i in view.leaf(w).0 {
+                let range = view.leaf(w).0;
+                let disks = range.clone().map(|i| {
                     let s = &view.splats[i as usize];
-                    let d = Aabb::of_disk(s.position.into(), s.normal.into(), s.radius);
-                    bx = bx.union(d);
+                    (Vec3::from(s.position), Vec3::from(s.normal), s.radius)
+                });
+                for (c, n, r) in disks.clone() {
+                    bx = bx.union(Aabb::of_disk(c, n, r));
                 }
+                slabs[slot] = Slab::of_disks(disks, margin);
             } else {
                 let c = node::ptr(w) as usize;
                 for b in &boxes[c..c + 8] {
@@ -170,18 +227,18 @@ impl DiskBoxes {
             }
             boxes[slot] = bx;
         }
-        DiskBoxes { boxes }
+        DiskBoxes { boxes, slabs }
     }
 
-    /// The octree leaves whose disks' box meets the shaft, as (splat range, box), into `out`:
-    /// `false` (and `out` incomplete) once their splats number more than `limit`.
+    /// The octree leaves whose disks' box meets the shaft, as (splat range, box, slab), into
+    /// `out`: `false` (and `out` incomplete) once their splats number more than `limit`.
     pub fn leaves(
         &self,
         view: &OctreeView,
         shaft: &Shaft,
         limit: usize,
         stack: &mut Vec<u32>,
-        out: &mut Vec<((u32, u32), Aabb)>,
+        out: &mut Vec<((u32, u32), Aabb, Slab)>,
     ) -> bool {
         out.clear();
         stack.clear();
@@ -199,7 +256,7 @@ impl DiskBoxes {
                 if splats > limit {
                     return false;
                 }
-                out.push(((r.start, r.end), *bx));
+                out.push(((r.start, r.end), *bx, self.slabs[slot as usize]));
             } else {
                 let c = node::ptr(w);
                 stack.extend(c..c + 8);
@@ -248,5 +305,46 @@ mod tests {
         // A floor disk's box is flat.
         let d = Aabb::of_disk(Vec3::new(0.45, 0.0, 0.45), Vec3::Y, 0.05);
         assert!(d.max.y - d.min.y < 1e-6 && !s.meets(&d));
+    }
+
+    #[test]
+    fn a_slab_holds_its_disks_and_a_flat_leafs_is_thin() {
+        // Disks on a plane tilted off every axis (a rotated box's face): their box is deep,
+        // their slab as thin as the margins.
+        let m = Vec3::new(0.3, 0.2, 0.9).normalize();
+        let (u, v) = m.any_orthonormal_pair();
+        let disks: Vec<(Vec3, Vec3, f32)> = (0..12)
+            .map(|k| {
+                let (a, b) = ((k % 4) as f32 * 0.01, (k / 4) as f32 * 0.01);
+                (Vec3::new(0.4, 0.7, 0.2) + a * u + b * v, m, 0.006)
+            })
+            .collect();
+        let rim = |d: &[(Vec3, Vec3, f32)], slab: &Slab| {
+            for &(c, n, r) in d {
+                let (p, q) = n.any_orthonormal_pair();
+                for k in 0..16 {
+                    let t = k as f32 * std::f32::consts::TAU / 16.0;
+                    let x = c + r * (t.cos() * p + t.sin() * q);
+                    let y = slab.n.dot(x);
+                    assert!(slab.lo <= y && y <= slab.hi, "{x} at {y} outside {slab:?}");
+                }
+            }
+        };
+        let flat = Slab::of_disks(disks.iter().copied(), 1e-6);
+        rim(&disks, &flat);
+        assert!(flat.hi - flat.lo < 1e-5, "{flat:?}");
+        let bx = disks
+            .iter()
+            .fold(Aabb::EMPTY, |b, &(c, n, r)| b.union(Aabb::of_disk(c, n, r)));
+        assert!((bx.max - bx.min).min_element() > 0.01, "{bx:?}");
+        // A corner leaf (two faces): the slab widens to hold both.
+        let mut corner = disks.clone();
+        corner.extend(disks.iter().map(|&(c, _, r)| (c + 0.01 * m, u, r)));
+        let wide = Slab::of_disks(corner.iter().copied(), 1e-6);
+        rim(&corner, &wide);
+        assert!(wide.hi - wide.lo > 0.01);
+        // Normals that cancel bound nothing.
+        let both = [(Vec3::ZERO, Vec3::X, 1.0), (Vec3::ZERO, -Vec3::X, 1.0)];
+        assert_eq!(Slab::of_disks(both.into_iter(), 0.0), Slab::ALL);
     }
 }
