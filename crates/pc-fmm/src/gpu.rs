@@ -373,7 +373,7 @@ fn node_split(plan: &Plan) -> Result<Vec<u32>, String> {
 }
 
 /// Upper bound of the loop iterations of one invocation group of the kernels for a plan (see
-/// [`software_loop_bound`]), and the kernel where it occurs: what must stay within llvmpipe's
+/// `software_loop_bound`), and the kernel where it occurs: what must stay within llvmpipe's
 /// 65535.
 pub fn loop_bound(
     tree: &Tree,

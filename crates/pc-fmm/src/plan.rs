@@ -16,6 +16,8 @@
 //!
 //! Accepted pairs become M2L (node ← node), P2L (node ← splat), M2P (splat ← node) or P2P
 //! (splat range ← splat range) tasks, grouped by receiver so each is applied without atomics.
+//! The refinement itself runs receiver by receiver from the root down (`Refiner::visit`), so
+//! each receiver's tasks come out together.
 
 use glam::Vec3;
 use pc_artifact::vmap::Link;
@@ -243,16 +245,30 @@ fn box_cos_bounds(
     (lo.max(-1.0), hi.min(1.0))
 }
 
-/// Tasks one worker found: keyed by receiver (node-pool slot for node tasks, leaf slot for leaf
-/// tasks), and the interactions dropped as facing away.
+/// Tasks one worker found, keyed by receiver (node-pool slot for node tasks, leaf slot for leaf
+/// tasks), each receiver's together: the runs `(compact index, start, length)` of the node
+/// tasks and `(compact leaf index, start, length)` of the leaf tasks; and the interactions
+/// dropped as facing away.
 #[derive(Default)]
 struct Out {
     node: Vec<(u32, NodeTask)>,
     leaf: Vec<(u32, LeafTask)>,
+    node_runs: Vec<(u32, u32, u32)>,
+    leaf_runs: Vec<(u32, u32, u32)>,
     dropped: u64,
-    /// Where the current link's leaf tasks start.
-    link_start: usize,
 }
+
+/// A pair waiting at a receiver: the source cluster, the link's visible fraction, and whether
+/// it is accepted already, to be summed point to point into every receiving leaf below.
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    src: u32,
+    fraction: f32,
+    direct: bool,
+}
+
+/// The V-map's links: CSR offsets per node-pool slot and the links.
+type Links<'a> = (&'a [u32], &'a [Link]);
 
 struct Refiner<'a> {
     t: &'a Tree,
@@ -297,13 +313,11 @@ impl Refiner<'_> {
         let (rlo, rhi) = range(self.t, a);
         let (slo, shi) = range(self.t, b);
         let leaf = self.p.leaf[rlo as usize];
-        // The same pairs as one task with one of the last few of this link (a leaf split splat by
+        // The same pairs as one task with one of the leaf's last few (a leaf split splat by
         // splat against one source, or one receiver against sibling leaves): fewer and fuller
-        // tasks. Within one link only, so the tasks do not depend on how the workers split the
-        // links.
+        // tasks. (A leaf's tasks come in an order of their own, whatever the workers do.)
         let n = out.leaf.len();
-        let from = n.saturating_sub(MERGE_BACK).max(out.link_start);
-        for (l, q) in out.leaf[from..].iter_mut().rev() {
+        for (l, q) in out.leaf[n.saturating_sub(MERGE_BACK)..].iter_mut().rev() {
             if *l == leaf && !q.is_m2p() && q.fraction.to_bits() == f.to_bits() {
                 if (q.src_lo, q.src_hi) == (slo, shi) {
                     if q.recv_hi == rlo {
@@ -339,20 +353,17 @@ impl Refiner<'_> {
         ));
     }
 
-    /// Point-to-point tasks from `b` into every receiving leaf under `a` (or into splat `a`).
-    fn p2p_leaves(&self, a: u32, b: u32, f: f32, out: &mut Out) {
-        if a & POINT != 0 || self.t.first_child[a as usize] == NONE {
-            self.p2p(a, b, f, out);
-            return;
-        }
-        for c in self.t.children(a) {
-            if self.t.active[c as usize] > 0 {
-                self.p2p_leaves(c, b, f, out);
-            }
-        }
-    }
-
-    fn accept(&self, a: u32, b: u32, f: f32, out: &mut Out) {
+    /// An accepted pair: an expansion task, or, when it is small, point to point (into every
+    /// receiving leaf under `a`: handed `down` to the children until the leaves).
+    fn accept(
+        &self,
+        a: u32,
+        b: u32,
+        f: f32,
+        at_leaf: bool,
+        down: &mut Vec<Pending>,
+        out: &mut Out,
+    ) {
         // An expansion costs about as much as summing a few dozen splat pairs exactly: small
         // far pairs are summed point to point instead, one task per receiving leaf.
         let count = |x: u32| {
@@ -365,7 +376,15 @@ impl Refiner<'_> {
             (false, false) => DIRECT_M2L,
         };
         if count(a) * count(b) <= limit {
-            self.p2p_leaves(a, b, f, out);
+            if at_leaf {
+                self.p2p(a, b, f, out);
+            } else {
+                down.push(Pending {
+                    src: b,
+                    fraction: f,
+                    direct: true,
+                });
+            }
             return;
         }
         match (a & POINT != 0, b & POINT != 0) {
@@ -394,29 +413,91 @@ impl Refiner<'_> {
         }
     }
 
-    fn refine(&self, a0: u32, b0: u32, f: f32, out: &mut Out, stack: &mut Vec<(u32, u32)>) {
-        let mut kids_a = Vec::new();
-        let mut kids_b = Vec::new();
-        stack.clear();
-        stack.push((a0, b0));
-        out.link_start = out.leaf.len();
-        while let Some((a, b)) = stack.pop() {
-            if !self.receives(a) {
+    /// Refine every pair whose receiver is `a`: the pairs `inherited` from its parent (those
+    /// that split the receiver) and its own links. Each pair is accepted as a task of `a`,
+    /// dropped, split on the source side (refined here again), or handed to `a`'s children;
+    /// then the children, in order. The tasks of one receiver come out together and in an order
+    /// that does not depend on the workers: no sort by receiver afterwards.
+    fn visit(&self, a: u32, inherited: &[Pending], links: Links, out: &mut Out) {
+        let leaf0 = out.leaf.len();
+        let Some(down) = self.refine_at(a, inherited, links, out) else {
+            return;
+        };
+        // The children: the internal node's always (they have links of their own), a leaf's
+        // splats only when pairs came down to them.
+        let (internal, point) = (self.is_internal(a), a & POINT != 0);
+        if internal || (!down.is_empty() && !point) {
+            let mut kids = Vec::new();
+            self.split(a, &mut kids);
+            for &c in &kids {
+                self.visit(c, &down, links, out);
+            }
+        }
+        if !internal && !point {
+            let n = out.leaf.len() - leaf0;
+            if n > 0 {
+                out.leaf_runs
+                    .push((self.t.leaf_index[a as usize], leaf0 as u32, n as u32));
+            }
+        }
+    }
+
+    fn is_internal(&self, a: u32) -> bool {
+        a & POINT == 0 && self.t.first_child[a as usize] != NONE
+    }
+
+    /// The pairs of receiver `a` (see [`Refiner::visit`]) refined: its tasks into `out`, and the
+    /// pairs for its children returned (`None`: `a` receives nothing).
+    fn refine_at(
+        &self,
+        a: u32,
+        inherited: &[Pending],
+        links: Links,
+        out: &mut Out,
+    ) -> Option<Vec<Pending>> {
+        if !self.receives(a) {
+            return None;
+        }
+        let node0 = out.node.len();
+        let mut down: Vec<Pending> = Vec::new();
+        let mut stack: Vec<Pending> = inherited.to_vec();
+        if a & POINT == 0 {
+            let (s, e) = (
+                links.0[a as usize] as usize,
+                links.0[a as usize + 1] as usize,
+            );
+            stack.extend(links.1[s..e].iter().rev().map(|l| Pending {
+                src: l.slot(),
+                fraction: l.fraction,
+                direct: false,
+            }));
+        }
+        let mut kids = Vec::new();
+        let ga = self.geo(a);
+        let at_leaf = !ga.internal;
+        while let Some(pd) = stack.pop() {
+            let (b, f) = (pd.src, pd.fraction);
+            if pd.direct {
+                // An accepted small far pair, summed point to point into every receiving leaf.
+                if at_leaf {
+                    self.p2p(a, b, f, out);
+                } else {
+                    down.push(pd);
+                }
                 continue;
             }
             let gb = self.geo(b);
             if gb.area <= 0.0 {
                 continue;
             }
-            let ga = self.geo(a);
             if a == b {
                 if ga.internal {
-                    self.split(a, &mut kids_a);
-                    for &x in &kids_a {
-                        for &y in &kids_a {
-                            stack.push((x, y));
-                        }
-                    }
+                    self.split(a, &mut kids);
+                    down.extend(kids.iter().map(|&y| Pending {
+                        src: y,
+                        fraction: f,
+                        direct: false,
+                    }));
                 } else {
                     self.p2p(a, b, f, out);
                 }
@@ -433,11 +514,10 @@ impl Refiner<'_> {
                 // Not separated: split the larger internal node, else point to point.
                 let split_a = ga.internal && (!gb.internal || ga.r >= gb.r);
                 if split_a {
-                    self.split(a, &mut kids_a);
-                    stack.extend(kids_a.iter().map(|&x| (x, b)));
+                    down.push(pd);
                 } else if gb.internal {
-                    self.split(b, &mut kids_b);
-                    stack.extend(kids_b.iter().map(|&y| (a, y)));
+                    self.split(b, &mut kids);
+                    stack.extend(kids.iter().map(|&y| Pending { src: y, ..pd }));
                 } else {
                     self.p2p(a, b, f, out);
                 }
@@ -475,14 +555,14 @@ impl Refiner<'_> {
                 continue;
             }
             if lo_a >= 0.0 && lo_b >= 0.0 {
-                self.accept(a, b, f, out);
+                self.accept(a, b, f, at_leaf, &mut down, out);
                 continue;
             }
             let gap = (dist - sum_r).max(1e-30);
             let err = ((-lo_a).max(0.0) * hi_b + (-lo_b).max(0.0) * hi_a) * gb.area
                 / (std::f32::consts::PI * gap * gap);
             if err <= self.params.clamp_tol {
-                self.accept(a, b, f, out);
+                self.accept(a, b, f, at_leaf, &mut down, out);
                 continue;
             }
             // What to split. A side straddles through its own normal spread (a corner leaf
@@ -502,15 +582,50 @@ impl Refiner<'_> {
                 !ga.point && (gb.point || ga.r >= gb.r)
             };
             if split_a && !ga.point {
-                self.split(a, &mut kids_a);
-                stack.extend(kids_a.iter().map(|&x| (x, b)));
+                down.push(pd);
             } else if !gb.point {
-                self.split(b, &mut kids_b);
-                stack.extend(kids_b.iter().map(|&y| (a, y)));
+                self.split(b, &mut kids);
+                stack.extend(kids.iter().map(|&y| Pending { src: y, ..pd }));
             } else {
                 self.p2p(a, b, f, out);
             }
         }
+        if a & POINT == 0 {
+            let n = out.node.len() - node0;
+            if n > 0 {
+                out.node_runs
+                    .push((self.t.compact[a as usize], node0 as u32, n as u32));
+            }
+        }
+        Some(down)
+    }
+
+    /// [`Refiner::visit`] with the subtrees of more than `grain` splats run in parallel: the
+    /// workers' outputs in the receivers' order.
+    fn visit_par(&self, a: u32, inherited: &[Pending], links: Links, grain: u32) -> Vec<Out> {
+        let big = self.is_internal(a) && {
+            let (lo, hi) = range(self.t, a);
+            hi - lo > grain
+        };
+        if !big {
+            let mut out = Out::default();
+            self.visit(a, inherited, links, &mut out);
+            return vec![out];
+        }
+        // The node's own pairs, then its children side by side.
+        let mut own = Out::default();
+        let Some(down) = self.refine_at(a, inherited, links, &mut own) else {
+            return Vec::new();
+        };
+        let mut kids = Vec::new();
+        self.split(a, &mut kids);
+        let rest: Vec<Vec<Out>> = kids
+            .par_iter()
+            .map(|&c| self.visit_par(c, &down, links, grain))
+            .collect();
+        let mut outs = vec![own];
+        outs.extend(rest.into_iter().flatten());
+        outs
     }
 }
 
@@ -528,23 +643,16 @@ pub fn build(
         params,
         geos: node_geos(t, p),
     };
-    let parts: Vec<Out> = (0..t.slots)
-        .into_par_iter()
-        .fold(
-            || (Out::default(), Vec::new()),
-            |(mut out, mut stack): (Out, Vec<(u32, u32)>), a| {
-                let (s, e) = (link_offsets[a] as usize, link_offsets[a + 1] as usize);
-                for l in &links[s..e] {
-                    r.refine(a as u32, l.slot(), l.fraction, &mut out, &mut stack);
-                }
-                (out, stack)
-            },
-        )
-        .map(|(o, _)| o)
-        .collect();
-    // Counting sort by receiver (compact node, compact leaf) straight into one allocation per
-    // kind, then each receiver's tasks sorted by source: the order fixes the product's sums,
-    // whichever worker found a task.
+    // Receiver by receiver from the root down, subtrees of more than 1/256 of the splats side
+    // by side: each receiver's tasks come out together, in an order of their own.
+    let grain = (p.pos.len() as u32 / 256).max(1024);
+    let parts: Vec<Out> = if t.slots == 0 {
+        Vec::new()
+    } else {
+        r.visit_par(0, &[], (link_offsets, links), grain)
+    };
+    // Each receiver's run into its place in one allocation per kind, then each receiver's
+    // tasks sorted by source (M2L before P2L; M2P batches that share moments).
     let mut counts = TaskCounts::default();
     for o in &parts {
         counts.dropped_facing_away += o.dropped;
@@ -565,16 +673,11 @@ pub fn build(
             }
         }
     }
-    let (node_offsets, mut node_tasks) = bucket(
+    let (node_offsets, mut node_tasks) =
+        gather(&parts, |o| (o.node.as_slice(), &o.node_runs), t.nodes.len());
+    let (leaf_offsets, mut leaf_tasks) = gather(
         &parts,
-        |o| o.node.as_slice(),
-        |slot| t.compact[slot as usize],
-        t.nodes.len(),
-    );
-    let (leaf_offsets, mut leaf_tasks) = bucket(
-        &parts,
-        |o| o.leaf.as_slice(),
-        |slot| t.leaf_index[slot as usize],
+        |o| (o.leaf.as_slice(), &o.leaf_runs),
         t.leaves.len(),
     );
     drop(parts);
@@ -604,40 +707,43 @@ pub fn build(
     }
 }
 
-/// Counting sort of the workers' `(receiver slot, task)` lists by `key(slot)` (below `n`): the
-/// CSR offsets and the tasks, in parallel.
-fn bucket<T: Copy + Send + Sync + bytemuck::Zeroable>(
+/// The workers' runs of tasks (one run per receiver key below `n`, at most) into one allocation
+/// in key order: the CSR offsets and the tasks, copied in parallel.
+#[allow(clippy::type_complexity)]
+fn gather<T: Copy + Send + Sync + bytemuck::Zeroable>(
     parts: &[Out],
-    list: impl Fn(&Out) -> &[(u32, T)] + Sync,
-    key: impl Fn(u32) -> u32 + Sync,
+    list: impl Fn(&Out) -> (&[(u32, T)], &[(u32, u32, u32)]) + Sync,
     n: usize,
 ) -> (Vec<u32>, Vec<T>) {
-    use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
-    let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
-    parts.par_iter().for_each(|o| {
-        for &(slot, _) in list(o) {
-            counts[key(slot) as usize].fetch_add(1, Relaxed);
-        }
-    });
     let mut offsets = vec![0u32; n + 1];
-    for i in 0..n {
-        offsets[i + 1] = offsets[i] + counts[i].load(Relaxed);
+    for o in parts {
+        for &(key, _, len) in list(o).1 {
+            let c = &mut offsets[key as usize + 1];
+            assert_eq!(*c, 0, "plan: receiver {key} refined twice");
+            *c = len;
+        }
     }
-    let cursor: Vec<AtomicU32> = offsets[..n].iter().map(|&o| AtomicU32::new(o)).collect();
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
     let mut tasks = vec![T::zeroed(); offsets[n] as usize];
     let out = SyncSlice(tasks.as_mut_ptr());
     parts.par_iter().for_each(|o| {
-        for &(slot, task) in list(o) {
-            let k = cursor[key(slot) as usize].fetch_add(1, Relaxed) as usize;
-            // SAFETY: each cursor hands out the distinct indices of its key's run, all below
-            // the total.
-            unsafe { out.write(k, task) };
+        let (list, runs) = list(o);
+        for &(key, start, len) in runs {
+            let at = offsets[key as usize] as usize;
+            let run = &list[start as usize..(start + len) as usize];
+            for (k, &(_, task)) in run.iter().enumerate() {
+                // SAFETY: a key's run is written by the one worker that holds it (checked
+                // above), into its own range of the allocation.
+                unsafe { out.write(at + k, task) };
+            }
         }
     });
     (offsets, tasks)
 }
 
-/// Raw pointer for the scatter of [`bucket`].
+/// Raw pointer for the copies of [`gather`].
 #[derive(Clone, Copy)]
 struct SyncSlice<T>(*mut T);
 unsafe impl<T> Send for SyncSlice<T> {}

@@ -178,6 +178,32 @@ fn fmm_matches_the_direct_sum_and_improves_with_order() {
 }
 
 #[test]
+fn the_plan_does_not_depend_on_the_workers() {
+    // The refinement runs receivers side by side; each receiver's tasks, their order and the
+    // merges of P2P tasks must come out the same on one thread as on several, so that the
+    // products' sums do too.
+    let soa = box_scene(0.035);
+    let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| tree_and_plan(&sc, 0.5, 1e-4).2)
+    };
+    let one = on(1);
+    assert!(one.counts.p2p > 0 && one.counts.m2p > 0 && one.counts.m2l > 0);
+    for threads in [2, 3] {
+        let many = on(threads);
+        assert_eq!(many.counts, one.counts, "{threads} threads");
+        assert_eq!(many.node_offsets, one.node_offsets);
+        assert_eq!(many.node_tasks, one.node_tasks);
+        assert_eq!(many.leaf_offsets, one.leaf_offsets);
+        assert_eq!(many.leaf_tasks, one.leaf_tasks);
+    }
+}
+
+#[test]
 fn furnace_sphere_converges_to_e_over_one_minus_rho() {
     for &(count, rho) in &[(8000usize, 0.5f32), (8000, 0.8), (16000, 0.8)] {
         let mut soa = Soa::default();
