@@ -629,13 +629,14 @@ fn p2p_by_receivers<I: Isa>(sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [
             let xj = [sl.pos[0][j], sl.pos[1][j], sl.pos[2][j]];
             let nj = [sl.normal[0][j], sl.normal[1][j], sl.normal[2][j]];
             let (aj, wj) = (sl.area[j], [sl.w[0][j], sl.w[1][j], sl.w[2][j]]);
+            // No masks in the loop: a splat against itself has d = 0 and no positive cosine, an
+            // inactive source has zero weight, and the lanes past the task's receivers or of
+            // inactive ones are not written.
             let mut k = Z;
             for l in 0..W {
                 let d = [xj[0] - x[0][l], xj[1] - x[1][l], xj[2] - x[2][l]];
                 let ni = [n[0][l], n[1][l], n[2][l]];
-                let i = i0 + l;
-                let ok = (i < ihi) & (i != j) & (active[l] > 0.0) & (sl.active[j] > 0.0);
-                k[l] = near_pair(d, ni, nj, aj, ok);
+                k[l] = near_pair(d, ni, nj, aj, true);
             }
             for c in 0..3 {
                 for l in 0..W {
@@ -643,7 +644,7 @@ fn p2p_by_receivers<I: Isa>(sl: &SplatLanes, task: &LeafTask, lo: u32, o: &mut [
                 }
             }
         }
-        for l in 0..W.min(ihi - i0) {
+        for l in (0..W.min(ihi - i0)).filter(|&l| active[l] > 0.0) {
             let v = &mut o[i0 + l - lo as usize];
             for c in 0..3 {
                 v[c] += task.fraction * acc[c][l];
@@ -674,14 +675,16 @@ fn p2p_by_sources<I: Isa>(
         while j0 < jhi {
             let (x, n) = splat_lanes(sl, j0);
             let lane = |v: &Vec<f32>| -> L { v[j0..j0 + W].try_into().unwrap() };
-            let (area, on) = (lane(&sl.area), lane(&sl.active));
+            let area = lane(&sl.area);
             let w = sl.w.each_ref().map(lane);
+            // Only the lanes past the task's sources are masked: a splat against itself has
+            // d = 0 and no positive cosine, and an inactive source has zero weight.
+            let full = j0 + W <= jhi;
             let mut k = Z;
             for l in 0..W {
                 let d = [x[0][l] - xi[0], x[1][l] - xi[1], x[2][l] - xi[2]];
                 let nj = [n[0][l], n[1][l], n[2][l]];
-                let j = j0 + l;
-                k[l] = near_pair(d, ni, nj, area[l], (j < jhi) & (j != iu) & (on[l] > 0.0));
+                k[l] = near_pair(d, ni, nj, area[l], full || j0 + l < jhi);
             }
             for c in 0..3 {
                 for l in 0..W {
