@@ -187,6 +187,9 @@ impl Slab {
 pub struct DiskBoxes {
     boxes: Vec<Aabb>,
     slabs: Vec<Slab>,
+    /// Per slot, the splat range of its subtree (the leaves' own splats are contiguous in the
+    /// pool's order, and so are a subtree's).
+    ranges: Vec<(u32, u32)>,
 }
 
 impl DiskBoxes {
@@ -194,6 +197,7 @@ impl DiskBoxes {
         let slots = view.nodes.len();
         let mut boxes = vec![Aabb::EMPTY; slots];
         let mut slabs = vec![Slab::ALL; slots];
+        let mut ranges = vec![(u32::MAX, 0u32); slots];
         // Rounding of a ray's points along a slab's normal: a few units in the last place of the
         // scene's largest coordinate (rays run inside the scene, a few of its sizes long).
         let scale = view
@@ -219,15 +223,52 @@ impl DiskBoxes {
                     bx = bx.union(Aabb::of_disk(c, n, r));
                 }
                 slabs[slot] = Slab::of_disks(disks, margin);
+                if !range.is_empty() {
+                    ranges[slot] = (range.start, range.end);
+                }
             } else {
                 let c = node::ptr(w) as usize;
                 for b in &boxes[c..c + 8] {
                     bx = bx.union(*b);
                 }
+                let r = ranges[c..c + 8]
+                    .iter()
+                    .fold((u32::MAX, 0), |a, r| (a.0.min(r.0), a.1.max(r.1)));
+                ranges[slot] = r;
             }
             boxes[slot] = bx;
         }
-        DiskBoxes { boxes, slabs }
+        DiskBoxes {
+            boxes,
+            slabs,
+            ranges,
+        }
+    }
+
+    /// The splat ranges of the highest subtrees of at most `max` splats (or single leaves),
+    /// in splat order: they cover every splat once.
+    pub fn subtrees(&self, view: &OctreeView, max: u32) -> Vec<(u32, u32)> {
+        let mut out = Vec::new();
+        let mut stack = if self.ranges.is_empty() {
+            Vec::new()
+        } else {
+            vec![0u32]
+        };
+        while let Some(slot) = stack.pop() {
+            let (lo, hi) = self.ranges[slot as usize];
+            if lo >= hi {
+                continue;
+            }
+            let w = view.nodes[slot as usize];
+            if node::is_leaf(w) || hi - lo <= max {
+                out.push((lo, hi));
+            } else {
+                let c = node::ptr(w);
+                stack.extend(c..c + 8);
+            }
+        }
+        out.sort_unstable();
+        out
     }
 
     /// The octree leaves whose disks' box meets the shaft, as (splat range, box, slab), into

@@ -159,6 +159,10 @@ pub fn system(
 /// rays against them alone instead of walking the octree; past it the probes decide.
 pub const SHAFT_CANDIDATES: usize = 65536;
 
+/// Leaves under one octree node of at most this many splats first try one shaft together
+/// ([`emitter_direct`]).
+pub const SHAFT_FAMILY: u32 = 256;
+
 /// How [`emitter_direct`] samples the emitters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EmitterSampling {
@@ -286,88 +290,147 @@ pub fn emitter_direct(
         }
         e
     };
-    // Bounded batches of leaves (the samples of leaves left to the probes are kept).
-    let batch = ((1usize << 22) / samples as usize).max(1);
-    let mut g0 = 0;
-    while g0 < groups.len() {
-        let mut g1 = g0;
-        let mut n = 0;
-        while g1 < groups.len() && (n == 0 || n + groups[g1].len() <= batch) {
-            n += groups[g1].len();
-            g1 += 1;
+    let end = self_hit * emitter_r_min;
+    // A leaf's receivers: the box of their centres, their smallest radius, and whether any
+    // faces some point of the emitters' box.
+    let leaf_box = |group: &[u32]| -> (Aabb, f32, bool) {
+        let mut a = Aabb::EMPTY;
+        let mut r_min = f32::INFINITY;
+        let mut faces = false;
+        for &i in group {
+            let si = &view.splats[i as usize];
+            let (x, n) = (Vec3::from(si.position), Vec3::from(si.normal));
+            a.grow(x);
+            r_min = r_min.min(si.radius);
+            // Some point of the emitters' box in front of the receiver?
+            let c = (emitter_box.min + emitter_box.max) * 0.5;
+            let h = (emitter_box.max - emitter_box.min) * 0.5;
+            // (With a rounding margin: a sample's own cosine test decides.)
+            let slack = 1e-5 * (n.abs().dot(h) + (c - x).length());
+            faces |= n.dot(c - x) + n.abs().dot(h) > -slack;
         }
-        let chunk = &groups[g0..g1];
-        g0 = g1;
+        (a, r_min, faces)
+    };
+    // A culled leaf's light: the samples summed as they are drawn, each ray tested against the
+    // disks of the shaft's leaves (`open`: none, all open).
+    let culled_light = |group: &[u32], open: bool, leaf_lanes: &lanes::LeafLanes| -> LeafLight {
+        let mut samples = 0;
+        let light = group
+            .iter()
+            .map(|&i| {
+                let mut e = Vec3::ZERO;
+                sampler.each(i, |(ray, j, w, _)| {
+                    samples += 1;
+                    if open || !lanes::blocked(leaf_lanes, &disk_lanes, &ray) {
+                        e += Vec3::from(sys.emission[j as usize]) * w;
+                    }
+                });
+                (i, e)
+            })
+            .collect();
+        LeafLight::Done { light, samples }
+    };
+    // Leaves in families: those under the highest octree nodes of at most `SHAFT_FAMILY`
+    // splats. A family's leaves first share one shaft (of their boxes together): when it
+    // holds few enough disks, one descent and one box tree serve them all, where each leaf's
+    // own would cost as much (the leaves in a shaft grow with N, the leaves that ask too).
+    // Otherwise each leaf takes its own shaft.
+    let families = families(&groups, &disks.subtrees(view, SHAFT_FAMILY));
+    // Bounded batches of families (the samples of leaves left to the probes are kept).
+    let batch = ((1usize << 22) / samples as usize).max(1);
+    let family_len =
+        |f: &std::ops::Range<usize>| -> usize { groups[f.clone()].iter().map(|g| g.len()).sum() };
+    let mut f0 = 0;
+    while f0 < families.len() {
+        let mut f1 = f0;
+        let mut n = 0;
+        while f1 < families.len() && (n == 0 || n + family_len(&families[f1]) <= batch) {
+            n += family_len(&families[f1]);
+            f1 += 1;
+        }
+        let fams = &families[f0..f1];
+        let chunk = &groups[fams[0].start..fams[fams.len() - 1].end];
+        f0 = f1;
         // Per leaf: its samples, and shaft culling (every sample of a leaf whose shaft to the
         // emitters no disk enters is open; where disks enter, its rays are tested against
         // them alone). A culled leaf's light is summed at once; the others wait for the
         // probes.
-        let leaves: Vec<LeafLight> = chunk
+        let per_family: Vec<Vec<LeafLight>> = fams
             .par_iter()
             .map_init(
                 || (Vec::new(), Vec::new(), lanes::LeafLanes::default()),
-                |(stack, cands, leaf_lanes), group| {
-                    let end = self_hit * emitter_r_min;
-                    let mut a = Aabb::EMPTY;
-                    let mut r_min = f32::INFINITY;
-                    let mut faces = false;
-                    for &i in group.iter() {
-                        let si = &view.splats[i as usize];
-                        let (x, n) = (Vec3::from(si.position), Vec3::from(si.normal));
-                        a.grow(x);
-                        r_min = r_min.min(si.radius);
-                        // Some point of the emitters' box in front of the receiver?
-                        let c = (emitter_box.min + emitter_box.max) * 0.5;
-                        let h = (emitter_box.max - emitter_box.min) * 0.5;
-                        // (With a rounding margin: a sample's own cosine test decides.)
-                        let slack = 1e-5 * (n.abs().dot(h) + (c - x).length());
-                        faces |= n.dot(c - x) + n.abs().dot(h) > -slack;
+                |(stack, cands, leaf_lanes), fam| {
+                    let members = &groups[fam.clone()];
+                    let boxes: Vec<(Aabb, f32, bool)> =
+                        members.iter().map(|g| leaf_box(g)).collect();
+                    let none = || LeafLight::Done {
+                        light: Vec::new(),
+                        samples: 0,
+                    };
+                    // The family's shaft, of the leaves that face the emitters.
+                    let (mut a, mut r_min) = (Aabb::EMPTY, f32::INFINITY);
+                    for &(b, r, faces) in &boxes {
+                        if faces {
+                            a = a.union(b);
+                            r_min = r_min.min(r);
+                        }
                     }
-                    if !faces {
-                        // Every sample would face away: none is taken.
-                        return LeafLight::Done {
-                            light: Vec::new(),
-                            samples: 0,
-                        };
-                    }
-                    let culled = shafts
+                    let shared = shafts
+                        && members.len() > 1
                         && Shaft::new(a, emitter_box, self_hit * r_min, end).is_some_and(|shaft| {
                             disks.leaves(view, &shaft, SHAFT_CANDIDATES, stack, cands)
                         });
-                    if !culled {
-                        let mut smp = Vec::new();
-                        let mut ends = Vec::with_capacity(group.len());
-                        for &i in group.iter() {
-                            sampler.each(i, |x| smp.push(x));
-                            ends.push(smp.len());
+                    if shared {
+                        let open = cands.is_empty();
+                        if !open {
+                            leaf_lanes.load(cands);
                         }
-                        return LeafLight::Pending { smp, ends };
-                    }
-                    // Culled: the samples are summed as they are drawn, each ray tested against
-                    // the disks of the shaft's leaves (none: all open).
-                    if !cands.is_empty() {
-                        leaf_lanes.load(cands);
-                    }
-                    let mut samples = 0;
-                    let light = group
-                        .iter()
-                        .map(|&i| {
-                            let mut e = Vec3::ZERO;
-                            sampler.each(i, |(ray, j, w, _)| {
-                                samples += 1;
-                                if cands.is_empty()
-                                    || !lanes::blocked(leaf_lanes, &disk_lanes, &ray)
-                                {
-                                    e += Vec3::from(sys.emission[j as usize]) * w;
+                        return members
+                            .iter()
+                            .zip(&boxes)
+                            .map(|(g, &(_, _, faces))| {
+                                if faces {
+                                    culled_light(g, open, leaf_lanes)
+                                } else {
+                                    none()
                                 }
-                            });
-                            (i, e)
+                            })
+                            .collect();
+                    }
+                    members
+                        .iter()
+                        .zip(&boxes)
+                        .map(|(group, &(a, r_min, faces))| {
+                            if !faces {
+                                // Every sample would face away: none is taken.
+                                return none();
+                            }
+                            let culled = shafts
+                                && Shaft::new(a, emitter_box, self_hit * r_min, end).is_some_and(
+                                    |shaft| {
+                                        disks.leaves(view, &shaft, SHAFT_CANDIDATES, stack, cands)
+                                    },
+                                );
+                            if !culled {
+                                let mut smp = Vec::new();
+                                let mut ends = Vec::with_capacity(group.len());
+                                for &i in group.iter() {
+                                    sampler.each(i, |x| smp.push(x));
+                                    ends.push(smp.len());
+                                }
+                                return LeafLight::Pending { smp, ends };
+                            }
+                            let open = cands.is_empty();
+                            if !open {
+                                leaf_lanes.load(cands);
+                            }
+                            culled_light(group, open, leaf_lanes)
                         })
-                        .collect();
-                    LeafLight::Done { light, samples }
+                        .collect()
                 },
             )
             .collect();
+        let leaves: Vec<LeafLight> = per_family.into_iter().flatten().collect();
         let mut light: Vec<(u32, Vec3)> = Vec::new();
         let mut pending: Vec<(&[u32], &[Sample], &[usize])> = Vec::new();
         for (group, leaf) in chunk.iter().zip(&leaves) {
@@ -447,6 +510,28 @@ pub fn emitter_direct(
         samples: taken,
         settled,
     })
+}
+
+/// The leaf groups (receivers, in splat order) in families: per subtree range `[lo, hi)` (in
+/// splat order, covering every splat), the range of groups whose receivers lie in it; empty
+/// ones left out.
+fn families(groups: &[&[u32]], subtrees: &[(u32, u32)]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut g = 0;
+    for &(_, hi) in subtrees {
+        let start = g;
+        while g < groups.len() && groups[g][0] < hi {
+            g += 1;
+        }
+        if g > start {
+            out.push(start..g);
+        }
+    }
+    // (Subtrees cover every splat: nothing is left; kept whole if not.)
+    if g < groups.len() {
+        out.push(g..groups.len());
+    }
+    out
 }
 
 /// One emitter sample of a receiver: its shadow ray, the emitter splat, the estimator's weight
