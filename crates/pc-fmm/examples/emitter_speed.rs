@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use pc_artifact::vmap::{self as vs, Link};
+use pc_artifact::vmap as vs;
 use pc_artifact::{Artifact, ArtifactKind};
 use pc_fmm::{solve, tree};
 use pc_tree::OctreeView;
@@ -35,28 +35,10 @@ fn main() -> anyhow::Result<()> {
     let materials = pc_scene::cli::current_materials(&cfg, &oct)?;
     let f = &cfg.config.fmm;
     let (t, pts) = tree::build(&view, &materials);
-    let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
-    let point_lights: Vec<solve::PointLight> = lights
-        .iter()
-        .map(|l| solve::PointLight {
-            position: glam::Vec3::new(l[0], l[1], l[2]),
-            intensity: glam::Vec3::new(l[3], l[4], l[5]),
-        })
-        .collect();
-    let ranges = |s: u32| (t.lo[s as usize], t.hi[s as usize]);
     let caster = pc_tree::caster::CpuCaster::new(&view);
+    let base =
+        pc_fmm::stage::point_light_system(&view, &materials, &t, &pts, &tables, &lights, &caster)?;
     let self_hit = tables.meta.params.self_hit;
-    let base = solve::system(
-        &view,
-        &materials,
-        &pts,
-        &point_lights,
-        &lists,
-        &ranges,
-        self_hit,
-        &caster,
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut times = Vec::new();
     let mut rays = Default::default();
     for _ in 0..3 {

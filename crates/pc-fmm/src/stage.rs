@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use glam::Vec3;
+use pc_artifact::octree::MaterialRecord;
 use pc_artifact::radiosity::Solver;
 use pc_artifact::radiosity::{sections, FmmParams, RadiosityMeta};
 use pc_artifact::vmap::{self as vs, Link};
@@ -33,6 +34,39 @@ pub fn params(cfg: &LoadedConfig) -> FmmParams {
         solver: f.solver,
         relax: f.relax,
     }
+}
+
+/// The linear system's emission, albedo and source with the point lights' direct light (their
+/// light lists from the V-map `tables` for shadows), before the emitters' direct light.
+pub fn point_light_system(
+    view: &OctreeView,
+    materials: &[MaterialRecord],
+    tree: &crate::tree::Tree,
+    pts: &crate::tree::Points,
+    tables: &vs::Tables,
+    lights: &[[f32; 6]],
+    caster: &dyn pc_tree::caster::Caster,
+) -> anyhow::Result<solve::System> {
+    let point_lights: Vec<PointLight> = lights
+        .iter()
+        .map(|l| PointLight {
+            position: Vec3::new(l[0], l[1], l[2]),
+            intensity: Vec3::new(l[3], l[4], l[5]),
+        })
+        .collect();
+    let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
+    let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
+    solve::system(
+        view,
+        materials,
+        pts,
+        &point_lights,
+        &lists,
+        &ranges,
+        tables.meta.params.self_hit,
+        caster,
+    )
+    .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))
 }
 
 /// What one run made.
@@ -101,28 +135,8 @@ pub fn run(
 
     progress.phase("direct light");
     let t = Instant::now();
-    let point_lights: Vec<PointLight> = lights
-        .iter()
-        .map(|l| PointLight {
-            position: Vec3::new(l[0], l[1], l[2]),
-            intensity: Vec3::new(l[3], l[4], l[5]),
-        })
-        .collect();
-    let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
-    let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
     let caster = pc_tree::caster::CpuCaster::new(&view);
-    let sys = solve::system(
-        &view,
-        &materials,
-        &pts,
-        &point_lights,
-        &lists,
-        &ranges,
-        vmeta.params.self_hit,
-        &caster,
-    )
-    .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))?;
-    let mut sys = sys;
+    let mut sys = point_light_system(&view, &materials, &tree, &pts, &tables, &lights, &caster)?;
     let emitter = solve::emitter_direct(
         &view,
         &pts,
