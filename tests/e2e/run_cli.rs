@@ -91,7 +91,7 @@ fn reruns_exactly_the_stages_a_change_touches() {
 
     // A point light moved: the light lists, photons, radiosity and render, never the links.
     let vmap_meta = || -> VmapMeta {
-        Artifact::open(&out.join("vmap.pcgi"))
+        Artifact::open(out.join("vmap.pcgi"))
             .unwrap()
             .metadata()
             .unwrap()

@@ -26,9 +26,9 @@ fn main() -> anyhow::Result<()> {
             .context("usage: direct_speedup CONFIG [KEY=VALUE ...]")?,
     );
     let cfg = pc_scene::config::load_config(&config, &args[1..])?;
-    let oct = Artifact::open_kind(&cfg.octree_path(), ArtifactKind::Octree)?;
+    let oct = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)?;
     let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(&cfg.vmap_path(), ArtifactKind::Vmap)?;
+    let vm = Artifact::open_kind(cfg.vmap_path(), ArtifactKind::Vmap)?;
     let offsets: &[u32] = vm.section(vs::LINK_OFFSETS)?;
     let links: &[Link] = vm.section(vs::LINKS)?;
     let materials = pc_scene::cli::current_materials(&cfg, &oct)?;

@@ -20,9 +20,9 @@ fn main() -> anyhow::Result<()> {
             .context("usage: emitter_speed CONFIG [KEY=VALUE ...]")?,
     );
     let cfg = pc_scene::config::load_config(&config, &args[1..])?;
-    let oct = Artifact::open_kind(&cfg.octree_path(), ArtifactKind::Octree)?;
+    let oct = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)?;
     let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(&cfg.vmap_path(), ArtifactKind::Vmap)?;
+    let vm = Artifact::open_kind(cfg.vmap_path(), ArtifactKind::Vmap)?;
     let lights = cfg.light_records();
     let tables = vs::Tables::open(
         &vm,

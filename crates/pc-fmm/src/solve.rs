@@ -648,7 +648,7 @@ impl Sampler<'_> {
                 },
                 j,
                 w,
-                (k + i) % self.every == 0,
+                (k + i).is_multiple_of(self.every),
             ));
         }
     }

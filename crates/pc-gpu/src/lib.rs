@@ -93,7 +93,9 @@ impl GpuContext {
 
     fn check_size(&self, what: &str, need: u64) -> Result<(), GpuError> {
         let limits = self.device.limits();
-        let limit = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         if need > limit {
             return Err(GpuError::TooLarge {
                 what: what.to_string(),

@@ -68,7 +68,7 @@ impl<'a> OctreeView<'a> {
     pub fn check(&self) -> Result<(), String> {
         let n_nodes = self.nodes.len();
         let n_splats = self.splats.len() as u64;
-        if n_nodes == 0 || (n_nodes - 1) % 8 != 0 {
+        if n_nodes == 0 || !(n_nodes - 1).is_multiple_of(8) {
             return Err(format!("node pool has {n_nodes} nodes; expected 1 + 8·m"));
         }
         if self.node_info.len() != n_nodes {
@@ -100,7 +100,7 @@ impl<'a> OctreeView<'a> {
                 }
             } else {
                 let c = node::ptr(w) as usize;
-                if c == 0 || c + 8 > n_nodes || (c - 1) % 8 != 0 || c <= i {
+                if c == 0 || c + 8 > n_nodes || !(c - 1).is_multiple_of(8) || c <= i {
                     return Err(format!(
                         "node {i} points at children {c}, outside the pool or not a group"
                     ));
