@@ -950,6 +950,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn families_gather_the_leaves_of_each_subtree_in_order() {
+        // Receivers of five leaves (splats 0..40), subtrees [0, 16), [16, 24), [24, 40).
+        let leaves: Vec<Vec<u32>> = vec![
+            vec![0, 3, 7],
+            vec![9, 12],
+            vec![17],
+            vec![25, 26],
+            vec![33, 39],
+        ];
+        let groups: Vec<&[u32]> = leaves.iter().map(|v| v.as_slice()).collect();
+        let f = families(&groups, &[(0, 16), (16, 24), (24, 40)]);
+        assert_eq!(f, vec![0..2, 2..3, 3..5]);
+        // A subtree without receivers is left out; receivers past the last subtree (none
+        // should be) stay together rather than being lost.
+        let f = families(&groups, &[(0, 8), (8, 16), (16, 20), (20, 24)]);
+        assert_eq!(f, vec![0..1, 1..2, 2..3, 3..5]);
+        assert!(families(&[], &[(0, 8)]).is_empty());
+    }
+
+    #[test]
     fn the_guide_table_draws_what_the_binary_search_draws() {
         // Uneven areas, some zero, so that slices hold none or many emitters.
         let areas: Vec<f64> = (0..97)
