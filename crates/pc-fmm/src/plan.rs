@@ -539,6 +539,11 @@ impl Refiner<'_> {
             let (lo_a2, hi_a2) =
                 box_cos_bounds(ga.axis, ga.cone_cos, ga.cone_sin, ba, bb, dmin, dmax);
             let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
+            if hi_a <= 0.0 {
+                // The receivers face away whatever the source: no need for its side.
+                out.dropped += 1;
+                continue;
+            }
             let (lo_b, hi_b) = cos_bounds(
                 gb.axis,
                 gb.cone_cos,
@@ -550,7 +555,7 @@ impl Refiner<'_> {
             let (lo_b2, hi_b2) =
                 box_cos_bounds(gb.axis, gb.cone_cos, gb.cone_sin, bb, ba, dmin, dmax);
             let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
-            if hi_a <= 0.0 || hi_b <= 0.0 {
+            if hi_b <= 0.0 {
                 out.dropped += 1;
                 continue;
             }
