@@ -37,7 +37,7 @@ pub const NEAR_DISKS: f32 = 4.0;
 pub const DIRECT_ONE_SIDED: u64 = 32;
 pub const DIRECT_M2L: u64 = 128;
 
-/// How many of the link's last leaf tasks a new P2P task may merge with.
+/// How many of its leaf's last tasks a new P2P task may merge with.
 const MERGE_BACK: usize = 4;
 
 /// Plan parameters.
@@ -245,13 +245,12 @@ fn box_cos_bounds(
     (lo.max(-1.0), hi.min(1.0))
 }
 
-/// Tasks one worker found, keyed by receiver (node-pool slot for node tasks, leaf slot for leaf
-/// tasks), each receiver's together: the runs `(compact index, start, length)` of the node
-/// tasks and `(compact leaf index, start, length)` of the leaf tasks; and the interactions
-/// dropped as facing away.
+/// Tasks one worker found, each receiver's together: the node tasks and their runs `(compact
+/// index, start, length)`, the leaf tasks (with their leaf's slot, for merging) and their runs
+/// `(compact leaf index, start, length)`; and the interactions dropped as facing away.
 #[derive(Default)]
 struct Out {
-    node: Vec<(u32, NodeTask)>,
+    node: Vec<NodeTask>,
     leaf: Vec<(u32, LeafTask)>,
     node_runs: Vec<(u32, u32, u32)>,
     leaf_runs: Vec<(u32, u32, u32)>,
@@ -388,13 +387,10 @@ impl Refiner<'_> {
             return;
         }
         match (a & POINT != 0, b & POINT != 0) {
-            (false, _) => out.node.push((
-                a,
-                NodeTask {
-                    src: b,
-                    fraction: f,
-                },
-            )),
+            (false, _) => out.node.push(NodeTask {
+                src: b,
+                fraction: f,
+            }),
             (true, false) => {
                 let i = a & !POINT;
                 out.leaf.push((
@@ -661,7 +657,7 @@ pub fn build(
     let mut counts = TaskCounts::default();
     for o in &parts {
         counts.dropped_facing_away += o.dropped;
-        for (_, task) in &o.node {
+        for task in &o.node {
             if task.src & POINT != 0 {
                 counts.p2l += 1;
             } else {
@@ -678,11 +674,16 @@ pub fn build(
             }
         }
     }
-    let (node_offsets, mut node_tasks) =
-        gather(&parts, |o| (o.node.as_slice(), &o.node_runs), t.nodes.len());
+    let (node_offsets, mut node_tasks) = gather(
+        &parts,
+        |o| (o.node.as_slice(), &o.node_runs),
+        |&t| t,
+        t.nodes.len(),
+    );
     let (leaf_offsets, mut leaf_tasks) = gather(
         &parts,
         |o| (o.leaf.as_slice(), &o.leaf_runs),
+        |&(_, t)| t,
         t.leaves.len(),
     );
     drop(parts);
@@ -715,9 +716,10 @@ pub fn build(
 /// The workers' runs of tasks (one run per receiver key below `n`, at most) into one allocation
 /// in key order: the CSR offsets and the tasks, copied in parallel.
 #[allow(clippy::type_complexity)]
-fn gather<T: Copy + Send + Sync + bytemuck::Zeroable>(
+fn gather<E: Sync, T: Copy + Send + Sync + bytemuck::Zeroable>(
     parts: &[Out],
-    list: impl Fn(&Out) -> (&[(u32, T)], &[(u32, u32, u32)]) + Sync,
+    list: impl Fn(&Out) -> (&[E], &[(u32, u32, u32)]) + Sync,
+    task: impl Fn(&E) -> T + Sync,
     n: usize,
 ) -> (Vec<u32>, Vec<T>) {
     let mut offsets = vec![0u32; n + 1];
@@ -738,10 +740,10 @@ fn gather<T: Copy + Send + Sync + bytemuck::Zeroable>(
         for &(key, start, len) in runs {
             let at = offsets[key as usize] as usize;
             let run = &list[start as usize..(start + len) as usize];
-            for (k, &(_, task)) in run.iter().enumerate() {
+            for (k, e) in run.iter().enumerate() {
                 // SAFETY: a key's run is written by the one worker that holds it (checked
                 // above), into its own range of the allocation.
-                unsafe { out.write(at + k, task) };
+                unsafe { out.write(at + k, task(e)) };
             }
         }
     });
