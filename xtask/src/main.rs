@@ -27,10 +27,13 @@ commands:
                                              N frames (default 60) of a camera orbit on it as
                                              out/<scene>/walkthrough-{cpu,gpu}/frame_NNNNN.png,
                                              and report frames per second on the CPU and the GPU
-  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics] [--write]
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain] [--write]
                                              octree build and ray traversal benchmarks; with
                                              --only caustics, photon tracing at about 1M photons
-                                             and the caustic lookup (default size 1M)
+                                             and the caustic lookup (default size 1M); with
+                                             --only fmm, the radiosity solve (default sizes
+                                             100k,1M,4M; best of N runs); with --only chain,
+                                             the whole chain cold and a new view (default 1M)
                                              (writes BENCHMARKS.md with --write)
 ";
 
@@ -329,7 +332,7 @@ fn bench(args: &[String]) -> Result<()> {
             "--only" => {
                 only = Some(
                     it.next()
-                        .context("--only needs octree, rays, caustics or chain")?
+                        .context("--only needs octree, rays, caustics, fmm or chain")?
                         .clone(),
                 )
             }
@@ -349,6 +352,12 @@ fn bench(args: &[String]) -> Result<()> {
                 sizes = vec![1_000_000];
             }
             return bench_chain(&sizes, write);
+        }
+        Some("fmm") => {
+            if default_sizes {
+                sizes = vec![100_000, 1_000_000, 4_000_000];
+            }
+            return bench_fmm(&sizes, runs, write);
         }
         None => {
             // Every benchmark: the stages' own, then the whole chain at 1M splats.
@@ -373,7 +382,9 @@ fn bench(args: &[String]) -> Result<()> {
             return bench_chain(&small, write);
         }
         Some("octree" | "rays") => {}
-        Some(other) => bail!("bench: --only takes octree, rays, caustics or chain, not `{other}`"),
+        Some(other) => {
+            bail!("bench: --only takes octree, rays, caustics, fmm or chain, not `{other}`")
+        }
     }
     let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
     let mut rows = Vec::new();
@@ -832,6 +843,141 @@ it, and the hashed grid the GPU renderer uses, run on the CPU.\n\n\
     println!("\n{table}");
     if write {
         write_bench_block("caustics", "Caustic photon map (pc-caustics)", &table)?;
+    }
+    Ok(())
+}
+
+/// The radiosity solve of pc-fmm on the bench scenes (after pc-octree, pc-vmap and pc-caustics):
+/// the best of `runs` runs on the CPU, and one on the GPU when wgpu finds one (llvmpipe refuses
+/// plans beyond its loop limit: the row says so). Times are pc-fmm's own, from the artifact's
+/// metadata (`pc-inspect --metadata`).
+fn bench_fmm(sizes: &[usize], runs: usize, write: bool) -> Result<()> {
+    let bin = build_release(&[
+        "pc-sample",
+        "pc-octree",
+        "pc-vmap",
+        "pc-caustics",
+        "pc-fmm",
+        "pc-inspect",
+        "pc-raybench",
+    ])?;
+    let mut rows = Vec::new();
+    for &n in sizes {
+        let config = bench_scene(&bin, n)?;
+        let dir = config.parent().unwrap().to_path_buf();
+        // The inputs, made or found up to date.
+        for stage in ["pc-octree", "pc-vmap", "pc-caustics"] {
+            run_checked(
+                Command::new(bin.join(stage))
+                    .args(["--quiet", "--if-stale", "--config"])
+                    .arg(&config),
+                stage,
+            )?;
+        }
+        let solve = |backend: &str| -> Result<serde_json::Value> {
+            let run = Command::new(bin.join("pc-fmm"))
+                .args(["--quiet", "--backend", backend, "--config"])
+                .arg(&config)
+                .output()
+                .context("starting pc-fmm")?;
+            if !run.status.success() {
+                let err = String::from_utf8_lossy(&run.stderr);
+                let last = err.trim().lines().last().unwrap_or("pc-fmm failed");
+                // The reason, without the stage's name and the config's path.
+                let at = format!("{}: ", config.display());
+                bail!("{}", last.rsplit(at.as_str()).next().unwrap_or(last));
+            }
+            let out = Command::new(bin.join("pc-inspect"))
+                .arg("--metadata")
+                .arg(dir.join("out/radiosity.pcgi"))
+                .output()
+                .context("starting pc-inspect")?;
+            let text = String::from_utf8_lossy(&out.stdout);
+            let json = text
+                .find("\n{")
+                .map(|i| &text[i + 1..])
+                .context("pc-inspect printed no metadata")?;
+            Ok(serde_json::from_str(json)?)
+        };
+        let mut backends = vec!["cpu"];
+        if pc_gpu_present(&bin, &config) {
+            backends.push("gpu");
+        }
+        for backend in backends {
+            let tries = if backend == "cpu" { runs } else { 1 };
+            let mut best: Option<(f64, serde_json::Value)> = None;
+            for _ in 0..tries {
+                match solve(backend) {
+                    Ok(v) => {
+                        // The phases (not the per-iteration mean, also listed).
+                        let total: f64 = v["timings"]
+                            .as_array()
+                            .map(|t| {
+                                t.iter()
+                                    .filter(|x| x[0] != "per iteration")
+                                    .filter_map(|x| x[1].as_f64())
+                                    .sum()
+                            })
+                            .unwrap_or(f64::NAN);
+                        if best.as_ref().is_none_or(|b| total < b.0) {
+                            best = Some((total, v));
+                        }
+                    }
+                    Err(e) => {
+                        rows.push(format!(
+                            "| {:.2}M | {backend}: not run: {e:#} | | | | | | | | |",
+                            n as f64 / 1e6
+                        ));
+                        break;
+                    }
+                }
+            }
+            let Some((total, v)) = best else { continue };
+            let time = |k: &str| -> f64 {
+                v["timings"]
+                    .as_array()
+                    .and_then(|t| t.iter().find(|x| x[0] == k))
+                    .and_then(|x| x[1].as_f64())
+                    .unwrap_or(f64::NAN)
+            };
+            let active = v["active_splats"].as_f64().unwrap_or(f64::NAN);
+            let iterations = v["iterations"].as_f64().unwrap_or(f64::NAN);
+            let per_product = time("solve") / iterations;
+            let orders: Vec<String> = v["orders"]
+                .as_array()
+                .map(|o| o.iter().map(|x| x.to_string()).collect())
+                .unwrap_or_default();
+            rows.push(format!(
+                "| {:.2}M ({:.3}M active) | {} | {total:.2} s | {:.2} s | {:.2} s | {:.2} s | {iterations} | {:.3} s | {} | {:.2} µs |",
+                n as f64 / 1e6,
+                active / 1e6,
+                v["device"].as_str().unwrap_or(backend),
+                time("plan"),
+                time("source term"),
+                time("solve"),
+                per_product,
+                orders.join(" "),
+                per_product / active * 1e6,
+            ));
+            println!("{}", rows.last().unwrap());
+        }
+    }
+    let table = format!(
+        "Machine: {}. Date: {}. Command: `cargo xtask bench --only fmm --sizes {} --runs {runs}` \
+(best of {runs} on the CPU, one run on a GPU). Scene: `pc-sample cornell --with-specular`; pc-fmm's \
+defaults (GMRES with relaxed products, order 3, tolerance 1e-3), caustic energy in the sources. \
+Times are pc-fmm's own (tree, plan, emitters' direct light and caustic energy, solve); per product: \
+the solve over its products.\n\n\
+| splats | device | total | plan | source term | solve | products | per product | orders | per active splat per product |\n\
+|---|---|---|---|---|---|---|---|---|---|\n{}\n",
+        machine(),
+        today(),
+        sizes_arg(sizes),
+        rows.join("\n")
+    );
+    println!("\n{table}");
+    if write {
+        write_bench_block("fmm", "Radiosity solve (pc-fmm)", &table)?;
     }
     Ok(())
 }
