@@ -360,7 +360,8 @@ fn bench(args: &[String]) -> Result<()> {
             return bench_fmm(&sizes, runs, write);
         }
         None => {
-            // Every benchmark: the stages' own, then the whole chain at 1M splats.
+            // Every benchmark: the stages' own (the radiosity solve at 100k, 1M and 4M), then the
+            // whole chain at 1M splats.
             let mut one = vec!["--runs".to_string(), runs.to_string()];
             if write {
                 one.push("--write".into());
@@ -379,6 +380,12 @@ fn bench(args: &[String]) -> Result<()> {
                 sizes.clone()
             };
             bench_caustics(&small, runs, write)?;
+            let fmm_sizes = if default_sizes {
+                vec![100_000, 1_000_000, 4_000_000]
+            } else {
+                sizes.clone()
+            };
+            bench_fmm(&fmm_sizes, runs, write)?;
             return bench_chain(&small, write);
         }
         Some("octree" | "rays") => {}
