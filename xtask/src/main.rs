@@ -670,9 +670,14 @@ Times are each stage's process wall time as pc-run measured it. Aims: cold under
         sizes_arg(sizes),
         rows.join("\n")
     );
+    publish("chain", "The whole chain (cargo xtask run)", &table, write)
+}
+
+/// Print a benchmark's table, and with `write` put it in BENCHMARKS.md ([`write_bench_block`]).
+fn publish(name: &str, heading: &str, table: &str, write: bool) -> Result<()> {
     println!("\n{table}");
     if write {
-        write_bench_block("chain", "The whole chain (cargo xtask run)", &table)?;
+        write_bench_block(name, heading, table)?;
     }
     Ok(())
 }
@@ -847,11 +852,12 @@ it, and the hashed grid the GPU renderer uses, run on the CPU.\n\n\
         rows.join("\n"),
         lookup_rows.join("\n")
     );
-    println!("\n{table}");
-    if write {
-        write_bench_block("caustics", "Caustic photon map (pc-caustics)", &table)?;
-    }
-    Ok(())
+    publish(
+        "caustics",
+        "Caustic photon map (pc-caustics)",
+        &table,
+        write,
+    )
 }
 
 /// The radiosity solve of pc-fmm on the bench scenes (after pc-octree, pc-vmap and pc-caustics):
@@ -982,11 +988,7 @@ the solve over its products.\n\n\
         sizes_arg(sizes),
         rows.join("\n")
     );
-    println!("\n{table}");
-    if write {
-        write_bench_block("fmm", "Radiosity solve (pc-fmm)", &table)?;
-    }
-    Ok(())
+    publish("fmm", "Radiosity solve (pc-fmm)", &table, write)
 }
 
 /// Whether wgpu finds any adapter (pc-raybench's GPU pass says so without --cpu-only).
