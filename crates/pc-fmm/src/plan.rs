@@ -652,8 +652,8 @@ pub fn build(
     } else {
         r.visit_par(0, &[], (link_offsets, links), grain)
     };
-    // Each receiver's run into its place in one allocation per kind, then each receiver's
-    // tasks sorted by source (M2L before P2L; M2P batches that share moments).
+    // Each receiver's run into its place in one allocation per kind, then a node's tasks M2L
+    // before P2L and a leaf's sorted by source (M2P batches that share moments).
     let mut counts = TaskCounts::default();
     for o in &parts {
         counts.dropped_facing_away += o.dropped;
@@ -687,8 +687,9 @@ pub fn build(
         t.leaves.len(),
     );
     drop(parts);
+    // M2L before P2L (the GPU's kernels take them in that order), each in the order found.
     for_each_run(&node_offsets, &mut node_tasks, |run| {
-        run.sort_unstable_by_key(|x| (x.src, x.fraction.to_bits()))
+        run.sort_by_key(|x| x.src & POINT != 0)
     });
     // By source within a leaf: a crease leaf's splats against one node come together (M2P
     // batches that share the moments, crate::lanes).
