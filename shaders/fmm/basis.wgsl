@@ -18,7 +18,8 @@
 //   gen_l2l            ex += re-expansion of the parent local at src l2l
 //   gen_l2p            Σ pw[α] L[α], L at src                        l2p
 //   gen_m2p            Σ g_α M[α], M at src                          CpuFmm::downward (M2P)
-//   gen_load_locals, gen_store_locals, gen_store_multipole: ex from/to the expansion at src/dst.
+//   gen_load_locals, gen_add_locals, gen_store_locals, gen_store_multipole: ex from, plus, or
+//                      to the expansion at src/dst.
 
 const ORDER: u32 = 4u;
 const NP: u32 = 35u;
@@ -34,5 +35,6 @@ fn gen_l2l(src: u32) {}
 fn gen_l2p(src: u32) -> mat3x3<f32> { return mat3x3<f32>(); }
 fn gen_m2p(src: u32) -> mat3x3<f32> { return mat3x3<f32>(); }
 fn gen_load_locals(src: u32) {}
+fn gen_add_locals(src: u32) {}
 fn gen_store_locals(dst: u32) {}
 fn gen_store_multipole(dst: u32) {}

@@ -1,20 +1,24 @@
 // requires: fmm/basis.wgsl
 // The FMM's transport operator on the GPU (docs/fmm.md): one application
 // `out_i = Σ_tasks f K(i, j) A_j L_j` with Cartesian Taylor expansions of the form-factor
-// tensor, in five entry points dispatched in this order by crates/pc-fmm/src/gpu.rs:
-//   p2m    one invocation per leaf: the multipole moments of its active splats (P2M);
-//   m2m    one per internal node of one level, deepest level first: the moments of its
-//          children shifted to its centre (M2M);
-//   m2l    one per compact node: its local expansion from its node tasks (M2L from a node,
-//          P2L from a splat);
-//   l2l    one per node of one level, root's children first: its parent's local expansion
-//          re-expanded about its centre, added to its own (L2L);
-//   splat  one per splat: L2P of its leaf's local expansion, then its M2P and P2P tasks: the
-//          operator's output.
+// tensor, in seven entry points dispatched in this order by crates/pc-fmm/src/gpu.rs:
+//   p2m         one invocation per leaf: the multipole moments of its active splats (P2M);
+//   m2m         one per internal node of one level, deepest level first: the moments of its
+//               children shifted to its centre (M2M);
+//   m2l         one per node item (a run of one compact node's tasks, crates/pc-fmm/src/
+//               gpu_work.rs): M2L from nodes, P2L from splats, into the node's local
+//               expansion (its first item) or a spare one (the others);
+//   m2l_gather  one per node with spare expansions: adds them to its own, in order;
+//   l2l         one per node of one level, root's children first: its parent's local
+//               expansion re-expanded about its centre, added to its own (L2L);
+//   splat       one per splat item (a run of one splat's tasks): L2P of its leaf's local
+//               expansion (the splat's first item), then M2P and P2P tasks: a partial sum;
+//   gather      one per splat: its partial sums added in order: the operator's output.
 // CPU twin: crates/pc-fmm/src/cpu.rs (CpuFmm::upward / interact / downward), with the same
 // floating-point operations in the same order per output value (up to the driver's fusing of
-// multiply-adds). Every invocation writes only its own node's expansion or its own splat's
-// output, so no atomics are needed.
+// multiply-adds) for a receiver whose tasks make one item; one cut into several items sums the
+// same terms in parts. Every invocation writes only its own expansion or partial sum, so no
+// atomics are needed.
 //
 // The loops over multi-indices and translation terms are generated, unrolled, by gpu.rs
 // (`basis_wgsl`, composed in place of fmm/basis.wgsl): only loops over tasks, splats and
@@ -34,20 +38,33 @@ const KIND_M2P: u32 = 0u;
 const KIND_P2P: u32 = 1u;
 const KIND_P2P_RANGE: u32 = 2u;
 
+// SplatItem flags (pc_fmm::gpu_work): the item starts with the L2P; its tasks are the leaf's
+// first splat's, of which only the KIND_P2P_RANGE ones count.
+const ITEM_L2P: u32 = 1u;
+const ITEM_RANGE: u32 = 2u;
+
 struct Params {
     // Invocations of this dispatch.
     count: u32,
-    // Offset in `lists` of this dispatch's slot list (m2m, l2l).
+    // Offset in `lists` of this dispatch's slot list (m2m, l2l), or its first item (m2l,
+    // splat).
     first: u32,
-    // Offsets in `lists` of its sections: leaf slots, compact-to-slot map, node task CSR
-    // offsets (nodes + 1), first P2L task per node, splat task CSR offsets (splats + 1), leaf
-    // slot per splat.
+    // Offsets in `lists` of its sections: leaf slots, compact-to-slot map, leaf slot per splat,
+    // node items (5 u32: node, lo, hi, split, dst), node gathers (3 u32: node, lo, hi), splat
+    // items (4 u32: splat, lo, hi, flags), splat item CSR offsets (splats + 1).
     leaves: u32,
     nodes: u32,
-    node_offsets: u32,
-    node_split: u32,
-    splat_offsets: u32,
     splat_leaf: u32,
+    node_items: u32,
+    node_gathers: u32,
+    splat_items: u32,
+    splat_item_offsets: u32,
+    // Splats: the partial sums follow their outputs in `out_field`.
+    splats: u32,
+    // The m2l and splat dispatches bind a window of their task array (node_tasks, splat_tasks)
+    // starting at this record: task t is at t - task_base.
+    task_base: u32,
+    pad: u32,
 }
 
 // Per node-pool slot (pc_fmm::tree::Tree).
@@ -91,7 +108,7 @@ struct SplatTask {
 @group(0) @binding(7) var<storage, read> radiance: array<f32>;
 @group(0) @binding(8) var<storage, read_write> multipole: array<f32>;
 @group(0) @binding(9) var<storage, read_write> locals: array<f32>;
-// The operator's output per splat, 3 floats.
+// The operator's output per splat, 3 floats, then the partial sum of every splat item.
 @group(0) @binding(10) var<storage, read_write> out_field: array<f32>;
 
 // Per-invocation scratch of the generated code (zero at the start of every invocation):
@@ -232,30 +249,49 @@ fn m2m(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) g
     gen_store_multipole(nd.compact * NP9);
 }
 
-// M2L and P2L: the local expansion of one compact node from its node tasks
-// (CpuFmm::interact), zero for a node without tasks. The plan sorts a node's tasks by source,
-// so its M2L tasks (slots) come before its P2L tasks (splats, POINT set): two loops, no branch.
+// M2L and P2L: one node item's part of a compact node's local expansion (CpuFmm::interact):
+// its M2L tasks (slots, below `split`) then its P2L tasks (splats, POINT set), into the
+// node's own expansion (zero for a node without tasks) or a spare one.
 @compute @workgroup_size(64)
 fn m2l(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let ci = invocation(gid, groups);
-    if ci >= params.count {
+    let inv = invocation(gid, groups);
+    if inv >= params.count {
         return;
     }
-    let lo = lists[params.node_offsets + ci];
-    let hi = lists[params.node_offsets + ci + 1u];
-    let split = lists[params.node_split + ci];
+    let at = params.node_items + (params.first + inv) * 5u;
+    let ci = lists[at];
+    let lo = lists[at + 1u];
+    let hi = lists[at + 2u];
+    let split = lists[at + 3u];
     let ca = tree_nodes[lists[params.nodes + ci]].center;
     for (var t = lo; t < split; t = t + 1u) {
-        let task = node_tasks[t];
+        let task = node_tasks[t - params.task_base];
         let src = tree_nodes[task.src];
         gen_kernel_coeffs(src.center - ca);
         gen_m2l(src.compact * NP9, task.fraction);
     }
     for (var t = split; t < hi; t = t + 1u) {
-        let task = node_tasks[t];
+        let task = node_tasks[t - params.task_base];
         let j = task.src & ~POINT;
         gen_kernel_coeffs(pos_area[j].xyz - ca);
         gen_p2l(charge(j), task.fraction);
+    }
+    gen_store_locals(lists[at + 4u] * NP9);
+}
+
+// A node whose tasks were cut into several items: its spare expansions added to its own, in
+// item order.
+@compute @workgroup_size(64)
+fn m2l_gather(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let k = invocation(gid, groups);
+    if k >= params.count {
+        return;
+    }
+    let at = params.node_gathers + k * 3u;
+    let ci = lists[at];
+    gen_load_locals(ci * NP9);
+    for (var e = lists[at + 1u]; e < lists[at + 2u]; e = e + 1u) {
+        gen_add_locals(e * NP9);
     }
     gen_store_locals(ci * NP9);
 }
@@ -293,36 +329,40 @@ fn p2p_row(i: u32, task: SplatTask) -> vec3<f32> {
     return task.fraction * a;
 }
 
-// The leaf phase for one splat (CpuFmm::downward, second part): L2P of its leaf's local
-// expansion, then, in the plan's order, the P2P tasks of the whole leaf (listed under the
-// leaf's first splat) and the splat's own M2P and P2P tasks.
+// One splat item, part of a splat's leaf phase (CpuFmm::downward, second part): the L2P of
+// its leaf's local expansion when it is the splat's first item, then its tasks in the plan's
+// order: the P2P tasks to the whole leaf (listed under the leaf's first splat, ITEM_RANGE) or
+// the splat's own M2P and P2P tasks. Writes the item's partial sum.
 @compute @workgroup_size(64)
 fn splat(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let i = invocation(gid, groups);
-    if i >= params.count {
+    let inv = invocation(gid, groups);
+    if inv >= params.count {
         return;
     }
+    let k = params.first + inv;
+    let at = params.splat_items + k * 4u;
+    let i = lists[at];
+    let lo = lists[at + 1u];
+    let hi = lists[at + 2u];
+    let flags = lists[at + 3u];
+    let xi = pos_area[i].xyz;
+    let ni = normal_active[i].xyz;
     var v = vec3<f32>(0.0);
-    if is_active(i) {
+    if (flags & ITEM_L2P) != 0u {
         let nd = tree_nodes[lists[params.splat_leaf + i]];
-        let xi = pos_area[i].xyz;
-        let ni = normal_active[i].xyz;
         gen_monomials(xi - nd.center);
         v = -INV_PI * project(ni, gen_l2p(nd.compact * NP9));
-        if i != nd.lo {
-            let lo = lists[params.splat_offsets + nd.lo];
-            let hi = lists[params.splat_offsets + nd.lo + 1u];
-            for (var t = lo; t < hi; t = t + 1u) {
-                let task = splat_tasks[t];
-                if task.kind == KIND_P2P_RANGE {
-                    v += p2p_row(i, task);
-                }
+    }
+    if (flags & ITEM_RANGE) != 0u {
+        for (var t = lo; t < hi; t = t + 1u) {
+            let task = splat_tasks[t - params.task_base];
+            if task.kind == KIND_P2P_RANGE {
+                v += p2p_row(i, task);
             }
         }
-        let lo = lists[params.splat_offsets + i];
-        let hi = lists[params.splat_offsets + i + 1u];
+    } else {
         for (var t = lo; t < hi; t = t + 1u) {
-            let task = splat_tasks[t];
+            let task = splat_tasks[t - params.task_base];
             if task.kind == KIND_M2P {
                 let src = tree_nodes[task.src_lo];
                 gen_kernel_coeffs(src.center - xi);
@@ -332,6 +372,26 @@ fn splat(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
                 v += p2p_row(i, task);
             }
         }
+    }
+    let o = (params.splats + k) * 3u;
+    out_field[o] = v.x;
+    out_field[o + 1u] = v.y;
+    out_field[o + 2u] = v.z;
+}
+
+// One splat's output: its items' partial sums added in order (zero for an inactive splat,
+// which has none).
+@compute @workgroup_size(64)
+fn gather(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = invocation(gid, groups);
+    if i >= params.count {
+        return;
+    }
+    var v = vec3<f32>(0.0);
+    let hi = lists[params.splat_item_offsets + i + 1u];
+    for (var k = lists[params.splat_item_offsets + i]; k < hi; k = k + 1u) {
+        let o = (params.splats + k) * 3u;
+        v += vec3<f32>(out_field[o], out_field[o + 1u], out_field[o + 2u]);
     }
     out_field[i * 3u] = v.x;
     out_field[i * 3u + 1u] = v.y;

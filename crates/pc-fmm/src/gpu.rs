@@ -3,18 +3,20 @@
 //! (up to the driver's fusing of multiply-adds), so the two agree to f32 rounding:
 //!
 //! P2M (one invocation per leaf) → M2M (per internal node, one dispatch per level, deepest
-//! first) → M2L + P2L (per compact node) → L2L (per node, one dispatch per level, root's
-//! children first) → L2P + M2P + P2P (per splat).
+//! first) → M2L + P2L (per node item, [`crate::gpu_work`]) → the cut nodes' parts added → L2L
+//! (per node, one dispatch per level, root's children first) → L2P + M2P + P2P (per splat
+//! item) → the items' partial sums added (per splat).
 //!
 //! [`GpuFmm::new`] uploads the static data once (splats, per-slot tree records, level lists, the
-//! interaction plan regrouped by receiving splat) and compiles the kernels for the basis's
-//! order. Every loop over multi-indices or translation terms is written out term by term from
+//! interaction plan regrouped by receiving splat and cut into work items of bounded cost) and
+//! compiles the kernels for the basis's order. Every loop over multi-indices or translation terms is written out term by term from
 //! the [`Basis`] tables ([`basis_wgsl`], composed in place of shaders/fmm/basis.wgsl): the
 //! expansions then live in registers with constant indices, and only loops over tasks remain —
 //! which matters on llvmpipe, whose shaders stop after 65535 loop iterations per invocation
-//! group, all loops together (Mesa's `LP_MAX_TGSI_LOOP_ITERATIONS`), silently. On a software
-//! adapter [`GpuFmm::new`] bounds the kernels' task loops against that budget and refuses a
-//! plan that could exceed it. Each application then uploads the radiance, runs the dispatches
+//! group, all loops together (Mesa's `LP_MAX_TGSI_LOOP_ITERATIONS`), silently. The work items
+//! keep the task loops well within that budget; on a software adapter [`GpuFmm::new`] still
+//! bounds them ([`Work::loop_bounds`]) and refuses a plan that could exceed it (a
+//! leaf of more than 8191 splats, say). Each application then uploads the radiance, runs the dispatches
 //! and reads the output back.
 //!
 //! Limits: each expansion buffer (`nodes × coefficients × 36` bytes) and every other array must
@@ -25,11 +27,12 @@ use std::fmt::Write as _;
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
-use pc_gpu::{compose, grid, Binding, GpuContext};
+use pc_gpu::{compose, grid, Bind, Binding, GpuContext};
 
 use crate::cpu::PhaseTimes;
 use crate::expansion::{Basis, NONE as BASIS_NONE, SYM_IJ};
-use crate::plan::{NodeTask, Plan, POINT};
+use crate::gpu_work::{self, Work};
+use crate::plan::{NodeTask, Plan};
 use crate::tree::{Points, Tree, NONE};
 
 /// The kernels' source (entry points `p2m`, `m2m`, `m2l`, `l2l`, `splat`).
@@ -231,6 +234,10 @@ pub fn basis_wgsl(basis: &Basis) -> String {
     for i in 0..np {
         let _ = writeln!(w, "    ex[{i}] = load_local(src + {}u);", i * 9);
     }
+    let _ = writeln!(w, "}}\n\nfn gen_add_locals(src: u32) {{");
+    for i in 0..np {
+        let _ = writeln!(w, "    ex[{i}] += load_local(src + {}u);", i * 9);
+    }
     let _ = writeln!(w, "}}\n\nfn gen_store_locals(dst: u32) {{");
     for i in 0..np {
         let _ = writeln!(w, "    store_local(dst + {}u, ex[{i}]);", i * 9);
@@ -269,197 +276,50 @@ pub struct GpuParams {
     pub first: u32,
     pub leaves: u32,
     pub nodes: u32,
-    pub node_offsets: u32,
-    pub node_split: u32,
-    pub splat_offsets: u32,
     pub splat_leaf: u32,
+    pub node_items: u32,
+    pub node_gathers: u32,
+    pub splat_items: u32,
+    pub splat_item_offsets: u32,
+    pub splats: u32,
+    /// First task record of the bound window of the task array (m2l, splat).
+    pub task_base: u32,
+    pub pad: u32,
 }
 
-/// A leaf task as its receiving splat sees it (WGSL `SplatTask`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct SplatTask {
-    pub src_lo: u32,
-    pub src_hi: u32,
-    pub fraction: f32,
-    pub kind: u32,
-}
-
-pub const KIND_M2P: u32 = 0;
-pub const KIND_P2P: u32 = 1;
-pub const KIND_P2P_RANGE: u32 = 2;
-
-/// The plan's leaf tasks regrouped by receiving splat: CSR offsets over splats and the tasks.
-/// Each splat's block keeps the plan's order. A P2P task to a whole leaf is listed once, under
-/// the leaf's first splat, as [`KIND_P2P_RANGE`]; a P2P task to part of a leaf (the plan merges
-/// tasks, [`crate::plan`]) once under each of its splats, as [`KIND_P2P`]; every other task has
-/// one receiving splat. Errs on a receiver range outside its leaf.
-pub fn splat_tasks(
+/// The kernels' loop bounds on an llvmpipe invocation group for a plan
+/// ([`Work::loop_bounds`]): what must stay within its 65535 iterations.
+pub fn loop_bounds(
     tree: &Tree,
     points: &Points,
     plan: &Plan,
-) -> Result<(Vec<u32>, Vec<SplatTask>), String> {
-    let n = points.pos.len();
-    let mut count = vec![0u32; n + 1];
-    for (li, w) in plan.leaf_offsets.windows(2).enumerate() {
-        let leaf = tree.leaves[li] as usize;
-        let (lo, hi) = (tree.lo[leaf], tree.hi[leaf]);
-        for t in &plan.leaf_tasks[w[0] as usize..w[1] as usize] {
-            let end = if t.is_m2p() { t.recv_lo + 1 } else { t.recv_hi };
-            if t.recv_lo < lo || end > hi || end <= t.recv_lo {
-                return Err(format!(
-                    "FMM on the GPU: a leaf task to splats {}..{end} of the leaf of splats {lo}..{hi}: the receivers must lie in the leaf",
-                    t.recv_lo
-                ));
-            }
-            if t.is_m2p() || (t.recv_lo, t.recv_hi) == (lo, hi) {
-                count[t.recv_lo as usize + 1] += 1;
-            } else {
-                for i in t.recv_lo..t.recv_hi {
-                    count[i as usize + 1] += 1;
-                }
-            }
-        }
-    }
-    for i in 0..n {
-        count[i + 1] += count[i];
-    }
-    let offsets = count.clone();
-    let mut next = count;
-    let mut tasks = vec![SplatTask::default(); offsets[n] as usize];
-    // A stable scatter keeps each splat's block in the plan's order.
-    for (li, w) in plan.leaf_offsets.windows(2).enumerate() {
-        let leaf = tree.leaves[li] as usize;
-        let (lo, hi) = (tree.lo[leaf], tree.hi[leaf]);
-        for t in &plan.leaf_tasks[w[0] as usize..w[1] as usize] {
-            let (kind, receivers) = if t.is_m2p() {
-                (KIND_M2P, t.recv_lo..t.recv_lo + 1)
-            } else if (t.recv_lo, t.recv_hi) == (lo, hi) && hi - lo > 1 {
-                (KIND_P2P_RANGE, t.recv_lo..t.recv_lo + 1)
-            } else {
-                (KIND_P2P, t.recv_lo..t.recv_hi)
-            };
-            for i in receivers {
-                let at = &mut next[i as usize];
-                tasks[*at as usize] = SplatTask {
-                    src_lo: t.src_lo,
-                    src_hi: t.src_hi,
-                    fraction: t.fraction,
-                    kind,
-                };
-                *at += 1;
-            }
-        }
-    }
-    Ok((offsets, tasks))
+) -> Result<Vec<(&'static str, u64)>, String> {
+    Ok(Work::new(tree, points, plan)?.loop_bounds(tree, SOFTWARE_LANES))
 }
 
-/// Per compact node, the index of its first P2L task (its M2L tasks come first). Errs when a
-/// node's tasks are not in that order.
-fn node_split(plan: &Plan) -> Result<Vec<u32>, String> {
-    plan.node_offsets
-        .windows(2)
-        .map(|w| {
-            let tasks: &[NodeTask] = &plan.node_tasks[w[0] as usize..w[1] as usize];
-            let m2l = tasks.iter().take_while(|t| t.src & POINT == 0).count();
-            if tasks[m2l..].iter().any(|t| t.src & POINT == 0) {
-                return Err(
-                    "FMM on the GPU: a node's M2L tasks must precede its P2L tasks".to_string(),
-                );
-            }
-            Ok(w[0] + m2l as u32)
-        })
-        .collect()
-}
-
-/// Upper bound of the loop iterations of one invocation group of the kernels for a plan (see
-/// `software_loop_bound`), and the kernel where it occurs: what must stay within llvmpipe's
-/// 65535.
-pub fn loop_bound(
-    tree: &Tree,
-    points: &Points,
-    plan: &Plan,
-) -> Result<(u64, &'static str), String> {
-    let split = node_split(plan)?;
-    let (offsets, tasks) = splat_tasks(tree, points, plan)?;
-    Ok(software_loop_bound(
-        tree, points, plan, &split, &offsets, &tasks,
-    ))
-}
-
-/// Upper bound of the loop iterations of one llvmpipe invocation group (consecutive lanes run
-/// in lockstep: a loop runs as often as its longest lane, nested loops at most the sum of the
-/// lanes) in the p2m, m2l and splat kernels, the ones whose loops grow with the data (m2m loops
-/// over 8 children, l2l not at all).
-fn software_loop_bound(
-    tree: &Tree,
-    points: &Points,
-    plan: &Plan,
-    split: &[u32],
-    offsets: &[u32],
-    tasks: &[SplatTask],
-) -> (u64, &'static str) {
-    let nodes = tree.nodes.len();
-    let mut worst = (0u64, "p2m");
-    for g in tree.leaves.chunks(SOFTWARE_LANES) {
-        let splats = g
-            .iter()
-            .map(|&l| (tree.hi[l as usize] - tree.lo[l as usize]) as u64);
-        worst = worst.max((splats.max().unwrap_or(0), "p2m"));
+/// Errs when a kernel may loop more often per invocation group than `adapter` (a software
+/// one) allows.
+fn check_loop_bounds(adapter: &str, bounds: &[(&'static str, u64)]) -> Result<(), String> {
+    match bounds.iter().find(|b| b.1 > SOFTWARE_LOOP_LIMIT) {
+        Some((kernel, bound)) => Err(format!(
+            "FMM on the GPU: {adapter} ends a shader's loops after {SOFTWARE_LOOP_LIMIT} iterations per invocation group, and this plan may need {bound} in the {kernel} kernel"
+        )),
+        None => Ok(()),
     }
-    for g in (0..nodes).step_by(SOFTWARE_LANES) {
-        let lanes = g..(g + SOFTWARE_LANES).min(nodes);
-        let m2l = lanes
-            .clone()
-            .map(|c| (split[c] - plan.node_offsets[c]) as u64)
-            .max()
-            .unwrap_or(0);
-        let p2l = lanes
-            .map(|c| (plan.node_offsets[c + 1] - split[c]) as u64)
-            .max()
-            .unwrap_or(0);
-        worst = worst.max((m2l + p2l, "m2l"));
-    }
-    let n = points.pos.len();
-    let p2p = |t: &SplatTask| {
-        if t.kind == KIND_M2P {
-            0
-        } else {
-            (t.src_hi - t.src_lo) as u64
-        }
-    };
-    for g in (0..n).step_by(SOFTWARE_LANES) {
-        let (mut range_loop, mut own_loop, mut inner) = (0u64, 0u64, 0u64);
-        for i in g..(g + SOFTWARE_LANES).min(n) {
-            let lo = tree.lo[points.leaf[i] as usize] as usize;
-            if i != lo {
-                let block = &tasks[offsets[lo] as usize..offsets[lo + 1] as usize];
-                range_loop = range_loop.max(block.len() as u64);
-                inner += block
-                    .iter()
-                    .filter(|t| t.kind == KIND_P2P_RANGE)
-                    .map(p2p)
-                    .sum::<u64>();
-            }
-            let block = &tasks[offsets[i] as usize..offsets[i + 1] as usize];
-            own_loop = own_loop.max(block.len() as u64);
-            inner += block.iter().map(p2p).sum::<u64>();
-        }
-        worst = worst.max((range_loop + own_loop + inner, "splat"));
-    }
-    worst
 }
 
 /// The entry points, in the order of [`Phase`].
-const ENTRIES: [&str; 5] = ["p2m", "m2m", "m2l", "l2l", "splat"];
+const ENTRIES: [&str; 7] = ["p2m", "m2m", "m2l", "m2l_gather", "l2l", "splat", "gather"];
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     P2m = 0,
     M2m = 1,
     M2l = 2,
-    L2l = 3,
-    Splat = 4,
+    M2lGather = 3,
+    L2l = 4,
+    Splat = 5,
+    Gather = 6,
 }
 
 type ApplyFn = dyn FnMut(&[[f32; 3]], &mut [[f32; 3]], &mut PhaseTimes) -> Result<(), String>;
@@ -474,8 +334,10 @@ pub struct GpuFmm {
     /// downward one; each dispatch waits for the device, so these are device times on llvmpipe
     /// and close to them elsewhere).
     pub times: PhaseTimes,
-    /// [`loop_bound`] of the plan: the most loop iterations of one invocation group, and where.
-    pub loop_bound: (u64, &'static str),
+    /// [`loop_bounds`] of the plan: the most loop iterations of one invocation group per kernel.
+    pub loop_bounds: Vec<(&'static str, u64)>,
+    /// Work items: splat items (active splats), node items (compact nodes), spare expansions.
+    pub items: (usize, usize, u32),
     /// The expansion order the kernels were compiled for (the GPU has no relaxed products).
     order: u32,
     /// The context, buffers and kernels, owned by the closure that runs one application.
@@ -494,6 +356,20 @@ impl GpuFmm {
         tree: &Tree,
         points: &Points,
         plan: &Plan,
+    ) -> Result<GpuFmm, String> {
+        let window = ctx.binding_limit();
+        GpuFmm::with_task_window(ctx, basis, tree, points, plan, window)
+    }
+
+    /// [`GpuFmm::new`] binding the task arrays in windows of at most `window` bytes (the
+    /// device's binding limit there; tests make it small to run the windowed dispatches).
+    pub fn with_task_window(
+        ctx: GpuContext,
+        basis: &Basis,
+        tree: &Tree,
+        points: &Points,
+        plan: &Plan,
+        window: u64,
     ) -> Result<GpuFmm, String> {
         let err = |e: pc_gpu::GpuError| format!("FMM on the GPU: {e}");
         if basis.order > MAX_ORDER {
@@ -560,18 +436,14 @@ impl GpuFmm {
                 parent: tree.parent[s],
             })
             .collect();
-        let split = node_split(plan)?;
-        let (splat_offsets, splat_tasks) = splat_tasks(tree, points, plan)?;
-        let bound = software_loop_bound(tree, points, plan, &split, &splat_offsets, &splat_tasks);
+        let work = Work::new(tree, points, plan)?;
+        let field_bytes = (n * 12) as u64;
+        let loop_bounds = work.loop_bounds(tree, SOFTWARE_LANES);
         if ctx.is_software() {
-            let (bound, kernel) = bound;
-            if bound > SOFTWARE_LOOP_LIMIT {
-                return Err(format!(
-                    "FMM on the GPU: {} ends a shader's loops after {SOFTWARE_LOOP_LIMIT} iterations per invocation group, and this plan may need {bound} in the {kernel} kernel",
-                    ctx.info.name
-                ));
-            }
+            check_loop_bounds(&ctx.info.name, &loop_bounds)?;
         }
+        // The locals hold the compact nodes' expansions, then the spare ones of cut nodes.
+        let local_bytes = expansion_bytes + (work.spares as usize * np * 9 * 4) as u64;
         // Lists: the M2M slot list of every level (internal nodes only), the L2L list of every
         // level below the root, then the sections of GpuParams.
         let mut lists: Vec<u32> = Vec::new();
@@ -604,10 +476,12 @@ impl GpuFmm {
         let base = GpuParams {
             leaves: section(&tree.leaves),
             nodes: section(&tree.nodes),
-            node_offsets: section(&plan.node_offsets),
-            node_split: section(&split),
-            splat_offsets: section(&splat_offsets),
             splat_leaf: section(&points.leaf),
+            node_items: section(bytemuck::cast_slice(&work.node_items)),
+            node_gathers: section(bytemuck::cast_slice(&work.node_gathers)),
+            splat_items: section(bytemuck::cast_slice(&work.splat_items)),
+            splat_item_offsets: section(&work.splat_item_offsets),
+            splats: n as u32,
             ..Default::default()
         };
 
@@ -616,8 +490,11 @@ impl GpuFmm {
             ("splat normals", bytes(&normal_active)),
             ("tree nodes", bytes(&slots)),
             ("tree lists", bytes(&lists)),
-            ("node tasks", bytes(&plan.node_tasks)),
-            ("splat tasks", bytes(&splat_tasks)),
+            ("local expansions with their spares", local_bytes),
+            (
+                "outputs with the partial sums",
+                field_bytes + bytes(&work.splat_items) * 3 / 4,
+            ),
         ] {
             if size > binding_limit {
                 return Err(format!(
@@ -648,46 +525,90 @@ impl GpuFmm {
         let lists_buf = ctx
             .storage("fmm lists", bytemuck::cast_slice(&lists))
             .map_err(err)?;
+        // The task arrays may exceed one binding: bound in windows.
         let node_tasks_buf = ctx
-            .storage("fmm node tasks", bytemuck::cast_slice(&plan.node_tasks))
+            .storage_windowed("fmm node tasks", bytemuck::cast_slice(&plan.node_tasks))
             .map_err(err)?;
         let splat_tasks_buf = ctx
-            .storage("fmm splat tasks", bytemuck::cast_slice(&splat_tasks))
+            .storage_windowed("fmm splat tasks", bytemuck::cast_slice(&work.splat_tasks))
             .map_err(err)?;
-        let field_bytes = (n * 12) as u64;
+        let align = limits.min_storage_buffer_offset_alignment as u64;
+        let task_windows = |spans: &mut dyn Iterator<Item = (u32, u32)>,
+                            total: usize,
+                            record: usize|
+         -> Result<Vec<gpu_work::Window>, String> {
+            let record = record as u64;
+            let max = (window.min(binding_limit) / record).min(u32::MAX as u64) as u32;
+            gpu_work::windows(spans, total as u32, max, align.div_ceil(record) as u32)
+        };
+        let node_windows = task_windows(
+            &mut work.node_items.iter().map(|t| (t.lo, t.hi)),
+            plan.node_tasks.len(),
+            std::mem::size_of::<NodeTask>(),
+        )?;
+        let splat_windows = task_windows(
+            &mut work.splat_items.iter().map(|t| (t.lo, t.hi)),
+            work.splat_tasks.len(),
+            std::mem::size_of::<gpu_work::SplatTask>(),
+        )?;
         let radiance_buf = ctx.output("fmm radiance", field_bytes).map_err(err)?;
         let multipole_buf = ctx
             .output("fmm multipole expansions", expansion_bytes)
             .map_err(err)?;
         let local_buf = ctx
-            .output("fmm local expansions", expansion_bytes)
+            .output("fmm local expansions", local_bytes)
             .map_err(err)?;
-        let out_buf = ctx.output("fmm output", field_bytes).map_err(err)?;
+        // Outputs, then the splat items' partial sums (12 bytes each, as the outputs).
+        let out_buf = ctx
+            .output(
+                "fmm output",
+                field_bytes + 12 * work.splat_items.len() as u64,
+            )
+            .map_err(err)?;
 
         // The dispatches of one application, each with its uniform.
+        // A step's window: the binding (5 node tasks, 6 splat tasks) and its record range.
         let mut steps = Vec::new();
-        let mut step = |phase: Phase, first: u32, count: u32| {
+        let mut step = |phase: Phase, first: u32, count: u32, window: Option<(usize, u64, u64)>| {
             if count == 0 {
                 return;
             }
+            let task_base = window.map_or(0, |w| w.1 as u32);
             let p = GpuParams {
                 count,
                 first,
+                task_base,
                 ..base
             };
             let label = format!("fmm {} params", ENTRIES[phase as usize]);
             let u = ctx.uniform(&label, bytemuck::bytes_of(&p));
-            steps.push((phase as usize, u, grid(count, GROUP)));
+            steps.push((phase as usize, u, grid(count, GROUP), window));
         };
-        step(Phase::P2m, 0, tree.leaves.len() as u32);
+        step(Phase::P2m, 0, tree.leaves.len() as u32, None);
         for &(first, count) in &m2m_levels {
-            step(Phase::M2m, first, count);
+            step(Phase::M2m, first, count, None);
         }
-        step(Phase::M2l, 0, nodes as u32);
+        for w in &node_windows {
+            step(
+                Phase::M2l,
+                w.first,
+                w.count,
+                Some((5, w.base as u64, w.end as u64)),
+            );
+        }
+        step(Phase::M2lGather, 0, work.node_gathers.len() as u32, None);
         for &(first, count) in &l2l_levels {
-            step(Phase::L2l, first, count);
+            step(Phase::L2l, first, count, None);
         }
-        step(Phase::Splat, 0, n as u32);
+        for w in &splat_windows {
+            step(
+                Phase::Splat,
+                w.first,
+                w.count,
+                Some((6, w.base as u64, w.end as u64)),
+            );
+        }
+        step(Phase::Gather, 0, n as u32, None);
         let dispatches = steps.len();
         let describe = ctx.describe();
 
@@ -707,7 +628,7 @@ impl GpuFmm {
             }
             ctx.queue
                 .write_buffer(&radiance_buf, 0, bytemuck::cast_slice(radiance));
-            for (k, u, groups) in &steps {
+            for (k, u, groups, window) in &steps {
                 let buffers = [
                     u,
                     &pos_buf,
@@ -721,12 +642,21 @@ impl GpuFmm {
                     &local_buf,
                     &out_buf,
                 ];
+                let mut binds = buffers.map(Bind::whole);
+                if let Some((at, lo, hi)) = *window {
+                    let record = if at == 5 {
+                        std::mem::size_of::<NodeTask>()
+                    } else {
+                        std::mem::size_of::<gpu_work::SplatTask>()
+                    } as u64;
+                    binds[at] = Bind::window(buffers[at], lo * record, (hi - lo) * record);
+                }
                 let t = Instant::now();
-                kernels[*k].run(&ctx, &buffers, *groups).map_err(err)?;
+                kernels[*k].run_binds(&ctx, &binds, *groups).map_err(err)?;
                 let s = t.elapsed().as_secs_f64();
                 match *k {
                     0 | 1 => times.upward += s,
-                    2 => times.m2l += s,
+                    2 | 3 => times.m2l += s,
                     _ => times.downward += s,
                 }
             }
@@ -741,7 +671,8 @@ impl GpuFmm {
             dispatches,
             applications: 0,
             times: PhaseTimes::default(),
-            loop_bound: bound,
+            loop_bounds,
+            items: (work.splat_items.len(), work.node_items.len(), work.spares),
             order: basis.order as u32,
             run: Box::new(run),
         })
@@ -767,7 +698,7 @@ impl crate::Operator for GpuFmm {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::LeafTask;
+    use crate::gpu_work::SplatTask;
 
     /// The `const` and `fn` declaration lines of a WGSL source.
     fn declarations(src: &str) -> Vec<String> {
@@ -843,59 +774,13 @@ mod tests {
     }
 
     #[test]
-    fn splat_tasks_keep_each_receivers_order() {
-        // One leaf of splats 0..3 in slot 0.
-        let tree = Tree {
-            slots: 1,
-            lo: vec![0],
-            hi: vec![3],
-            leaves: vec![0],
-            ..Default::default()
-        };
-        let points = Points {
-            pos: vec![[0.0; 3]; 3],
-            leaf: vec![0; 3],
-            ..Default::default()
-        };
-        let task = |recv_lo, recv_hi, src_lo, src_hi| LeafTask {
-            recv_lo,
-            recv_hi,
-            src_lo,
-            src_hi,
-            fraction: 1.0,
-            _pad: [0; 3],
-        };
-        let plan = Plan {
-            leaf_offsets: vec![0, 5],
-            leaf_tasks: vec![
-                task(0, 3, 5, 9),
-                task(0, 1, 12, 13),
-                task(2, 0, 7, 0),
-                task(2, 3, 20, 21),
-                // Part of the leaf (a merged task): under each of its splats.
-                task(1, 3, 30, 34),
-            ],
-            ..Default::default()
-        };
-        let (offsets, tasks) = splat_tasks(&tree, &points, &plan).unwrap();
-        assert_eq!(offsets, vec![0, 2, 3, 6]);
-        let kinds: Vec<(u32, u32)> = tasks.iter().map(|t| (t.kind, t.src_lo)).collect();
+    fn a_software_adapter_refuses_loops_beyond_its_budget() {
+        let fine = [("p2m", 16), ("splat", SOFTWARE_LOOP_LIMIT)];
+        assert_eq!(check_loop_bounds("llvmpipe", &fine), Ok(()));
+        let over = [("p2m", 70_000), ("splat", 90_000)];
         assert_eq!(
-            kinds,
-            vec![
-                (KIND_P2P_RANGE, 5),
-                (KIND_P2P, 12),
-                (KIND_P2P, 30),
-                (KIND_M2P, 7),
-                (KIND_P2P, 20),
-                (KIND_P2P, 30)
-            ]
+            check_loop_bounds("llvmpipe", &over).unwrap_err(),
+            "FMM on the GPU: llvmpipe ends a shader's loops after 65535 iterations per invocation group, and this plan may need 70000 in the p2m kernel"
         );
-        let bad = Plan {
-            leaf_offsets: vec![0, 1],
-            leaf_tasks: vec![task(1, 4, 5, 9)],
-            ..Default::default()
-        };
-        assert!(splat_tasks(&tree, &points, &bad).is_err());
     }
 }

@@ -11,6 +11,7 @@
 pub mod cpu;
 pub mod expansion;
 pub mod gpu;
+pub mod gpu_work;
 pub mod lanes;
 
 pub mod plan;

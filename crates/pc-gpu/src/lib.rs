@@ -91,11 +91,19 @@ impl GpuContext {
         self.info.device_type == wgpu::DeviceType::Cpu
     }
 
-    fn check_size(&self, what: &str, need: u64) -> Result<(), GpuError> {
+    /// The most bytes one storage binding may span (the device's binding and buffer limits).
+    pub fn binding_limit(&self) -> u64 {
         let limits = self.device.limits();
-        let limit = limits
+        limits
             .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+            .min(limits.max_buffer_size)
+    }
+
+    fn check_size(&self, what: &str, need: u64) -> Result<(), GpuError> {
+        self.check_limit(what, need, self.binding_limit())
+    }
+
+    fn check_limit(&self, what: &str, need: u64, limit: u64) -> Result<(), GpuError> {
         if need > limit {
             return Err(GpuError::TooLarge {
                 what: what.to_string(),
@@ -110,27 +118,41 @@ impl GpuContext {
     /// short array still binds as a runtime-sized array of any record up to 256 bytes.
     pub fn storage(&self, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer, GpuError> {
         self.check_size(label, bytes.len() as u64)?;
+        Ok(self.storage_unchecked(label, bytes))
+    }
+
+    /// A storage buffer holding `bytes` that kernels bind in windows ([`Bind::window`]): it may
+    /// exceed one binding's limit, not the device's largest buffer.
+    pub fn storage_windowed(&self, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer, GpuError> {
+        self.check_limit(
+            label,
+            bytes.len() as u64,
+            self.device.limits().max_buffer_size,
+        )?;
+        Ok(self.storage_unchecked(label, bytes))
+    }
+
+    fn storage_unchecked(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
         let usage = wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_SRC
             | wgpu::BufferUsages::COPY_DST;
         if bytes.len() < 256 {
             let mut padded = [0u8; 256];
             padded[..bytes.len()].copy_from_slice(bytes);
-            return Ok(self
+            return self
                 .device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some(label),
                     contents: &padded,
                     usage,
-                }));
+                });
         }
-        Ok(self
-            .device
+        self.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
                 contents: bytes,
                 usage,
-            }))
+            })
     }
 
     /// A zeroed read-write storage buffer of `size` bytes for kernel output.
@@ -285,6 +307,31 @@ pub enum Binding {
     ReadWrite,
 }
 
+/// What one binding of a dispatch sees: a whole buffer, or a window of it.
+#[derive(Clone, Copy, Debug)]
+pub struct Bind<'a> {
+    pub buffer: &'a wgpu::Buffer,
+    /// Byte offset (a multiple of the device's `min_storage_buffer_offset_alignment`) and
+    /// size; `None`: the whole buffer.
+    pub window: Option<(u64, u64)>,
+}
+
+impl<'a> Bind<'a> {
+    pub fn whole(buffer: &'a wgpu::Buffer) -> Bind<'a> {
+        Bind {
+            buffer,
+            window: None,
+        }
+    }
+
+    pub fn window(buffer: &'a wgpu::Buffer, offset: u64, size: u64) -> Bind<'a> {
+        Bind {
+            buffer,
+            window: Some((offset, size)),
+        }
+    }
+}
+
 /// A compute pipeline with its bind-group layout, made once and dispatched many times.
 pub struct Kernel {
     label: String,
@@ -300,14 +347,32 @@ impl Kernel {
         buffers: &[&wgpu::Buffer],
         groups: (u32, u32, u32),
     ) -> Result<(), GpuError> {
+        let binds: Vec<Bind> = buffers.iter().map(|b| Bind::whole(b)).collect();
+        self.run_binds(ctx, &binds, groups)
+    }
+
+    /// [`Kernel::run`] with each binding a whole buffer or a window of one.
+    pub fn run_binds(
+        &self,
+        ctx: &GpuContext,
+        binds: &[Bind],
+        groups: (u32, u32, u32),
+    ) -> Result<(), GpuError> {
         // Validation errors come back as errors instead of wgpu's default panic.
         let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
+        let entries: Vec<wgpu::BindGroupEntry> = binds
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
                 binding: i as u32,
-                resource: b.as_entire_binding(),
+                resource: match b.window {
+                    None => b.buffer.as_entire_binding(),
+                    Some((offset, size)) => wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: b.buffer,
+                        offset,
+                        size: wgpu::BufferSize::new(size),
+                    }),
+                },
             })
             .collect();
         let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
