@@ -18,8 +18,9 @@
 //   gen_l2l            ex += re-expansion of the parent local at src l2l
 //   gen_l2p            Σ pw[α] L[α], L at src                        l2p
 //   gen_m2p            Σ g_α M[α], M at src                          CpuFmm::downward (M2P)
-//   gen_load_locals, gen_add_locals, gen_store_locals, gen_store_multipole: ex from, plus, or
-//                      to the expansion at src/dst.
+//   gen_load_locals, gen_store_locals, gen_store_multipole, gen_add_spare, gen_store_spare:
+//                      ex from or to the local/multipole expansion at src/dst, ex plus or to
+//                      the spare expansion at src/dst.
 
 const ORDER: u32 = 4u;
 const NP: u32 = 35u;
@@ -35,6 +36,7 @@ fn gen_l2l(src: u32) {}
 fn gen_l2p(src: u32) -> mat3x3<f32> { return mat3x3<f32>(); }
 fn gen_m2p(src: u32) -> mat3x3<f32> { return mat3x3<f32>(); }
 fn gen_load_locals(src: u32) {}
-fn gen_add_locals(src: u32) {}
 fn gen_store_locals(dst: u32) {}
 fn gen_store_multipole(dst: u32) {}
+fn gen_add_spare(src: u32) {}
+fn gen_store_spare(dst: u32) {}

@@ -7,7 +7,7 @@
 //               children shifted to its centre (M2M);
 //   m2l         one per node item (a run of one compact node's tasks, crates/pc-fmm/src/
 //               gpu_work.rs): M2L from nodes, P2L from splats, into the node's local
-//               expansion (its first item) or a spare one (the others);
+//               expansion (its first item) or a spare one (the others, in `spares`);
 //   m2l_gather  one per node with spare expansions: adds them to its own, in order;
 //   l2l         one per node of one level, root's children first: its parent's local
 //               expansion re-expanded about its centre, added to its own (L2L);
@@ -38,6 +38,8 @@ const KIND_M2P: u32 = 0u;
 const KIND_P2P: u32 = 1u;
 const KIND_P2P_RANGE: u32 = 2u;
 
+// Flag of a node item's destination that is a spare expansion (pc_fmm::gpu_work::SPARE).
+const SPARE: u32 = 0x80000000u;
 // SplatItem flags (pc_fmm::gpu_work): the item starts with the L2P; its tasks are the leaf's
 // first splat's, of which only the KIND_P2P_RANGE ones count.
 const ITEM_L2P: u32 = 1u;
@@ -110,6 +112,9 @@ struct SplatTask {
 @group(0) @binding(9) var<storage, read_write> locals: array<f32>;
 // The operator's output per splat, 3 floats, then the partial sum of every splat item.
 @group(0) @binding(10) var<storage, read_write> out_field: array<f32>;
+// The spare local expansions of nodes whose tasks were cut into several items (NP9 floats
+// each).
+@group(0) @binding(11) var<storage, read_write> spares: array<f32>;
 
 // Per-invocation scratch of the generated code (zero at the start of every invocation):
 // monomials, kernel coefficients a_γ and g_γ (a symmetric matrix each), and the expansion
@@ -149,6 +154,26 @@ fn store_multipole(at: u32, m: mat3x3<f32>) {
     multipole[at + 6u] = m[2].x;
     multipole[at + 7u] = m[2].y;
     multipole[at + 8u] = m[2].z;
+}
+
+fn load_spare(at: u32) -> mat3x3<f32> {
+    return mat3x3<f32>(
+        spares[at], spares[at + 1u], spares[at + 2u],
+        spares[at + 3u], spares[at + 4u], spares[at + 5u],
+        spares[at + 6u], spares[at + 7u], spares[at + 8u],
+    );
+}
+
+fn store_spare(at: u32, m: mat3x3<f32>) {
+    spares[at] = m[0].x;
+    spares[at + 1u] = m[0].y;
+    spares[at + 2u] = m[0].z;
+    spares[at + 3u] = m[1].x;
+    spares[at + 4u] = m[1].y;
+    spares[at + 5u] = m[1].z;
+    spares[at + 6u] = m[2].x;
+    spares[at + 7u] = m[2].y;
+    spares[at + 8u] = m[2].z;
 }
 
 fn store_local(at: u32, m: mat3x3<f32>) {
@@ -276,7 +301,12 @@ fn m2l(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) g
         gen_kernel_coeffs(pos_area[j].xyz - ca);
         gen_p2l(charge(j), task.fraction);
     }
-    gen_store_locals(lists[at + 4u] * NP9);
+    let dst = lists[at + 4u];
+    if (dst & SPARE) != 0u {
+        gen_store_spare((dst & ~SPARE) * NP9);
+    } else {
+        gen_store_locals(dst * NP9);
+    }
 }
 
 // A node whose tasks were cut into several items: its spare expansions added to its own, in
@@ -291,7 +321,7 @@ fn m2l_gather(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     let ci = lists[at];
     gen_load_locals(ci * NP9);
     for (var e = lists[at + 1u]; e < lists[at + 2u]; e = e + 1u) {
-        gen_add_locals(e * NP9);
+        gen_add_spare(e * NP9);
     }
     gen_store_locals(ci * NP9);
 }

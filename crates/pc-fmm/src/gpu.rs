@@ -43,7 +43,7 @@ pub const BASIS_STUB_WGSL: &str = include_str!("../../../shaders/fmm/basis.wgsl"
 /// Threads per workgroup of every entry point (`@workgroup_size(64)`).
 const GROUP: u32 = 64;
 /// Storage buffers the kernels bind.
-const STORAGE_BINDINGS: u32 = 10;
+const STORAGE_BINDINGS: u32 = 11;
 /// Highest order the kernels are generated for: the M2L code grows as the number of terms,
 /// (p+1)…(p+6)/720 (3003 at order 8), and so do compile time and register pressure.
 pub const MAX_ORDER: usize = 8;
@@ -234,10 +234,6 @@ pub fn basis_wgsl(basis: &Basis) -> String {
     for i in 0..np {
         let _ = writeln!(w, "    ex[{i}] = load_local(src + {}u);", i * 9);
     }
-    let _ = writeln!(w, "}}\n\nfn gen_add_locals(src: u32) {{");
-    for i in 0..np {
-        let _ = writeln!(w, "    ex[{i}] += load_local(src + {}u);", i * 9);
-    }
     let _ = writeln!(w, "}}\n\nfn gen_store_locals(dst: u32) {{");
     for i in 0..np {
         let _ = writeln!(w, "    store_local(dst + {}u, ex[{i}]);", i * 9);
@@ -245,6 +241,14 @@ pub fn basis_wgsl(basis: &Basis) -> String {
     let _ = writeln!(w, "}}\n\nfn gen_store_multipole(dst: u32) {{");
     for i in 0..np {
         let _ = writeln!(w, "    store_multipole(dst + {}u, ex[{i}]);", i * 9);
+    }
+    let _ = writeln!(w, "}}\n\nfn gen_add_spare(src: u32) {{");
+    for i in 0..np {
+        let _ = writeln!(w, "    ex[{i}] += load_spare(src + {}u);", i * 9);
+    }
+    let _ = writeln!(w, "}}\n\nfn gen_store_spare(dst: u32) {{");
+    for i in 0..np {
+        let _ = writeln!(w, "    store_spare(dst + {}u, ex[{i}]);", i * 9);
     }
     let _ = writeln!(w, "}}");
     s
@@ -442,8 +446,8 @@ impl GpuFmm {
         if ctx.is_software() {
             check_loop_bounds(&ctx.info.name, &loop_bounds)?;
         }
-        // The locals hold the compact nodes' expansions, then the spare ones of cut nodes.
-        let local_bytes = expansion_bytes + (work.spares as usize * np * 9 * 4) as u64;
+        // The spare expansions of cut nodes.
+        let spare_bytes = (work.spares as usize * np * 9 * 4) as u64;
         // Lists: the M2M slot list of every level (internal nodes only), the L2L list of every
         // level below the root, then the sections of GpuParams.
         let mut lists: Vec<u32> = Vec::new();
@@ -490,7 +494,7 @@ impl GpuFmm {
             ("splat normals", bytes(&normal_active)),
             ("tree nodes", bytes(&slots)),
             ("tree lists", bytes(&lists)),
-            ("local expansions with their spares", local_bytes),
+            ("spare local expansions", spare_bytes),
             (
                 "outputs with the partial sums",
                 field_bytes + bytes(&work.splat_items) * 3 / 4,
@@ -506,7 +510,7 @@ impl GpuFmm {
         let src = source(basis);
         let mut b = vec![Binding::Uniform];
         b.extend([Binding::ReadOnly; 7]);
-        b.extend([Binding::ReadWrite; 3]);
+        b.extend([Binding::ReadWrite; 4]);
         let kernels = ENTRIES
             .iter()
             .map(|e| ctx.kernel(&format!("fmm/{e}"), &src, e, &b))
@@ -556,7 +560,7 @@ impl GpuFmm {
             .output("fmm multipole expansions", expansion_bytes)
             .map_err(err)?;
         let local_buf = ctx
-            .output("fmm local expansions", local_bytes)
+            .output("fmm local expansions", expansion_bytes)
             .map_err(err)?;
         // Outputs, then the splat items' partial sums (12 bytes each, as the outputs).
         let out_buf = ctx
@@ -564,6 +568,9 @@ impl GpuFmm {
                 "fmm output",
                 field_bytes + 12 * work.splat_items.len() as u64,
             )
+            .map_err(err)?;
+        let spare_buf = ctx
+            .output("fmm spare local expansions", spare_bytes)
             .map_err(err)?;
 
         // The dispatches of one application, each with its uniform.
@@ -611,6 +618,19 @@ impl GpuFmm {
         step(Phase::Gather, 0, n as u32, None);
         let dispatches = steps.len();
         let describe = ctx.describe();
+        // Binding, record size and records of the two task arrays.
+        let task_arrays = [
+            (
+                5,
+                std::mem::size_of::<NodeTask>() as u64,
+                plan.node_tasks.len() as u64,
+            ),
+            (
+                6,
+                std::mem::size_of::<gpu_work::SplatTask>() as u64,
+                work.splat_tasks.len() as u64,
+            ),
+        ];
 
         let run = move |radiance: &[[f32; 3]],
                         out: &mut [[f32; 3]],
@@ -641,14 +661,16 @@ impl GpuFmm {
                     &multipole_buf,
                     &local_buf,
                     &out_buf,
+                    &spare_buf,
                 ];
+                // The task arrays are bound in windows: the step's own, or a first record for
+                // the kernels that do not read them (the whole array may exceed one binding).
                 let mut binds = buffers.map(Bind::whole);
-                if let Some((at, lo, hi)) = *window {
-                    let record = if at == 5 {
-                        std::mem::size_of::<NodeTask>()
-                    } else {
-                        std::mem::size_of::<gpu_work::SplatTask>()
-                    } as u64;
+                for (at, record, len) in task_arrays {
+                    let (lo, hi) = match *window {
+                        Some((w, lo, hi)) if w == at => (lo, hi),
+                        _ => (0, len.min(1)),
+                    };
                     binds[at] = Bind::window(buffers[at], lo * record, (hi - lo) * record);
                 }
                 let t = Instant::now();

@@ -11,7 +11,8 @@
 //!   the leaf's first splat), then its own M2P and P2P tasks; the first item also does the L2P.
 //!   Each item writes a partial sum; the `gather` kernel adds a splat's partials in order.
 //! - a node's items ([`NodeItem`]): runs of its M2L-then-P2L tasks. The first writes the node's
-//!   own local expansion, the others spare expansions that `m2l_gather` adds to it in order.
+//!   own local expansion, the others spare expansions (a buffer of their own) that
+//!   `m2l_gather` adds to it in order.
 //!
 //! A receiver with a single item is computed exactly as the CPU twin computes it; one cut into
 //! several sums the same terms in parts (a difference of f32 rounding).
@@ -43,10 +44,13 @@ const SKIP_COST: u64 = 1;
 /// Budget of one splat item. A task is never cut, so an item costs at most this plus its last
 /// task's (a P2P task's sources are a few leaves').
 pub const SPLAT_ITEM_BUDGET: u64 = 1024;
-/// Cost of an M2L and a P2L task, and the budget of one node item (64 M2L tasks).
+/// Cost of an M2L and a P2L task, and the budget of one node item (128 M2L tasks: at 1M
+/// splats a node receives 51 on average).
 const M2L_COST: u64 = 4;
 const P2L_COST: u64 = 1;
-pub const NODE_ITEM_BUDGET: u64 = 256;
+pub const NODE_ITEM_BUDGET: u64 = 512;
+/// Flag of a [`NodeItem`]'s `dst` that is a spare expansion.
+pub const SPARE: u32 = 1 << 31;
 
 /// Flags of a [`SplatItem`].
 pub const ITEM_L2P: u32 = 1;
@@ -64,8 +68,8 @@ pub struct SplatItem {
 }
 
 /// Part of one compact node's M2L/P2L work: node tasks `lo..hi`, the M2L ones below `split`,
-/// accumulated into expansion `dst` (the node's own, or a spare one past the nodes) (WGSL
-/// `NodeItem`).
+/// accumulated into expansion `dst`: the node's own (its compact index), or spare expansion
+/// `dst & !SPARE` (WGSL `NodeItem`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct NodeItem {
@@ -273,7 +277,7 @@ pub struct Work {
     /// and the nodes with spare expansions to add.
     pub node_items: Vec<NodeItem>,
     pub node_gathers: Vec<NodeGather>,
-    /// Spare expansions (past the compact nodes).
+    /// Spare expansions.
     pub spares: u32,
 }
 
@@ -357,9 +361,9 @@ impl Work {
             });
             let extra = (node_items.len() - first - 1) as u32;
             if extra > 0 {
-                let at = nodes as u32 + spares;
+                let at = spares;
                 for (k, item) in node_items[first + 1..].iter_mut().enumerate() {
-                    item.dst = at + k as u32;
+                    item.dst = SPARE | (at + k as u32);
                 }
                 node_gathers.push(NodeGather {
                     node: c as u32,
@@ -606,13 +610,13 @@ mod tests {
         for _ in 0..40 {
             leaf_tasks.push(p2p(3, 0, 1, 0));
         }
-        // Node 0: 100 M2L (64 per item) then 10 P2L; node 1 none; node 2 one M2L.
+        // Node 0: 200 M2L (128 per item) then 10 P2L; node 1 none; node 2 one M2L.
         let mut node_tasks = vec![
             NodeTask {
                 src: 1,
                 fraction: 1.0
             };
-            100
+            200
         ];
         node_tasks.extend((0..10).map(|j| NodeTask {
             src: POINT | j,
@@ -623,7 +627,7 @@ mod tests {
             fraction: 1.0,
         });
         let plan = Plan {
-            node_offsets: vec![0, 110, 110, 111],
+            node_offsets: vec![0, 210, 210, 211],
             node_tasks,
             leaf_offsets: vec![0, leaf1, leaf1 + 40],
             leaf_tasks,
@@ -661,10 +665,10 @@ mod tests {
         assert_eq!(
             nodes,
             vec![
-                (0, 0, 64, 64, 0),
-                (0, 64, 110, 100, 3),
-                (1, 110, 110, 110, 1),
-                (2, 110, 111, 111, 2),
+                (0, 0, 128, 128, 0),
+                (0, 128, 210, 200, SPARE),
+                (1, 210, 210, 210, 1),
+                (2, 210, 211, 211, 2),
             ]
         );
         assert_eq!(w.spares, 1);
@@ -672,8 +676,8 @@ mod tests {
             w.node_gathers,
             vec![NodeGather {
                 node: 0,
-                lo: 3,
-                hi: 4
+                lo: 0,
+                hi: 1
             }]
         );
         let bounds = w.loop_bounds(&tree, 8);
@@ -681,7 +685,7 @@ mod tests {
             bounds,
             vec![
                 ("p2m", 3),
-                ("m2l", 64 + 10),
+                ("m2l", 128 + 10),
                 ("m2l_gather", 1),
                 // One group: longest outer loop 32, the inner P2P sums 6 × 600.
                 ("splat", 32 + 3600),

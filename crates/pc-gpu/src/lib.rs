@@ -312,7 +312,7 @@ pub enum Binding {
 pub struct Bind<'a> {
     pub buffer: &'a wgpu::Buffer,
     /// Byte offset (a multiple of the device's `min_storage_buffer_offset_alignment`) and
-    /// size; `None`: the whole buffer.
+    /// size (0: to the end of the buffer); `None`: the whole buffer.
     pub window: Option<(u64, u64)>,
 }
 

@@ -202,7 +202,7 @@ fn gpu_cuts_heavy_receivers_into_items() {
         work.node_items.len(),
         work.spares
     );
-    assert!(work.spares as usize >= 70_000 / 64, "{}", work.spares);
+    assert!(work.spares as usize >= 70_000 / 128, "{}", work.spares);
     let heavy = (f.tree.hi[recv] - f.tree.lo[recv]) as usize;
     let active = f.points.active.iter().filter(|&&a| a).count();
     assert!(work.splat_items.len() > active + heavy);
