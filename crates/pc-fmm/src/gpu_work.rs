@@ -447,6 +447,18 @@ mod tests {
     use super::*;
     use crate::plan::LeafTask;
 
+    /// A leaf task of fraction 1 (an M2P when `recv_hi` is 0).
+    fn task(recv_lo: u32, recv_hi: u32, src_lo: u32, src_hi: u32) -> LeafTask {
+        LeafTask {
+            recv_lo,
+            recv_hi,
+            src_lo,
+            src_hi,
+            fraction: 1.0,
+            _pad: [0; 3],
+        }
+    }
+
     #[test]
     fn splat_tasks_keep_each_receivers_order() {
         // One leaf of splats 0..3 in slot 0.
@@ -461,14 +473,6 @@ mod tests {
             pos: vec![[0.0; 3]; 3],
             leaf: vec![0; 3],
             ..Default::default()
-        };
-        let task = |recv_lo, recv_hi, src_lo, src_hi| LeafTask {
-            recv_lo,
-            recv_hi,
-            src_lo,
-            src_hi,
-            fraction: 1.0,
-            _pad: [0; 3],
         };
         let plan = Plan {
             leaf_offsets: vec![0, 5],
@@ -590,25 +594,17 @@ mod tests {
             active: vec![true, true, false, true],
             ..Default::default()
         };
-        let p2p = |recv_lo, recv_hi, src_lo, src_hi| LeafTask {
-            recv_lo,
-            recv_hi,
-            src_lo,
-            src_hi,
-            fraction: 1.0,
-            _pad: [0; 3],
-        };
         let mut leaf_tasks = Vec::new();
         // Leaf 1: 3 tasks to the whole leaf of 600 sources each (cut 1 + 1 + 1), an M2P to
         // splat 1.
         for _ in 0..3 {
-            leaf_tasks.push(p2p(0, 3, 1000, 1600));
+            leaf_tasks.push(task(0, 3, 1000, 1600));
         }
-        leaf_tasks.push(p2p(1, 0, 0, 0));
+        leaf_tasks.push(task(1, 0, 0, 0));
         // Leaf 2: 40 M2P tasks to splat 3 (32 each: 32 per item, so 2 items).
         let leaf1 = leaf_tasks.len() as u32;
         for _ in 0..40 {
-            leaf_tasks.push(p2p(3, 0, 1, 0));
+            leaf_tasks.push(task(3, 0, 1, 0));
         }
         // Node 0: 200 M2L (128 per item) then 10 P2L; node 1 none; node 2 one M2L.
         let mut node_tasks = vec![
