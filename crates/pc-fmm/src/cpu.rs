@@ -139,6 +139,19 @@ struct Buffers {
     splats: Option<lanes::SplatLanes>,
 }
 
+/// The lowest order whose product error is at most `relax` (≥ 1) times order `order`'s, for
+/// a plan of separation `theta` ([`CpuFmm::order_within`]; the GPU relaxes the same way).
+pub fn order_within(order: usize, theta: f32, relax: f64) -> usize {
+    let growth = (1.0 / (theta as f64).powi(3)).max(RELAX_GROWTH_MIN);
+    let mut q = order;
+    let mut err = 1.0;
+    while q > 1 && err * growth <= relax {
+        err *= growth;
+        q -= 1;
+    }
+    q
+}
+
 impl<'a> CpuFmm<'a> {
     pub fn new(basis: &'a Basis, tree: &'a Tree, points: &'a Points, plan: &'a Plan) -> Self {
         CpuFmm {
@@ -167,14 +180,7 @@ impl CpuFmm<'_> {
     /// order's, by the truncation model of docs/fmm.md ("Relaxed products"): each order less
     /// multiplies the error by `max(8, θ⁻³)`; never below order 1.
     pub fn order_within(&self, relax: f64) -> usize {
-        let growth = (1.0 / (self.plan.theta as f64).powi(3)).max(RELAX_GROWTH_MIN);
-        let mut q = self.basis.order;
-        let mut err = 1.0;
-        while q > 1 && err * growth <= relax {
-            err *= growth;
-            q -= 1;
-        }
-        q
+        order_within(self.basis.order, self.plan.theta, relax)
     }
 
     /// Upward pass: multipole moments of every node (P2M at leaves, M2M upward).

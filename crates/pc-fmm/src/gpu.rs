@@ -326,7 +326,9 @@ enum Phase {
     Gather = 6,
 }
 
-type ApplyFn = dyn FnMut(&[[f32; 3]], &mut [[f32; 3]], &mut PhaseTimes) -> Result<(), String>;
+/// One application at an expansion order (at most the configured one).
+type ApplyFn =
+    dyn FnMut(&[[f32; 3]], &mut [[f32; 3]], usize, &mut PhaseTimes) -> Result<(), String>;
 
 /// The FMM on the GPU: static data resident, kernels compiled for one order.
 pub struct GpuFmm {
@@ -342,8 +344,10 @@ pub struct GpuFmm {
     pub loop_bounds: Vec<(&'static str, u64)>,
     /// Work items: splat items (active splats), node items (compact nodes), spare expansions.
     pub items: (usize, usize, u32),
-    /// The expansion order the kernels were compiled for (the GPU has no relaxed products).
+    /// The configured expansion order; relaxed products run kernels compiled for lower ones
+    /// (at first use), as the CPU's do ([`crate::cpu::order_within`]).
     order: u32,
+    theta: f32,
     /// The context, buffers and kernels, owned by the closure that runs one application.
     run: Box<ApplyFn>,
 }
@@ -507,15 +511,23 @@ impl GpuFmm {
             }
         }
 
-        let src = source(basis);
         let mut b = vec![Binding::Uniform];
         b.extend([Binding::ReadOnly; 7]);
         b.extend([Binding::ReadWrite; 4]);
-        let kernels = ENTRIES
-            .iter()
-            .map(|e| ctx.kernel(&format!("fmm/{e}"), &src, e, &b))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(err)?;
+        // The kernels per order: the configured one's now, lower ones (relaxed products) at
+        // first use. A lower order's expansions are a prefix of the configured one's in size,
+        // so the same buffers serve (each order's kernels address them with their own stride).
+        let compile = move |ctx: &GpuContext, order: usize| {
+            let src = source(&Basis::new(order));
+            ENTRIES
+                .iter()
+                .map(|e| ctx.kernel(&format!("fmm/{e}/order {order}"), &src, e, &b))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(err)
+        };
+        let mut kernels: Vec<Option<Vec<pc_gpu::Kernel>>> =
+            (0..=basis.order).map(|_| None).collect();
+        kernels[basis.order] = Some(compile(&ctx, basis.order)?);
 
         let pos_buf = ctx
             .storage("fmm positions", bytemuck::cast_slice(&pos_area))
@@ -634,8 +646,14 @@ impl GpuFmm {
 
         let run = move |radiance: &[[f32; 3]],
                         out: &mut [[f32; 3]],
+                        order: usize,
                         times: &mut PhaseTimes|
               -> Result<(), String> {
+            let order = order.min(kernels.len() - 1);
+            if kernels[order].is_none() {
+                kernels[order] = Some(compile(&ctx, order)?);
+            }
+            let kernels = kernels[order].as_ref().expect("compiled above");
             if radiance.len() != n || out.len() != n {
                 return Err(format!(
                     "FMM on the GPU: {} radiances and {} outputs for {n} splats",
@@ -696,6 +714,7 @@ impl GpuFmm {
             loop_bounds,
             items: (work.splat_items.len(), work.node_items.len(), work.spares),
             order: basis.order as u32,
+            theta: plan.theta,
             run: Box::new(run),
         })
     }
@@ -703,9 +722,19 @@ impl GpuFmm {
 
 impl crate::Operator for GpuFmm {
     fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String> {
-        (self.run)(radiance, out, &mut self.times)?;
+        self.apply_relaxed(radiance, out, 1.0).map(|_| ())
+    }
+
+    fn apply_relaxed(
+        &mut self,
+        radiance: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+        relax: f64,
+    ) -> Result<u32, String> {
+        let order = crate::cpu::order_within(self.order as usize, self.theta, relax);
+        (self.run)(radiance, out, order, &mut self.times)?;
         self.applications += 1;
-        Ok(())
+        Ok(order as u32)
     }
 
     fn order(&self) -> u32 {

@@ -251,3 +251,38 @@ fn gpu_binds_task_arrays_in_windows() {
     assert!(a.iter().flatten().all(|x| x.is_finite()));
     assert_eq!(a, b);
 }
+
+/// Relaxed products (GMRES's later iterations) run kernels of lower orders on the GPU too: the
+/// orders the CPU picks, with the CPU's results.
+#[test]
+fn gpu_relaxed_products_match_the_cpus() {
+    use pc_fmm::Operator as _;
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let f = fixture();
+    let basis = Basis::new(3);
+    let n = f.points.pos.len();
+    let radiance = varied_radiance(n);
+    let mut cpu = CpuOperator {
+        fmm: CpuFmm::new(&basis, &f.tree, &f.points, &f.plan),
+        times: Default::default(),
+        applications: 0,
+    };
+    let mut gpu = GpuFmm::new(ctx, &basis, &f.tree, &f.points, &f.plan).unwrap();
+    let mut orders = Vec::new();
+    for relax in [1.0, 10.0, 100.0, 1e4] {
+        let mut want = vec![[0.0f32; 3]; n];
+        let mut got = vec![[f32::NAN; 3]; n];
+        let a = cpu.apply_relaxed(&radiance, &mut want, relax).unwrap();
+        let b = gpu.apply_relaxed(&radiance, &mut got, relax).unwrap();
+        let d = rel_l2(&got, &want);
+        println!("relax {relax}: order {b}, CPU vs GPU relative L2 difference {d:.3e}");
+        assert_eq!(a, b);
+        assert!(d < 1e-4, "relax {relax}, order {b}: {d:.3e}");
+        orders.push(b);
+    }
+    // θ = 0.5: each order less multiplies the error by 8.
+    assert_eq!(orders, vec![3, 2, 1, 1]);
+    assert_eq!(gpu.applications, 4);
+}
