@@ -45,7 +45,7 @@ const SKIP_COST: u64 = 1;
 /// task's (a P2P task's sources are a few leaves').
 pub const SPLAT_ITEM_BUDGET: u64 = 1024;
 /// Cost of an M2L and a P2L task, and the budget of one node item (128 M2L tasks: at 1M
-/// splats a node receives 51 on average).
+/// splats a node receives 58 on average).
 const M2L_COST: u64 = 4;
 const P2L_COST: u64 = 1;
 pub const NODE_ITEM_BUDGET: u64 = 512;
