@@ -44,6 +44,9 @@ pub const BASIS_STUB_WGSL: &str = include_str!("../../../shaders/fmm/basis.wgsl"
 const GROUP: u32 = 64;
 /// Storage buffers the kernels bind.
 const STORAGE_BINDINGS: u32 = 11;
+/// Bindings of the task arrays, bound in windows (fmm.wgsl `node_tasks`, `splat_tasks`).
+const NODE_TASKS: usize = 5;
+const SPLAT_TASKS: usize = 6;
 /// Highest order the kernels are generated for: the M2L code grows as the number of terms,
 /// (p+1)…(p+6)/720 (3003 at order 8), and so do compile time and register pressure.
 pub const MAX_ORDER: usize = 8;
@@ -291,16 +294,6 @@ pub struct GpuParams {
     pub pad: u32,
 }
 
-/// The kernels' loop bounds on an llvmpipe invocation group for a plan
-/// ([`Work::loop_bounds`]): what must stay within its 65535 iterations.
-pub fn loop_bounds(
-    tree: &Tree,
-    points: &Points,
-    plan: &Plan,
-) -> Result<Vec<(&'static str, u64)>, String> {
-    Ok(Work::new(tree, points, plan)?.loop_bounds(tree, SOFTWARE_LANES))
-}
-
 /// Errs when a kernel may loop more often per invocation group than `adapter` (a software
 /// one) allows.
 fn check_loop_bounds(adapter: &str, bounds: &[(&'static str, u64)]) -> Result<(), String> {
@@ -340,7 +333,8 @@ pub struct GpuFmm {
     /// downward one; each dispatch waits for the device, so these are device times on llvmpipe
     /// and close to them elsewhere).
     pub times: PhaseTimes,
-    /// [`loop_bounds`] of the plan: the most loop iterations of one invocation group per kernel.
+    /// [`Work::loop_bounds`] of the plan on llvmpipe's groups: the most loop iterations of one
+    /// invocation group per kernel.
     pub loop_bounds: Vec<(&'static str, u64)>,
     /// Work items: splat items (active splats), node items (compact nodes), spare expansions.
     pub items: (usize, usize, u32),
@@ -446,6 +440,8 @@ impl GpuFmm {
             .collect();
         let work = Work::new(tree, points, plan)?;
         let field_bytes = (n * 12) as u64;
+        // The outputs, then the splat items' partial sums (12 bytes each, as the outputs).
+        let out_bytes = field_bytes + 12 * work.splat_items.len() as u64;
         let loop_bounds = work.loop_bounds(tree, SOFTWARE_LANES);
         if ctx.is_software() {
             check_loop_bounds(&ctx.info.name, &loop_bounds)?;
@@ -499,10 +495,7 @@ impl GpuFmm {
             ("tree nodes", bytes(&slots)),
             ("tree lists", bytes(&lists)),
             ("spare local expansions", spare_bytes),
-            (
-                "outputs with the partial sums",
-                field_bytes + bytes(&work.splat_items) * 3 / 4,
-            ),
+            ("outputs with the partial sums", out_bytes),
         ] {
             if size > binding_limit {
                 return Err(format!(
@@ -574,19 +567,13 @@ impl GpuFmm {
         let local_buf = ctx
             .output("fmm local expansions", expansion_bytes)
             .map_err(err)?;
-        // Outputs, then the splat items' partial sums (12 bytes each, as the outputs).
-        let out_buf = ctx
-            .output(
-                "fmm output",
-                field_bytes + 12 * work.splat_items.len() as u64,
-            )
-            .map_err(err)?;
+        let out_buf = ctx.output("fmm output", out_bytes).map_err(err)?;
         let spare_buf = ctx
             .output("fmm spare local expansions", spare_bytes)
             .map_err(err)?;
 
         // The dispatches of one application, each with its uniform.
-        // A step's window: the binding (5 node tasks, 6 splat tasks) and its record range.
+        // A step's window: the task array's binding and the window's record range.
         let mut steps = Vec::new();
         let mut step = |phase: Phase, first: u32, count: u32, window: Option<(usize, u64, u64)>| {
             if count == 0 {
@@ -607,25 +594,16 @@ impl GpuFmm {
         for &(first, count) in &m2m_levels {
             step(Phase::M2m, first, count, None);
         }
+        let window = |at: usize, w: &gpu_work::Window| Some((at, w.base as u64, w.end as u64));
         for w in &node_windows {
-            step(
-                Phase::M2l,
-                w.first,
-                w.count,
-                Some((5, w.base as u64, w.end as u64)),
-            );
+            step(Phase::M2l, w.first, w.count, window(NODE_TASKS, w));
         }
         step(Phase::M2lGather, 0, work.node_gathers.len() as u32, None);
         for &(first, count) in &l2l_levels {
             step(Phase::L2l, first, count, None);
         }
         for w in &splat_windows {
-            step(
-                Phase::Splat,
-                w.first,
-                w.count,
-                Some((6, w.base as u64, w.end as u64)),
-            );
+            step(Phase::Splat, w.first, w.count, window(SPLAT_TASKS, w));
         }
         step(Phase::Gather, 0, n as u32, None);
         let dispatches = steps.len();
@@ -633,12 +611,12 @@ impl GpuFmm {
         // Binding, record size and records of the two task arrays.
         let task_arrays = [
             (
-                5,
+                NODE_TASKS,
                 std::mem::size_of::<NodeTask>() as u64,
                 plan.node_tasks.len() as u64,
             ),
             (
-                6,
+                SPLAT_TASKS,
                 std::mem::size_of::<gpu_work::SplatTask>() as u64,
                 work.splat_tasks.len() as u64,
             ),
@@ -721,10 +699,6 @@ impl GpuFmm {
 }
 
 impl crate::Operator for GpuFmm {
-    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String> {
-        self.apply_relaxed(radiance, out, 1.0).map(|_| ())
-    }
-
     fn apply_relaxed(
         &mut self,
         radiance: &[[f32; 3]],

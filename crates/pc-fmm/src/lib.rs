@@ -34,10 +34,6 @@ pub struct CpuOperator<'a> {
 }
 
 impl Operator for CpuOperator<'_> {
-    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String> {
-        // (No relaxation: the configured order.)
-        self.apply_relaxed(radiance, out, 1.0).map(|_| ())
-    }
     fn apply_relaxed(
         &mut self,
         radiance: &[[f32; 3]],

@@ -23,7 +23,10 @@ use crate::tree::Points;
 
 /// Anything that applies the transport operator `out_i = Σ_j f K(i, j) A_j L_j`.
 pub trait Operator {
-    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String>;
+    /// One application at the configured order.
+    fn apply(&mut self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), String> {
+        self.apply_relaxed(radiance, out, 1.0).map(|_| ())
+    }
     /// An application whose error may be up to `relax` (≥ 1) times [`Operator::apply`]'s: an
     /// operator with cheaper, coarser forms takes the cheapest within it (relaxed products of
     /// inexact Krylov methods, docs/fmm.md). Returns the expansion order used.
@@ -32,11 +35,7 @@ pub trait Operator {
         radiance: &[[f32; 3]],
         out: &mut [[f32; 3]],
         relax: f64,
-    ) -> Result<u32, String> {
-        let _ = relax;
-        self.apply(radiance, out)?;
-        Ok(self.order())
-    }
+    ) -> Result<u32, String>;
     /// The expansion order of [`Operator::apply`].
     fn order(&self) -> u32;
     /// What runs it, for reports.
