@@ -9,21 +9,16 @@
 use bytemuck::{Pod, Zeroable};
 use pc_artifact::octree::MaterialRecord;
 use pc_artifact::photons::Photon;
-use pc_gpu::{compose, grid, Binding, GpuContext, GpuError, Kernel};
+use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::OctreeView;
 
 use crate::emit::{Aim, Leaves, Source};
 use crate::stage::Traced;
 use crate::trace::Fate;
 
-/// The kernel's source: shared octree, traversal and optics code, then the kernel.
-pub fn source() -> String {
-    compose(&[
-        pc_tree::gpu::COMMON_OCTREE_WGSL,
-        pc_tree::gpu::COMMON_TRAVERSE_WGSL,
-        pc_tree::gpu::COMMON_OPTICS_WGSL,
-        include_str!("../../../shaders/caustics/photons.wgsl"),
-    ])
+/// The kernel's source (`shaders/caustics/photons.wgsl` with the files it requires).
+pub fn source() -> Result<String, GpuError> {
+    pc_gpu::shaders::source("caustics/photons.wgsl")
 }
 
 /// Photon ids per dispatch.
@@ -103,7 +98,7 @@ impl GpuTracer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
-        let kernel = ctx.kernel("caustics/photons", &source(), "main", &b)?;
+        let kernel = ctx.kernel("caustics/photons", &source()?, "main", &b)?;
         let gl: Vec<GpuLeaf> = leaves
             .leaves
             .iter()
@@ -247,7 +242,7 @@ mod tests {
     /// The kernel validates, and its records have the sizes and offsets of the Rust ones.
     #[test]
     fn wgsl_records_match_rust_layouts() {
-        let module = pc_gpu::validate_wgsl(&source()).unwrap();
+        let module = pc_gpu::validate_wgsl(&source().unwrap()).unwrap();
         for (name, size) in [
             ("Leaf", std::mem::size_of::<GpuLeaf>()),
             ("Aim", std::mem::size_of::<GpuAim>()),

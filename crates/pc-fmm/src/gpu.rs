@@ -27,7 +27,7 @@ use std::fmt::Write as _;
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
-use pc_gpu::{compose, grid, Bind, Binding, GpuContext};
+use pc_gpu::{grid, Bind, Binding, GpuContext, GpuError};
 
 use crate::cpu::PhaseTimes;
 use crate::expansion::{Basis, NONE as BASIS_NONE, SYM_IJ};
@@ -35,10 +35,10 @@ use crate::gpu_work::{self, Work};
 use crate::plan::{NodeTask, Plan};
 use crate::tree::{Points, Tree, NONE};
 
-/// The kernels' source (entry points `p2m`, `m2m`, `m2l`, `l2l`, `splat`).
-pub const FMM_WGSL: &str = include_str!("../../../shaders/fmm/fmm.wgsl");
+/// The kernels' file (entry points `p2m`, `m2m`, `m2l`, `l2l`, `splat`), below `shaders/`.
+pub const FMM_WGSL: &str = "fmm/fmm.wgsl";
 /// The stand-in for [`basis_wgsl`] (order 4, empty bodies) that lets fmm.wgsl validate alone.
-pub const BASIS_STUB_WGSL: &str = include_str!("../../../shaders/fmm/basis.wgsl");
+pub const BASIS_STUB_WGSL: &str = "fmm/basis.wgsl";
 
 /// Threads per workgroup of every entry point (`@workgroup_size(64)`).
 const GROUP: u32 = 64;
@@ -257,9 +257,10 @@ pub fn basis_wgsl(basis: &Basis) -> String {
     s
 }
 
-/// The kernels' full source for a basis.
-pub fn source(basis: &Basis) -> String {
-    compose(&[&basis_wgsl(basis), FMM_WGSL])
+/// The kernels' full source for a basis: fmm.wgsl with the basis of its order in place of the
+/// stand-in.
+pub fn source(basis: &Basis) -> Result<String, GpuError> {
+    pc_gpu::shaders::source_with(FMM_WGSL, &[(BASIS_STUB_WGSL, &basis_wgsl(basis))])
 }
 
 /// Per node-pool slot record (WGSL `Node`).
@@ -511,7 +512,7 @@ impl GpuFmm {
         // first use. A lower order's expansions are a prefix of the configured one's in size,
         // so the same buffers serve (each order's kernels address them with their own stride).
         let compile = move |ctx: &GpuContext, order: usize| {
-            let src = source(&Basis::new(order));
+            let src = source(&Basis::new(order)).map_err(err)?;
             ENTRIES
                 .iter()
                 .map(|e| ctx.kernel(&format!("fmm/{e}/order {order}"), &src, e, &b))
@@ -737,48 +738,23 @@ mod tests {
     fn the_stub_declares_what_the_generator_writes() {
         let generated = basis_wgsl(&Basis::new(4));
         assert_eq!(
-            declarations(BASIS_STUB_WGSL),
+            declarations(pc_gpu::shaders::file(BASIS_STUB_WGSL).unwrap()),
             declarations(&generated),
             "shaders/fmm/basis.wgsl must declare what gpu::basis_wgsl writes, with order 4's sizes"
-        );
-    }
-
-    /// What crates/pc-gpu/tests/shaders.rs checks, for shaders/fmm: every file validates composed
-    /// with the files its `// requires:` line names.
-    #[test]
-    fn shader_files_validate_with_their_requirements() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
-        for f in ["fmm/basis.wgsl", "fmm/fmm.wgsl"] {
-            let src = std::fs::read_to_string(root.join(f)).unwrap();
-            let first = src.lines().next().unwrap();
-            let deps = first
-                .strip_prefix("// requires:")
-                .expect("a `// requires:` first line");
-            let mut parts: Vec<String> = deps
-                .split_whitespace()
-                .map(|d| std::fs::read_to_string(root.join(d)).unwrap())
-                .collect();
-            parts.push(src);
-            let refs: Vec<&str> = parts.iter().map(String::as_str).collect();
-            pc_gpu::validate_wgsl(&compose(&refs)).unwrap_or_else(|e| panic!("{f}: {e}"));
-        }
-        assert_eq!(
-            FMM_WGSL,
-            std::fs::read_to_string(root.join("fmm/fmm.wgsl")).unwrap()
         );
     }
 
     #[test]
     fn kernels_validate_at_every_order() {
         for order in 0..=MAX_ORDER {
-            pc_gpu::validate_wgsl(&source(&Basis::new(order)))
+            pc_gpu::validate_wgsl(&source(&Basis::new(order)).unwrap())
                 .unwrap_or_else(|e| panic!("order {order}: {e}"));
         }
     }
 
     #[test]
     fn records_match_their_wgsl_twins() {
-        let m = pc_gpu::validate_wgsl(&source(&Basis::new(2))).unwrap();
+        let m = pc_gpu::validate_wgsl(&source(&Basis::new(2)).unwrap()).unwrap();
         let (size, members) = pc_gpu::wgsl_struct_layout(&m, "Node").unwrap();
         assert_eq!(size as usize, std::mem::size_of::<GpuNode>());
         assert_eq!(members[1], ("compact".to_string(), 12));

@@ -1,11 +1,13 @@
 //! The one crate that owns the GPU: wgpu instance, adapter and device, kernel pipelines, buffers.
 //!
-//! Stage crates get a [`GpuContext`] and build [`Kernel`]s from WGSL sources composed with
-//! [`compose`] (shared code from `shaders/common/` first). Every kernel has a CPU twin in its
+//! Stage crates get a [`GpuContext`] and build [`Kernel`]s from WGSL sources composed by
+//! [`shaders::source`] (a kernel's `// requires:` line names its shared files). Every kernel has a CPU twin in its
 //! stage crate; tests hold the two together. [`test_context`] is how tests get a device: with
 //! `PC_REQUIRE_GPU=1` a missing adapter fails the test instead of skipping it.
 
 use std::sync::mpsc;
+
+pub mod shaders;
 
 use wgpu::util::DeviceExt;
 
@@ -417,16 +419,6 @@ pub fn grid(n: u32, group_size: u32) -> (u32, u32, u32) {
     } else {
         (65535, groups.div_ceil(65535), 1)
     }
-}
-
-/// Concatenate WGSL parts (shared code from `shaders/common/` first, the kernel last).
-pub fn compose(parts: &[&str]) -> String {
-    let mut s = String::new();
-    for p in parts {
-        s.push_str(p);
-        s.push('\n');
-    }
-    s
 }
 
 /// Parse and validate WGSL with naga; the error is naga's report.

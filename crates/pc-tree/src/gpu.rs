@@ -2,24 +2,13 @@
 //! [`OctreeView::occluded`]. Shared by every stage that casts rays in bulk.
 
 use bytemuck::{Pod, Zeroable};
-use pc_gpu::{compose, grid, Binding, GpuContext, GpuError, Kernel};
+use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 
 use crate::{OctreeView, Ray};
 
-/// Shared WGSL: octree records, point location, traversal.
-pub const COMMON_OCTREE_WGSL: &str = include_str!("../../../shaders/common/octree.wgsl");
-pub const COMMON_TRAVERSE_WGSL: &str = include_str!("../../../shaders/common/traverse.wgsl");
-/// Shared WGSL: materials, random numbers, disk sampling, normal fields, the specular bounce
-/// (twin of [`crate::optics`] and [`crate::rng`]).
-pub const COMMON_OPTICS_WGSL: &str = include_str!("../../../shaders/common/optics.wgsl");
-
-/// The cast kernel's source.
-pub fn cast_source() -> String {
-    compose(&[
-        COMMON_OCTREE_WGSL,
-        COMMON_TRAVERSE_WGSL,
-        include_str!("../../../shaders/tree/cast.wgsl"),
-    ])
+/// The cast kernel's source (`shaders/tree/cast.wgsl` with the files it requires).
+pub fn cast_source() -> Result<String, GpuError> {
+    pc_gpu::shaders::source("tree/cast.wgsl")
 }
 
 /// One ray as the kernel reads it (WGSL `RayIn`).
@@ -71,7 +60,7 @@ impl RayCaster {
             Binding::Uniform,
             Binding::ReadWrite,
         ];
-        let kernel = ctx.kernel("tree/cast", &cast_source(), "main", &b)?;
+        let kernel = ctx.kernel("tree/cast", &cast_source()?, "main", &b)?;
         let tree = [
             ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
             ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,

@@ -1,15 +1,12 @@
 //! Point location on the GPU: `shaders/octree/locate.wgsl`, twin of `pc_tree::OctreeView::locate`.
 
 use glam::Vec3;
-use pc_gpu::{compose, grid, Binding, GpuContext, GpuError, Kernel};
+use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::{Located, OctreeView};
 
-/// The kernel's source: shared octree code first, then the kernel.
-pub fn source() -> String {
-    compose(&[
-        super::COMMON_OCTREE_WGSL,
-        include_str!("../../../../shaders/octree/locate.wgsl"),
-    ])
+/// The kernel's source (`shaders/octree/locate.wgsl` with the files it requires).
+pub fn source() -> Result<String, GpuError> {
+    pc_gpu::shaders::source("octree/locate.wgsl")
 }
 
 /// A compiled point-location kernel.
@@ -26,7 +23,7 @@ impl LocateKernel {
             Binding::ReadWrite,
         ];
         Ok(LocateKernel {
-            kernel: ctx.kernel("octree/locate", &source(), "main", &bindings)?,
+            kernel: ctx.kernel("octree/locate", &source()?, "main", &bindings)?,
         })
     }
 

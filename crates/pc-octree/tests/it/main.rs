@@ -371,7 +371,7 @@ fn gpu_point_location_matches_cpu() {
 
 #[test]
 fn wgsl_records_match_rust_layouts() {
-    let src = pc_octree::gpu::locate::source();
+    let src = pc_octree::gpu::locate::source().unwrap();
     let module = pc_gpu::validate_wgsl(&src).unwrap();
     let (size, members) = pc_gpu::wgsl_struct_layout(&module, "Splat").unwrap();
     assert_eq!(size as usize, std::mem::size_of::<Splat>());

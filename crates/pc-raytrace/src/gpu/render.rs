@@ -5,20 +5,15 @@
 //! for seconds).
 
 use bytemuck::{Pod, Zeroable};
-use pc_gpu::{compose, Binding, GpuContext, GpuError, Kernel};
+use pc_gpu::{Binding, GpuContext, GpuError, Kernel};
 
 use crate::caustic::PhotonGrid;
 use crate::image::{Aovs, Image};
 use crate::scene::{Params, RenderScene};
 
-/// The kernel's source: shared octree and traversal code, then the kernel.
-pub fn source() -> String {
-    compose(&[
-        pc_tree::gpu::COMMON_OCTREE_WGSL,
-        pc_tree::gpu::COMMON_TRAVERSE_WGSL,
-        pc_tree::gpu::COMMON_OPTICS_WGSL,
-        include_str!("../../../../shaders/raytrace/render.wgsl"),
-    ])
+/// The kernel's source (`shaders/raytrace/render.wgsl` with the files it requires).
+pub fn source() -> Result<String, GpuError> {
+    pc_gpu::shaders::source("raytrace/render.wgsl")
 }
 
 /// One output pixel (WGSL `PixelOut`).
@@ -63,7 +58,7 @@ impl GpuRenderer {
                 ),
             });
         }
-        let kernel = ctx.kernel("raytrace/render", &source(), "main", &b)?;
+        let kernel = ctx.kernel("raytrace/render", &source()?, "main", &b)?;
         let v = &sc.view;
         let emitters: Vec<[u32; 2]> = sc
             .emitters

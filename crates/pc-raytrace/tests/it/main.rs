@@ -315,7 +315,7 @@ fn cpu_and_gpu_render_the_same_image() {
 
 #[test]
 fn wgsl_records_match_rust_layouts() {
-    let module = pc_gpu::validate_wgsl(&pc_raytrace::gpu::render::source()).unwrap();
+    let module = pc_gpu::validate_wgsl(&pc_raytrace::gpu::render::source().unwrap()).unwrap();
     for (name, size) in [
         ("Params", std::mem::size_of::<pc_raytrace::scene::Params>()),
         (
