@@ -75,8 +75,14 @@ struct PixelOut {
 @group(0) @binding(9) var<storage, read> emitters: array<vec2<u32>>;
 @group(0) @binding(10) var<uniform> params: Params;
 @group(0) @binding(11) var<storage, read_write> out_pixels: array<PixelOut>;
-// Per splat outgoing diffuse radiance (xyz) when params.stored_radiance == 1.
-@group(0) @binding(12) var<storage, read> radiance: array<vec4<f32>>;
+// Per splat outgoing diffuse radiance (RGB, three floats per splat, as the radiosity artifact
+// holds it) when params.stored_radiance == 1.
+@group(0) @binding(12) var<storage, read> radiance: array<f32>;
+
+// The stored radiance of splat j.
+fn stored_radiance(j: u32) -> vec3<f32> {
+    return vec3<f32>(radiance[3u * j], radiance[3u * j + 1u], radiance[3u * j + 2u]);
+}
 // The photons sorted by hash bucket, and each bucket's first photon (params.grid_mask + 2 entries).
 @group(0) @binding(13) var<storage, read> photons: array<Photon>;
 @group(0) @binding(14) var<storage, read> grid_offsets: array<u32>;
@@ -333,7 +339,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
                 wsum = wsum + wgt;
                 albedo = albedo + wgt * mj.color * sj.albedo;
                 if params.stored_radiance == 1u {
-                    emit = emit + wgt * radiance[j].xyz;
+                    emit = emit + wgt * stored_radiance(j);
                 } else if mj.class_id == CLASS_EMITTER {
                     emit = emit + wgt * mj.radiance;
                 }
@@ -345,7 +351,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             albedo = m.color * s.albedo;
             emit = vec3<f32>(0.0);
             if params.stored_radiance == 1u {
-                emit = radiance[hit.splat].xyz;
+                emit = stored_radiance(hit.splat);
             } else if m.class_id == CLASS_EMITTER {
                 emit = m.radiance;
             }

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use pc_scene::ply_write::PlyFormat;
+use pc_import::ply_write::PlyFormat;
 use pcgi_tests::{
     args, assert_nothing_written, pc_inspect, pc_octree, temp_dir, write_pipeline, Grid, Vec3,
 };

@@ -113,7 +113,7 @@ fn exported_views_are_ply_files_and_splats_round_trip() {
         let points = pcgi_tests::count_before(&out.stdout, "points")
             .unwrap_or_else(|| panic!("no point count: {out:?}"));
         assert!(points > 0, "{out:?}");
-        let read = pc_scene::ply::read_ply(&ply, &Default::default())
+        let read = pc_import::ply::read_ply(&ply, &Default::default())
             .unwrap_or_else(|e| panic!("{view} view: {e}"));
         assert_eq!(read.positions.len() as u64, points, "{view} view");
     }

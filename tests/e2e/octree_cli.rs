@@ -180,19 +180,30 @@ fn a_failure_while_writing_keeps_the_old_artifact() {
     let dir = temp_dir();
     let (cfg, artifact) = crate::small_artifact(dir.path());
     let first = std::fs::read(&artifact).unwrap();
-    // The writer's temporary file cannot be created: the failure comes after the build, at
-    // the write, the latest point where an in-place writer would already have done damage.
-    let tmp = dir.path().join("out").join("octree.pcgi.tmp");
-    std::fs::create_dir(&tmp).unwrap();
-    let err = pc_octree(args![
-        "--config",
-        cfg,
-        "--quiet",
-        "--set",
-        "octree.max_leaf_points=2"
-    ])
-    .error(&["octree.pcgi.tmp"]);
-    assert!(err.contains("directory"), "the OS reason is shown: {err}");
+    // The disk fills up during the write (files may grow to 4 KiB): the failure comes after the
+    // build, at the write, the latest point where an in-place writer would already have done
+    // damage.
+    let err = pcgi_tests::run_with_file_limit(
+        &pcgi_tests::bin("pc-octree"),
+        args![
+            "--config",
+            cfg,
+            "--quiet",
+            "--set",
+            "octree.max_leaf_points=2"
+        ],
+        4096,
+    )
+    .error(&["octree.pcgi.", ".tmp"]);
+    assert!(
+        err.contains("File too large"),
+        "the OS reason is shown: {err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path().join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, ["octree.pcgi"], "the temporary file is removed");
     assert_eq!(
         std::fs::read(&artifact).unwrap(),
         first,

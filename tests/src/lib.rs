@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use pc_scene::ply_write::{write_ply, PlyFormat, PlyPoints};
+use pc_import::ply_write::{write_ply, PlyFormat, PlyPoints};
 
 pub use glam::Vec3;
 
@@ -31,7 +31,7 @@ macro_rules! args {
 const BIN_PACKAGES: [&str; 8] = [
     "pc-octree",
     "pc-inspect",
-    "pc-scene",
+    "pc-sample",
     "pc-raytrace",
     "pc-vmap",
     "pc-fmm",
@@ -196,6 +196,49 @@ where
     cmd.args(&args);
     if let Some(dir) = cwd {
         cmd.current_dir(dir);
+    }
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", bin.display()));
+    let line = std::iter::once(bin.as_os_str())
+        .chain(args.iter().map(|a| a.as_os_str()))
+        .map(|a| a.to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join(" ");
+    Output {
+        cmd: line,
+        code: out.status.code(),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+/// Run `bin` with `args` as a process whose files may grow to `limit` bytes at most
+/// (`RLIMIT_FSIZE`, with `SIGXFSZ` ignored so a write past it fails with EFBIG, "File too
+/// large"): what a full disk looks like to a writer.
+#[cfg(unix)]
+pub fn run_with_file_limit<I, S>(bin: &Path, args: I, limit: u64) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    use std::os::unix::process::CommandExt;
+    let args: Vec<std::ffi::OsString> = args.into_iter().map(|a| a.as_ref().into()).collect();
+    let mut cmd = Command::new(bin);
+    cmd.args(&args);
+    // SAFETY: between fork and exec the closure only makes two async-signal-safe calls.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: limit as libc::rlim_t,
+                rlim_max: limit as libc::rlim_t,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            Ok(())
+        });
     }
     let out = cmd
         .output()
@@ -400,4 +443,20 @@ pub fn count_before(text: &str, word: &str) -> Option<u64> {
         .windows(2)
         .find(|w| w[1] == word)
         .and_then(|w| w[0].parse().ok())
+}
+
+/// The decoded 8-bit pixels of a PNG file (what it shows, whatever chunks it carries besides).
+pub fn png_pixels(path: &Path) -> Vec<u8> {
+    let file = std::io::BufReader::new(
+        std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())),
+    );
+    let mut reader = png::Decoder::new(file)
+        .read_info()
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut buf = vec![0; reader.output_buffer_size().expect("a sized image")];
+    let info = reader
+        .next_frame(&mut buf)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    buf.truncate(info.buffer_size());
+    buf
 }

@@ -57,7 +57,7 @@
 //! buffer without conversion.
 
 use std::fmt;
-use std::fs::{self, File, OpenOptions};
+use std::fs::File;
 use std::io::{self, BufWriter, Seek, SeekFrom, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -67,6 +67,7 @@ use memmap2::Mmap;
 use serde::{Deserialize, Serialize};
 use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
+use crate::atomic::AtomicFile;
 use crate::error::{ArtifactError, METADATA_REGION, TABLE_REGION};
 use crate::key::Key;
 use crate::kind::ArtifactKind;
@@ -212,32 +213,18 @@ fn now_unix() -> u64 {
         .unwrap_or(0)
 }
 
-/// `NAME.tmp` beside `NAME`.
-fn tmp_path_for(path: &Path) -> Option<PathBuf> {
-    let mut name = path.file_name()?.to_os_string();
-    name.push(".tmp");
-    Some(path.with_file_name(name))
-}
-
-/// The folder holding `path`, `.` for a bare file name.
-fn parent_dir(path: &Path) -> &Path {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    }
-}
-
 // ---------------------------------------------------------------------------------------------
 // Writer
 // ---------------------------------------------------------------------------------------------
 
-/// Writes one artifact atomically: everything goes to `NAME.tmp` in the same folder, and
+/// Writes one artifact atomically ([`crate::atomic::AtomicFile`]): everything goes to a
+/// temporary file `NAME.<pid>.<unique>.tmp` in the same folder, and
 /// [`finish`](ArtifactWriter::finish) fsyncs it and renames it over `NAME`.
 ///
 /// A reader never sees a half-written artifact, and a crash (or an error, or dropping the
 /// writer without calling `finish`) leaves any older artifact at `NAME` as it was; dropping an
-/// unfinished writer deletes `NAME.tmp`. Two writers for the same path at the same time are not
-/// supported (they share the temporary file).
+/// unfinished writer deletes its temporary file. Two writers of the same path each write their
+/// own temporary file; the last to finish wins, and either result is complete.
 ///
 /// ```no_run
 /// # use pc_artifact::{ArtifactWriter, ArtifactKind, KeyHasher};
@@ -252,7 +239,10 @@ fn parent_dir(path: &Path) -> &Path {
 pub struct ArtifactWriter {
     path: PathBuf,
     tmp_path: PathBuf,
+    /// A second handle to `out`'s temporary file, buffered (the header is written last, through
+    /// `out`'s own handle).
     file: Option<BufWriter<File>>,
+    out: Option<AtomicFile>,
     header: RawHeader,
     pos: u64,
     entries: Vec<RawEntry>,
@@ -274,7 +264,7 @@ impl fmt::Debug for ArtifactWriter {
 impl ArtifactWriter {
     /// Starts writing an artifact that [`finish`](ArtifactWriter::finish) will place at `path`.
     ///
-    /// Creates the parent folders and `<path>.tmp` (replacing a stale one). `stage` is the
+    /// Creates the parent folders and a fresh temporary file beside `path`. `stage` is the
     /// producing stage's name (1 to 32 bytes), `stage_version` its version (0 to 16 bytes),
     /// `key` the hash of the inputs and parameters the artifact is made from.
     pub fn create(
@@ -288,19 +278,11 @@ impl ArtifactWriter {
         let stage = encode_label::<MAX_STAGE_NAME>(&path, "stage name", stage, 1)?;
         let stage_version =
             encode_label::<MAX_STAGE_VERSION>(&path, "stage version", stage_version, 0)?;
-        let tmp_path = tmp_path_for(&path).ok_or_else(|| {
-            ArtifactError::io(
-                &path,
-                io::Error::new(io::ErrorKind::InvalidInput, "not a file path"),
-            )
-        })?;
-        let dir = parent_dir(&path);
-        fs::create_dir_all(dir).map_err(|e| ArtifactError::io(dir, e))?;
-        let file = OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(true)
-            .open(&tmp_path)
+        let mut out = AtomicFile::create(&path).map_err(|e| ArtifactError::io(&path, e))?;
+        let tmp_path = out.tmp_path().to_path_buf();
+        let file = out
+            .file()
+            .try_clone()
             .map_err(|e| ArtifactError::io(&tmp_path, e))?;
         let header = RawHeader {
             magic: MAGIC,
@@ -315,6 +297,7 @@ impl ArtifactWriter {
             path,
             tmp_path,
             file: Some(BufWriter::with_capacity(1 << 20, file)),
+            out: Some(out),
             header,
             pos: 0,
             entries: Vec::new(),
@@ -449,15 +432,11 @@ impl ArtifactWriter {
         file.seek(SeekFrom::Start(0)).map_err(io_err)?;
         file.write_all(bytemuck::bytes_of(&self.header))
             .map_err(io_err)?;
-        file.sync_all().map_err(io_err)?;
         drop(file);
-
-        fs::rename(&self.tmp_path, &self.path).map_err(|e| ArtifactError::io(&self.path, e))?;
+        // fsync, rename over the final path, fsync the folder.
+        let out = self.out.take().expect("present until finish");
+        out.commit().map_err(|e| ArtifactError::io(&self.path, e))?;
         self.finished = true;
-        // Make the rename itself durable. Not every platform can fsync a folder: best effort.
-        if let Ok(dir) = File::open(parent_dir(&self.path)) {
-            let _ = dir.sync_all();
-        }
         Ok(self.path.clone())
     }
 
@@ -480,11 +459,12 @@ impl Drop for ArtifactWriter {
     fn drop(&mut self) {
         if !self.finished {
             if let Some(buffered) = self.file.take() {
-                // Discard the buffer instead of flushing it into a file we are about to delete.
+                // Discard the buffer instead of flushing it into a file about to be deleted.
                 let (file, _unflushed) = buffered.into_parts();
                 drop(file);
             }
-            let _ = fs::remove_file(&self.tmp_path);
+            // Dropping the uncommitted `AtomicFile` deletes the temporary file.
+            self.out = None;
         }
     }
 }
@@ -578,6 +558,37 @@ impl Artifact {
         kind: ArtifactKind,
     ) -> Result<Artifact, ArtifactError> {
         Artifact::open_inner(path.as_ref(), Some(kind))
+    }
+
+    /// [`ArtifactError::WrongKind`] unless the artifact is of `kind`.
+    pub fn ensure_kind(&self, kind: ArtifactKind) -> Result<(), ArtifactError> {
+        if self.kind() == kind {
+            return Ok(());
+        }
+        Err(ArtifactError::WrongKind {
+            path: self.path.clone(),
+            expected: kind,
+            got: self.kind().name().to_owned(),
+        })
+    }
+
+    /// Like [`open_kind`](Artifact::open_kind) for a stage's input: a missing file is
+    /// [`ArtifactError::MissingInput`], which names the stage that makes the kind.
+    pub fn open_input(
+        path: impl AsRef<Path>,
+        kind: ArtifactKind,
+    ) -> Result<Artifact, ArtifactError> {
+        let path = path.as_ref();
+        Artifact::open_inner(path, Some(kind)).map_err(|e| match e {
+            ArtifactError::Io { path, source } if source.kind() == io::ErrorKind::NotFound => {
+                ArtifactError::MissingInput {
+                    path,
+                    stage: kind.stage(),
+                    source,
+                }
+            }
+            e => e,
+        })
     }
 
     fn open_inner(path: &Path, expected: Option<ArtifactKind>) -> Result<Artifact, ArtifactError> {
@@ -1050,18 +1061,6 @@ mod tests {
         assert_eq!(decode_label(p, "stage name", &full, 1).unwrap(), "abcd");
         assert!(decode_label(p, "stage name", b"ab\0c", 1).is_err());
         assert!(decode_label(p, "stage name", b"\xff\0\0\0", 1).is_err());
-    }
-
-    #[test]
-    fn tmp_paths() {
-        assert_eq!(
-            tmp_path_for(Path::new("out/a.octree")).unwrap(),
-            Path::new("out/a.octree.tmp")
-        );
-        assert_eq!(tmp_path_for(Path::new("a")).unwrap(), Path::new("a.tmp"));
-        assert!(tmp_path_for(Path::new("/")).is_none());
-        assert_eq!(parent_dir(Path::new("a")), Path::new("."));
-        assert_eq!(parent_dir(Path::new("out/a")), Path::new("out"));
     }
 
     #[test]

@@ -190,6 +190,29 @@ pub enum ArtifactError {
         got: Key,
     },
 
+    /// An input artifact does not exist: the stage that makes it has not run (or wrote
+    /// elsewhere).
+    #[error("{}: not found: run {stage} first to make it", .path.display())]
+    MissingInput {
+        path: PathBuf,
+        /// The stage that makes this kind of artifact.
+        stage: &'static str,
+        source: std::io::Error,
+    },
+
+    /// An input artifact was made from other inputs than the ones it is used with: another
+    /// octree, other lights, another size.
+    #[error("{}: stale {what}: {why}: rerun {rerun}", .path.display())]
+    Stale {
+        path: PathBuf,
+        /// What the artifact is, in words ("V-map", "photon map").
+        what: &'static str,
+        /// What disagrees.
+        why: String,
+        /// What to rerun.
+        rerun: String,
+    },
+
     /// A kind-specific structural check failed (reported by the crate that owns the kind).
     #[error("{}: {msg}", .path.display())]
     Invalid { path: PathBuf, msg: String },
@@ -238,6 +261,8 @@ impl ArtifactError {
             | ArtifactError::Cast { path, .. }
             | ArtifactError::Metadata { path, .. }
             | ArtifactError::StaleKey { path, .. }
+            | ArtifactError::MissingInput { path, .. }
+            | ArtifactError::Stale { path, .. }
             | ArtifactError::Invalid { path, .. }
             | ArtifactError::BadName { path, .. }
             | ArtifactError::BadLabel { path, .. } => path,

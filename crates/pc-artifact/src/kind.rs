@@ -41,6 +41,27 @@ impl ArtifactKind {
         }
     }
 
+    /// The stage that makes this kind ("pc-octree", ...).
+    pub fn stage(self) -> &'static str {
+        match self {
+            ArtifactKind::Octree => "pc-octree",
+            ArtifactKind::Vmap => "pc-vmap",
+            ArtifactKind::Photons => "pc-caustics",
+            ArtifactKind::Radiosity => "pc-fmm",
+        }
+    }
+
+    /// What the kind holds, in words for messages ("octree", "V-map", "photon map",
+    /// "radiosity").
+    pub fn what(self) -> &'static str {
+        match self {
+            ArtifactKind::Octree => "octree",
+            ArtifactKind::Vmap => "V-map",
+            ArtifactKind::Photons => "photon map",
+            ArtifactKind::Radiosity => "radiosity",
+        }
+    }
+
     /// The number stored in the header.
     pub fn as_u32(self) -> u32 {
         self as u32

@@ -11,7 +11,9 @@ pub mod container;
 pub mod error;
 pub mod key;
 pub mod kind;
+pub mod light;
 pub mod octree;
+pub mod params;
 pub mod photons;
 pub mod radiosity;
 pub mod vmap;
@@ -25,3 +27,4 @@ pub use container::{
 pub use error::{ArtifactError, METADATA_REGION, TABLE_REGION};
 pub use key::{build_id, Key, KeyHasher};
 pub use kind::ArtifactKind;
+pub use light::PointLight;

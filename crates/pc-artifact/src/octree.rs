@@ -17,7 +17,11 @@
 //! | `materials`  | [`MaterialRecord`] | the material table that `Splat::material` indexes |
 //! | `frame`      | [`Frame`]      | one record: the root cube and the tree parameters |
 
+use std::path::Path;
+
 use bytemuck::{Pod, Zeroable};
+
+use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 /// Section names of an octree artifact.
 pub mod sections {
@@ -249,6 +253,25 @@ pub fn tangent_frame(n: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     (u, v)
 }
 
+/// What an octree build produced, besides its sections (pc-octree's build returns it, the
+/// artifact's metadata stores it, pc-inspect prints it).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct OctreeStats {
+    pub splats: u64,
+    pub nodes: u64,
+    pub leaves: u64,
+    pub empty_nodes: u64,
+    /// Leaves without own splats that exist only because neighbouring disks reach into them.
+    pub ref_leaves: u64,
+    /// Splat references added to leaves other than the owner (§8.5.13).
+    pub extra_refs: u64,
+    pub depth: u32,
+    /// Leaves at the maximum depth that still exceed k or mix classes.
+    pub leaves_at_max_depth: u64,
+    /// Wall-clock seconds per build phase, in order.
+    pub timings: Vec<(String, f64)>,
+}
+
 /// Metadata stored with an octree artifact (MessagePack).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
 pub struct OctreeMeta {
@@ -256,19 +279,9 @@ pub struct OctreeMeta {
     pub config: String,
     /// Input PLY files with their content hashes.
     pub inputs: Vec<InputFile>,
-    pub max_leaf_points: u32,
-    pub max_depth: u32,
-    pub splats: u64,
-    pub nodes: u64,
-    pub leaves: u64,
-    pub empty_nodes: u64,
-    pub ref_leaves: u64,
-    pub extra_refs: u64,
-    pub depth: u32,
-    pub leaves_at_max_depth: u64,
+    pub params: crate::params::OctreeParams,
+    pub stats: OctreeStats,
     pub material_names: Vec<String>,
-    /// Wall-clock seconds per build phase, in order.
-    pub timings: Vec<(String, f64)>,
     pub dropped_points: u64,
 }
 
@@ -278,6 +291,246 @@ pub struct InputFile {
     pub path: String,
     pub bytes: u64,
     pub hash: String,
+}
+
+/// The node a point falls in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Located {
+    /// Node-pool index of the leaf or empty node.
+    pub slot: u32,
+    /// The node word itself.
+    pub node: u32,
+    /// Its depth (root = 0).
+    pub depth: u32,
+}
+
+/// Borrowed sections of an octree (from a mapped artifact or built in memory). Every stage
+/// that walks the tree reads it through this view; pc-tree adds the traversals.
+///
+/// Point location is the `p·N − int(p·N)` descent of seed §8.5.11, written so that the WGSL
+/// twin in `shaders/common/octree.wgsl` rounds exactly the same way: the normalised coordinate
+/// is `(p − origin) · inv_size` (one correctly rounded subtraction and multiplication per
+/// axis), and each step `t = 2q; c = floor(t); q = t − c` is exact in binary floating point.
+#[derive(Clone, Copy, Debug)]
+pub struct OctreeView<'a> {
+    pub frame: Frame,
+    pub nodes: &'a [u32],
+    pub begin_end: &'a [u32],
+    pub splats: &'a [Splat],
+    pub node_info: &'a [NodeInfo],
+    pub splat_area: &'a [f32],
+    /// Node-pool index of the leaf that owns each splat.
+    pub splat_leaf: &'a [u32],
+}
+
+impl<'a> OctreeView<'a> {
+    /// The sections of an octree artifact, cast but not yet checked ([`OctreeView::check`]).
+    fn sections(a: &'a Artifact) -> Result<OctreeView<'a>, ArtifactError> {
+        let frame = *a
+            .section::<Frame>(sections::FRAME)?
+            .first()
+            .ok_or_else(|| a.invalid("the `frame` section is empty"))?;
+        Ok(OctreeView {
+            frame,
+            nodes: a.section(sections::NODES)?,
+            begin_end: a.section(sections::BEGIN_END)?,
+            splats: a.section(sections::SPLATS)?,
+            node_info: a.section(sections::NODE_INFO)?,
+            splat_area: a.section(sections::SPLAT_AREA)?,
+            splat_leaf: a.section(sections::SPLAT_LEAF)?,
+        })
+    }
+
+    /// Structural checks (every pointer in bounds, the begin/end table consistent, the frame
+    /// finite), so traversals can index without panicking; the message says what is wrong.
+    pub fn check(&self) -> Result<(), String> {
+        let n_nodes = self.nodes.len();
+        let n_splats = self.splats.len() as u64;
+        if n_nodes == 0 || !(n_nodes - 1).is_multiple_of(8) {
+            return Err(format!("node pool has {n_nodes} nodes; expected 1 + 8·m"));
+        }
+        if self.node_info.len() != n_nodes {
+            return Err(format!(
+                "node_info has {} records for {n_nodes} nodes",
+                self.node_info.len()
+            ));
+        }
+        if self.splat_area.len() as u64 != n_splats || self.splat_leaf.len() as u64 != n_splats {
+            return Err("splat_area / splat_leaf lengths differ from the data pool".into());
+        }
+        let f = &self.frame;
+        if !(f.size > 0.0 && f.size.is_finite() && f.inv_size.is_finite())
+            || !f.origin.iter().all(|x| x.is_finite())
+            || f.splat_count as u64 != n_splats
+        {
+            return Err("frame record disagrees with the sections".into());
+        }
+        if f.max_depth > 21 {
+            return Err(format!("max depth {} exceeds 21", f.max_depth));
+        }
+        for (i, &w) in self.nodes.iter().enumerate() {
+            if node::is_empty(w) {
+                continue;
+            }
+            if node::is_leaf(w) {
+                let (b, e, refs) = BeginEnd::leaf(self.begin_end, node::ptr(w))
+                    .ok_or_else(|| format!("leaf {i} points outside the begin/end table"))?;
+                if b > e || e as u64 > n_splats || refs.iter().any(|&r| r as u64 >= n_splats) {
+                    return Err(format!("leaf {i} has an invalid splat range or reference"));
+                }
+            } else {
+                let c = node::ptr(w) as usize;
+                if c == 0 || c + 8 > n_nodes || !(c - 1).is_multiple_of(8) || c <= i {
+                    return Err(format!(
+                        "node {i} points at children {c}, outside the pool or not a group"
+                    ));
+                }
+            }
+        }
+        if self
+            .splat_leaf
+            .iter()
+            .any(|&s| s as usize >= n_nodes || !node::is_leaf(self.nodes[s as usize]))
+        {
+            return Err("splat_leaf names a node that is not a leaf".into());
+        }
+        Ok(())
+    }
+
+    /// Normalised coordinate of `p` in the root cube, `None` outside `[0, 1)³`.
+    #[inline]
+    pub fn normalized(&self, p: [f32; 3]) -> Option<[f32; 3]> {
+        let q: [f32; 3] =
+            std::array::from_fn(|k| (p[k] - self.frame.origin[k]) * self.frame.inv_size);
+        q.iter().all(|c| (0.0..1.0).contains(c)).then_some(q)
+    }
+
+    /// The leaf or empty node containing `p` (seed §8.5.11); `None` outside the root cube.
+    #[inline]
+    pub fn locate(&self, p: impl Into<[f32; 3]>) -> Option<Located> {
+        let q = self.normalized(p.into())?;
+        Some(locate_normalized(self.nodes, q))
+    }
+
+    /// Own splat range and referenced splats of a leaf node word.
+    #[inline]
+    pub fn leaf(&self, node_word: u32) -> (std::ops::Range<u32>, &'a [u32]) {
+        match BeginEnd::leaf(self.begin_end, node::ptr(node_word)) {
+            Some((b, e, refs)) => (b..e, refs),
+            None => (0..0, &[]),
+        }
+    }
+}
+
+/// The descent of §8.5.11 on a normalised coordinate `q ∈ [0,1)³`.
+#[inline]
+pub fn locate_normalized(nodes: &[u32], q: impl Into<[f32; 3]>) -> Located {
+    let mut q = q.into();
+    let mut slot = 0u32;
+    let mut depth = 0u32;
+    loop {
+        let w = nodes[slot as usize];
+        if w & (node::LEAF | node::EMPTY) != 0 {
+            return Located {
+                slot,
+                node: w,
+                depth,
+            };
+        }
+        let mut child = 0u32;
+        for (k, c) in q.iter_mut().enumerate() {
+            let t = *c * 2.0;
+            let f = t.floor();
+            *c = t - f;
+            child |= (f as u32) << k;
+        }
+        slot = node::ptr(w) + child;
+        depth += 1;
+    }
+}
+
+/// The octree a downstream artifact must have been made from: what the readers of the V-map,
+/// the photon map and the radiosity check their own artifact against.
+#[derive(Clone, Copy, Debug)]
+pub struct OctreeId<'a> {
+    pub path: &'a Path,
+    pub key: Key,
+    pub nodes: usize,
+    pub splats: usize,
+}
+
+/// An opened octree artifact, checked once: the kind, every section's size and structure
+/// ([`OctreeView::check`]), the metadata and the material table.
+#[derive(Debug)]
+pub struct OctreeFile {
+    art: Artifact,
+    meta: OctreeMeta,
+}
+
+impl OctreeFile {
+    /// Open and check the octree artifact at `path`. A missing file is
+    /// [`ArtifactError::MissingInput`] (run pc-octree).
+    pub fn open(path: impl AsRef<Path>) -> Result<OctreeFile, ArtifactError> {
+        OctreeFile::from_artifact(Artifact::open_input(path, ArtifactKind::Octree)?)
+    }
+
+    /// Check an artifact opened already (of any kind: another is [`ArtifactError::WrongKind`]).
+    pub fn from_artifact(art: Artifact) -> Result<OctreeFile, ArtifactError> {
+        art.ensure_kind(ArtifactKind::Octree)?;
+        OctreeView::sections(&art)?
+            .check()
+            .map_err(|m| art.invalid(m))?;
+        let meta: OctreeMeta = art.metadata()?;
+        let materials: &[MaterialRecord] = art.section(sections::MATERIALS)?;
+        if materials.len() != meta.material_names.len() {
+            return Err(art.invalid(format!(
+                "{} material records for {} material names",
+                materials.len(),
+                meta.material_names.len()
+            )));
+        }
+        Ok(OctreeFile { art, meta })
+    }
+
+    /// The checked sections.
+    pub fn view(&self) -> OctreeView<'_> {
+        OctreeView::sections(&self.art).expect("the sections were checked when the file was opened")
+    }
+
+    pub fn meta(&self) -> &OctreeMeta {
+        &self.meta
+    }
+
+    /// The material table the octree was built with (one record per `meta().material_names`).
+    pub fn materials(&self) -> &[MaterialRecord] {
+        self.art
+            .section(sections::MATERIALS)
+            .expect("the materials were checked when the file was opened")
+    }
+
+    pub fn key(&self) -> Key {
+        self.art.key()
+    }
+
+    pub fn path(&self) -> &Path {
+        self.art.path()
+    }
+
+    /// The container underneath, for tools that print headers and sections.
+    pub fn artifact(&self) -> &Artifact {
+        &self.art
+    }
+
+    /// What downstream artifacts must have been made from.
+    pub fn id(&self) -> OctreeId<'_> {
+        let v = self.view();
+        OctreeId {
+            path: self.path(),
+            key: self.key(),
+            nodes: v.nodes.len(),
+            splats: v.splats.len(),
+        }
+    }
 }
 
 #[cfg(test)]

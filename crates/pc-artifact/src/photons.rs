@@ -13,7 +13,12 @@
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 
-use crate::{Artifact, ArtifactError};
+use std::path::Path;
+
+use crate::light::PointLight;
+use crate::octree::OctreeId;
+use crate::params::CausticsParams;
+use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 pub mod sections {
     pub const PHOTONS: &str = "photons";
@@ -56,10 +61,8 @@ pub type ArchivedPhotonTree = kiddo::kd_tree::ArchivedKdTree<
 pub const TREE_ALIGN: u64 = 128;
 
 /// Serializes a photon tree for the `kdtree` section.
-pub fn tree_bytes(tree: &PhotonTree) -> Result<Vec<u8>, String> {
-    rkyv::to_bytes::<rkyv::rancor::Error>(tree)
-        .map(|b| b.to_vec())
-        .map_err(|e| format!("archiving the photon kd-tree: {e}"))
+pub fn tree_bytes(tree: &PhotonTree) -> Result<Vec<u8>, rkyv::rancor::Error> {
+    rkyv::to_bytes::<rkyv::rancor::Error>(tree).map(|b| b.to_vec())
 }
 
 /// The `kdtree` section of `a`, validated (bytecheck) and borrowed in place from the mapping.
@@ -74,19 +77,6 @@ pub fn archived_tree(a: &Artifact) -> Result<&ArchivedPhotonTree, ArtifactError>
     })
 }
 
-/// Parameters of the photon pass (part of the artifact key).
-#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
-pub struct CausticsParams {
-    /// Photon budget n_e over the whole sphere of every light: a photon carries P / n_e, and
-    /// only those aimed at specular leaves are traced (§8.5.3).
-    pub photons: u32,
-    /// Most specular bounces a photon makes before it is dropped.
-    pub max_bounces: u32,
-    /// Δ of §8.5.6 in radii of the splat a photon leaves.
-    pub self_hit: f32,
-    pub seed: u32,
-}
-
 /// Metadata of a photons artifact.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct PhotonsMeta {
@@ -94,8 +84,8 @@ pub struct PhotonsMeta {
     pub octree_key: String,
     pub vmap_key: String,
     pub params: CausticsParams,
-    /// The point lights: position then intensity.
-    pub lights: Vec<[f32; 6]>,
+    /// The point lights.
+    pub lights: Vec<PointLight>,
     /// Total emitted power of every light (W, RGB), point lights and emitting splats.
     pub emitted_power: [f64; 3],
     /// Power aimed at the specular leaves the lights see (W, RGB).
@@ -110,6 +100,137 @@ pub struct PhotonsMeta {
     pub lost: u64,
     pub device: String,
     pub timings: Vec<(String, f64)>,
+}
+
+/// The sections of a photon map, checked ([`PhotonsFile`]).
+#[derive(Clone, Copy)]
+pub struct PhotonsView<'a> {
+    pub photons: &'a [Photon],
+    /// Per data-pool splat: the caustic power its photons carry (W, RGB).
+    pub deposit: &'a [[f32; 3]],
+    pub tree: &'a ArchivedPhotonTree,
+}
+
+impl<'a> PhotonsView<'a> {
+    fn sections(a: &'a Artifact) -> Result<PhotonsView<'a>, ArtifactError> {
+        Ok(PhotonsView {
+            photons: a.section(sections::PHOTONS)?,
+            deposit: a.section(sections::DEPOSIT)?,
+            tree: archived_tree(a)?,
+        })
+    }
+
+    /// Photons on splats of the deposit's data pool with finite values, a kd-tree over exactly
+    /// those photons, a finite deposit that is the photons' power summed per splat.
+    fn check(&self) -> Result<(), String> {
+        let splats = self.deposit.len();
+        if self.tree.size() as usize != self.photons.len() {
+            return Err(format!(
+                "the kd-tree holds {} photons but the map {}",
+                self.tree.size(),
+                self.photons.len()
+            ));
+        }
+        let mut sum = vec![[0f64; 3]; splats];
+        for (i, p) in self.photons.iter().enumerate() {
+            let finite = p.position.iter().chain(&p.dir).chain(&p.power);
+            if p.splat as usize >= splats || !finite.clone().all(|x| x.is_finite()) {
+                return Err(format!(
+                    "photon {i}: splat out of range or values not finite"
+                ));
+            }
+            for k in 0..3 {
+                sum[p.splat as usize][k] += p.power[k] as f64;
+            }
+        }
+        if let Some(j) = (0..splats).find(|&j| {
+            (0..3).any(|k| {
+                let d = self.deposit[j][k] as f64;
+                !d.is_finite() || (d - sum[j][k]).abs() > 1e-3 * sum[j][k].abs().max(1e-12)
+            })
+        }) {
+            return Err(format!(
+                "splat {j}: deposit {:?} is not the power of its photons {:?}",
+                self.deposit[j], sum[j]
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// An opened photon map, checked once: its kind, its structure and (with
+/// [`PhotonsFile::open`]) that it was traced on the octree it is used with.
+pub struct PhotonsFile {
+    art: Artifact,
+    meta: PhotonsMeta,
+}
+
+impl PhotonsFile {
+    /// Open the photon map at `path` for the octree `octree`: traced on another octree, or a
+    /// deposit of another size, is [`ArtifactError::Stale`] (rerun pc-caustics).
+    pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<PhotonsFile, ArtifactError> {
+        let f = PhotonsFile::from_artifact(Artifact::open_input(path, ArtifactKind::Photons)?)?;
+        let stale = |why: String| ArtifactError::Stale {
+            path: f.path().to_path_buf(),
+            what: "photon map",
+            why,
+            rerun: "pc-caustics".into(),
+        };
+        if f.meta.octree_key != octree.key.to_string() {
+            return Err(stale(format!(
+                "it was traced on another octree than {}",
+                octree.path.display()
+            )));
+        }
+        let deposits = f.view().deposit.len();
+        if deposits != octree.splats {
+            return Err(stale(format!(
+                "its deposit holds {deposits} splats, the octree {} has {}",
+                octree.path.display(),
+                octree.splats
+            )));
+        }
+        Ok(f)
+    }
+
+    /// Open the photon map at `path` on its own (pc-inspect): kind and structure.
+    pub fn open_alone(path: impl AsRef<Path>) -> Result<PhotonsFile, ArtifactError> {
+        PhotonsFile::from_artifact(Artifact::open_kind(path, ArtifactKind::Photons)?)
+    }
+
+    /// [`PhotonsFile::open_alone`] for an artifact opened already (another kind is
+    /// [`ArtifactError::WrongKind`]).
+    pub fn from_artifact(art: Artifact) -> Result<PhotonsFile, ArtifactError> {
+        art.ensure_kind(ArtifactKind::Photons)?;
+        let meta: PhotonsMeta = art.metadata()?;
+        PhotonsView::sections(&art)?
+            .check()
+            .map_err(|m| art.invalid(m))?;
+        Ok(PhotonsFile { art, meta })
+    }
+
+    /// The checked sections.
+    pub fn view(&self) -> PhotonsView<'_> {
+        PhotonsView::sections(&self.art)
+            .expect("the sections were checked when the file was opened")
+    }
+
+    pub fn meta(&self) -> &PhotonsMeta {
+        &self.meta
+    }
+
+    pub fn key(&self) -> Key {
+        self.art.key()
+    }
+
+    pub fn path(&self) -> &Path {
+        self.art.path()
+    }
+
+    /// The container underneath, for tools that print headers and sections.
+    pub fn artifact(&self) -> &Artifact {
+        &self.art
+    }
 }
 
 #[cfg(test)]

@@ -10,56 +10,18 @@
 //! but not the caustic energy's own first diffuse bounce: the renderer adds that from the
 //! photon map (seed §8.1, §8.5.15). Specular splats hold zero.
 
+use std::path::Path;
+
 use serde::{Deserialize, Serialize};
+
+use crate::octree::OctreeId;
+use crate::params::FmmParams;
+use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 pub mod sections {
     pub const RADIANCE: &str = "radiance";
     pub const SOURCE: &str = "source";
     pub const RESIDUALS: &str = "residuals";
-}
-
-/// Parameters of the solve (part of the artifact key).
-#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
-pub struct FmmParams {
-    /// Taylor expansion order p.
-    pub order: u32,
-    /// Expansion separation: (r_a + r_b) < theta · distance.
-    pub theta: f32,
-    /// Largest accepted cosine-clamp error of one interaction, as a form factor.
-    pub clamp_tol: f32,
-    /// The solve stops once the relative residual falls below this.
-    pub tolerance: f32,
-    pub max_iterations: u32,
-    /// Samples per splat of the emitting splats' direct light.
-    pub emitter_samples: u32,
-    /// Of those, the probes that cast their shadow rays first; the rest cast only in leaves
-    /// where the probes disagree (0, and in artifacts made before it existed: every sample).
-    #[serde(default)]
-    pub emitter_probes: u32,
-    /// The iterative method (absent in artifacts made before it was a choice: Jacobi).
-    #[serde(default = "Solver::jacobi")]
-    pub solver: Solver,
-    /// GMRES took later products at a lower order as the residual fell (absent in artifacts
-    /// made before it existed: every product at `order`).
-    #[serde(default)]
-    pub relax: bool,
-}
-
-/// The iterative method of the radiosity solve (docs/fmm.md).
-#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Solver {
-    /// Restarted GMRES, one Krylov process per channel in lockstep.
-    #[default]
-    Gmres,
-    /// Jacobi iteration (the Neumann series), one bounce per iteration.
-    Jacobi,
-}
-
-impl Solver {
-    fn jacobi() -> Solver {
-        Solver::Jacobi
-    }
 }
 
 /// Metadata of a radiosity artifact.
@@ -96,4 +58,133 @@ pub struct RadiosityMeta {
     pub emitter_settled: u64,
     pub device: String,
     pub timings: Vec<(String, f64)>,
+}
+
+/// The sections of a radiosity artifact, checked ([`RadiosityFile`]).
+#[derive(Clone, Copy, Debug)]
+pub struct RadiosityView<'a> {
+    /// Per data-pool splat: outgoing diffuse radiance, linear RGB.
+    pub radiance: &'a [[f32; 3]],
+    /// Per splat: the solve's source term.
+    pub source: &'a [[f32; 3]],
+    pub residuals: &'a [f64],
+}
+
+impl<'a> RadiosityView<'a> {
+    fn sections(a: &'a Artifact) -> Result<RadiosityView<'a>, ArtifactError> {
+        Ok(RadiosityView {
+            radiance: a.section(sections::RADIANCE)?,
+            source: a.section(sections::SOURCE)?,
+            residuals: a.section(sections::RESIDUALS)?,
+        })
+    }
+
+    /// One source term per splat, every radiance and source finite and non-negative, the
+    /// residuals those of the metadata.
+    fn check(&self, meta: &RadiosityMeta) -> Result<(), String> {
+        if self.source.len() != self.radiance.len() {
+            return Err(format!(
+                "{} source terms for {} splats",
+                self.source.len(),
+                self.radiance.len()
+            ));
+        }
+        if let Some(i) = self
+            .radiance
+            .iter()
+            .chain(self.source)
+            .position(|c| c.iter().any(|x| !x.is_finite() || *x < 0.0))
+        {
+            return Err(format!(
+                "splat {}: negative or non-finite radiance",
+                i % self.radiance.len()
+            ));
+        }
+        if self.residuals != meta.residuals.as_slice() {
+            return Err("the residuals section and the metadata disagree".into());
+        }
+        Ok(())
+    }
+}
+
+/// An opened radiosity artifact, checked once: its kind, its structure and (with
+/// [`RadiosityFile::open`]) that it was solved on the octree it is used with.
+#[derive(Debug)]
+pub struct RadiosityFile {
+    art: Artifact,
+    meta: RadiosityMeta,
+}
+
+impl RadiosityFile {
+    /// Open the radiosity at `path` for the octree `octree`: solved on another octree, or of
+    /// another size, is [`ArtifactError::Stale`] (rerun pc-vmap and pc-fmm).
+    pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<RadiosityFile, ArtifactError> {
+        let f = RadiosityFile::from_artifact(Artifact::open_input(path, ArtifactKind::Radiosity)?)?;
+        let stale = |why: String, rerun: &str| ArtifactError::Stale {
+            path: f.path().to_path_buf(),
+            what: "radiosity",
+            why,
+            rerun: rerun.into(),
+        };
+        if f.meta.octree_key != octree.key.to_string() {
+            return Err(stale(
+                format!(
+                    "it was solved for another octree than {}",
+                    octree.path.display()
+                ),
+                "pc-vmap and pc-fmm",
+            ));
+        }
+        let n = f.view().radiance.len();
+        if n != octree.splats {
+            return Err(stale(
+                format!(
+                    "it holds {n} splats, the octree {} has {}",
+                    octree.path.display(),
+                    octree.splats
+                ),
+                "pc-fmm",
+            ));
+        }
+        Ok(f)
+    }
+
+    /// Open the radiosity at `path` on its own (pc-inspect): kind and structure.
+    pub fn open_alone(path: impl AsRef<Path>) -> Result<RadiosityFile, ArtifactError> {
+        RadiosityFile::from_artifact(Artifact::open_kind(path, ArtifactKind::Radiosity)?)
+    }
+
+    /// [`RadiosityFile::open_alone`] for an artifact opened already (another kind is
+    /// [`ArtifactError::WrongKind`]).
+    pub fn from_artifact(art: Artifact) -> Result<RadiosityFile, ArtifactError> {
+        art.ensure_kind(ArtifactKind::Radiosity)?;
+        let meta: RadiosityMeta = art.metadata()?;
+        RadiosityView::sections(&art)?
+            .check(&meta)
+            .map_err(|m| art.invalid(m))?;
+        Ok(RadiosityFile { art, meta })
+    }
+
+    /// The checked sections.
+    pub fn view(&self) -> RadiosityView<'_> {
+        RadiosityView::sections(&self.art)
+            .expect("the sections were checked when the file was opened")
+    }
+
+    pub fn meta(&self) -> &RadiosityMeta {
+        &self.meta
+    }
+
+    pub fn key(&self) -> Key {
+        self.art.key()
+    }
+
+    pub fn path(&self) -> &Path {
+        self.art.path()
+    }
+
+    /// The container underneath, for tools that print headers and sections.
+    pub fn artifact(&self) -> &Artifact {
+        &self.art
+    }
 }

@@ -14,7 +14,14 @@
 //! | `node_cone`     | `f32`         | per node-pool slot: cosine of the half-angle of its normal cone (−1: no cone) |
 //! | `vnode`         | `u32`         | per node-pool slot: 1 when the node is a V-map leaf (no link goes below it) |
 
+use std::path::Path;
+
 use bytemuck::{Pod, Zeroable};
+
+use crate::light::PointLight;
+use crate::octree::OctreeId;
+use crate::params::VmapParams;
+use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 /// Section names of a vmap artifact.
 pub mod sections {
@@ -59,31 +66,6 @@ impl Link {
     }
 }
 
-/// Parameters that shape the links (they are part of the links key).
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
-pub struct VmapParams {
-    /// Opening criterion: two nodes are well separated when (R_a + R_b) / distance < theta.
-    pub theta: f32,
-    /// Visibility rays per far-field node pair.
-    pub rays: u32,
-    /// Near-field pairs: every splat pair up to this many, else this many samples.
-    pub near_rays: u32,
-    /// Nodes with at most this many splats are V-map leaves.
-    pub leaf_splats: u32,
-    /// Self-hit distance in radii (§8.5.6).
-    pub self_hit: f32,
-    /// Partly visible pairs whose form factor (either way) is below this keep a partial link
-    /// instead of being refined; 0 refines every partial pair down to V-map leaves.
-    pub refine_form_factor: f32,
-    /// Far pairs whose form factor (either way, from the sample weights) is at least
-    /// `heavy_form_factor` get `heavy_rays` rays instead of `rays` (0 or ≤ `rays`: off).
-    #[serde(default)]
-    pub heavy_rays: u32,
-    #[serde(default)]
-    pub heavy_form_factor: f32,
-    pub seed: u32,
-}
-
 /// Metadata of a vmap artifact.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
 pub struct VmapMeta {
@@ -93,8 +75,8 @@ pub struct VmapMeta {
     /// enter it, so a rerun after moving a light reuses the links.
     pub links_key: String,
     pub params: VmapParams,
-    /// The point lights the light lists were computed for: position then intensity.
-    pub lights: Vec<[f32; 6]>,
+    /// The point lights the light lists were computed for.
+    pub lights: Vec<PointLight>,
     pub far_links: u64,
     pub near_links: u64,
     pub pairs_tested: u64,
@@ -119,73 +101,186 @@ mod tests {
     }
 }
 
-/// The tables of a vmap artifact, checked against the octree they are used with.
-pub struct Tables<'a> {
-    pub meta: VmapMeta,
+/// The sections of a V-map, checked ([`VmapFile`]).
+#[derive(Clone, Copy, Debug)]
+pub struct VmapView<'a> {
     pub link_offsets: &'a [u32],
     pub links: &'a [Link],
     pub light_offsets: &'a [u32],
     pub light_links: &'a [Link],
     pub node_range: &'a [[u32; 2]],
+    pub node_cone: &'a [f32],
+    pub vnode: &'a [u32],
 }
 
-impl<'a> Tables<'a> {
-    /// Open the tables of `vm`, made for the octree with key `octree_key` and `nodes` node-pool
-    /// slots and for the point lights `lights`. A V-map of another octree or other lights, or
-    /// tables that do not fit the octree, are errors that name the file and say what to rerun.
-    pub fn open(
-        vm: &'a crate::Artifact,
-        octree_key: &crate::Key,
-        nodes: usize,
-        splats: usize,
-        lights: &[[f32; 6]],
-    ) -> Result<Tables<'a>, String> {
-        let path = vm.path().display();
-        let meta: VmapMeta = vm.metadata().map_err(|e| e.to_string())?;
-        if meta.octree_key != octree_key.to_string() {
-            return Err(format!(
-                "{path}: stale V-map: it was computed for another octree: rerun pc-vmap"
-            ));
-        }
-        if meta.lights != lights {
-            return Err(format!(
-                "{path}: stale V-map: its light lists are for other point lights than the \
-                 config defines: rerun pc-vmap (it reuses the links)"
-            ));
-        }
-        let e = |x: crate::ArtifactError| x.to_string();
-        let t = Tables {
-            link_offsets: vm.section(sections::LINK_OFFSETS).map_err(e)?,
-            links: vm.section(sections::LINKS).map_err(e)?,
-            light_offsets: vm.section(sections::LIGHT_OFFSETS).map_err(e)?,
-            light_links: vm.section(sections::LIGHT_LINKS).map_err(e)?,
-            node_range: vm.section(sections::NODE_RANGE).map_err(e)?,
-            meta,
-        };
-        if t.link_offsets.len() != nodes + 1
-            || *t.link_offsets.last().unwrap_or(&0) as usize != t.links.len()
-            || t.light_offsets.len() != lights.len() + 1
-            || *t.light_offsets.last().unwrap_or(&0) as usize != t.light_links.len()
-            || t.node_range.len() != nodes
-            || t.node_range
-                .iter()
-                .any(|r| r[0] > r[1] || r[1] as usize > splats)
-            || t.links
-                .iter()
-                .chain(t.light_links)
-                .any(|l| l.slot() as usize >= nodes)
-            || t.link_offsets.windows(2).any(|w| w[0] > w[1])
-            || t.light_offsets.windows(2).any(|w| w[0] > w[1])
-        {
-            return Err(format!(
-                "{path}: the link tables do not fit the octree: rerun pc-vmap"
-            ));
-        }
-        Ok(t)
+impl<'a> VmapView<'a> {
+    fn sections(a: &'a Artifact) -> Result<VmapView<'a>, ArtifactError> {
+        Ok(VmapView {
+            link_offsets: a.section(sections::LINK_OFFSETS)?,
+            links: a.section(sections::LINKS)?,
+            light_offsets: a.section(sections::LIGHT_OFFSETS)?,
+            light_links: a.section(sections::LIGHT_LINKS)?,
+            node_range: a.section(sections::NODE_RANGE)?,
+            node_cone: a.section(sections::NODE_CONE)?,
+            vnode: a.section(sections::VNODE)?,
+        })
+    }
+
+    /// The links of node-pool slot `slot`.
+    pub fn links_of(&self, slot: usize) -> &'a [Link] {
+        &self.links[self.link_offsets[slot] as usize..self.link_offsets[slot + 1] as usize]
     }
 
     /// The light list of point light `l`.
     pub fn light_list(&self, l: usize) -> &'a [Link] {
         &self.light_links[self.light_offsets[l] as usize..self.light_offsets[l + 1] as usize]
+    }
+
+    /// The structure every reader relies on: CSR indices over the links and the light links,
+    /// per-node tables of one entry per node, links to nodes that exist with fractions in
+    /// (0, 1], splat ranges within `splats` (when known).
+    fn check(&self, lights: usize, splats: Option<usize>) -> Result<(), String> {
+        let nodes = self.node_range.len();
+        let csr = |o: &[u32], rows: usize, len: usize| {
+            o.len() == rows + 1
+                && o.first() == Some(&0)
+                && o.windows(2).all(|w| w[0] <= w[1])
+                && o.last().map(|&x| x as usize) == Some(len)
+        };
+        if !csr(self.link_offsets, nodes, self.links.len()) {
+            return Err("link offsets are not a CSR index over the links".into());
+        }
+        if !csr(self.light_offsets, lights, self.light_links.len()) {
+            return Err(format!(
+                "light offsets are not a CSR index over the light links of {lights} lights"
+            ));
+        }
+        if self.node_cone.len() != nodes || self.vnode.len() != nodes {
+            return Err(format!(
+                "{} node cones and {} V-map leaf flags for {nodes} nodes",
+                self.node_cone.len(),
+                self.vnode.len()
+            ));
+        }
+        if self
+            .links
+            .iter()
+            .chain(self.light_links)
+            .any(|l| l.slot() as usize >= nodes || !(l.fraction > 0.0 && l.fraction <= 1.0))
+        {
+            return Err(
+                "a link names a node outside the octree or has a fraction outside (0, 1]".into(),
+            );
+        }
+        let splats = splats.unwrap_or(u32::MAX as usize);
+        if self
+            .node_range
+            .iter()
+            .any(|r| r[0] > r[1] || r[1] as usize > splats)
+        {
+            return Err("a node's splat range lies outside the octree's data pool".into());
+        }
+        if self.node_cone.iter().any(|c| !(-1.0..=1.0).contains(c)) {
+            return Err("a node cone's cosine lies outside [-1, 1]".into());
+        }
+        Ok(())
+    }
+}
+
+/// An opened V-map artifact, checked once: its kind, its structure, and (with
+/// [`VmapFile::open`]) that it was made for the octree and the point lights it is used with.
+#[derive(Debug)]
+pub struct VmapFile {
+    art: Artifact,
+    meta: VmapMeta,
+}
+
+impl VmapFile {
+    /// Open the V-map at `path` for the octree `octree` and the point lights `lights`. A V-map
+    /// of another octree or other lights, or tables that do not fit the octree, are
+    /// [`ArtifactError::Stale`] (rerun pc-vmap); a missing file is
+    /// [`ArtifactError::MissingInput`].
+    pub fn open(
+        path: impl AsRef<Path>,
+        octree: &OctreeId,
+        lights: &[PointLight],
+    ) -> Result<VmapFile, ArtifactError> {
+        let art = Artifact::open_input(path, ArtifactKind::Vmap)?;
+        let meta: VmapMeta = art.metadata()?;
+        let stale = |why: String, rerun: &str| ArtifactError::Stale {
+            path: art.path().to_path_buf(),
+            what: "V-map",
+            why,
+            rerun: rerun.to_string(),
+        };
+        if meta.octree_key != octree.key.to_string() {
+            return Err(stale(
+                format!(
+                    "it was computed for another octree than {}",
+                    octree.path.display()
+                ),
+                "pc-vmap",
+            ));
+        }
+        if meta.lights != lights {
+            return Err(stale(
+                "its light lists are for other point lights than the config defines".into(),
+                "pc-vmap (it reuses the links)",
+            ));
+        }
+        let v = VmapView::sections(&art)?;
+        if v.node_range.len() != octree.nodes {
+            return Err(stale(
+                format!(
+                    "its tables hold {} nodes, the octree {} has {}",
+                    v.node_range.len(),
+                    octree.path.display(),
+                    octree.nodes
+                ),
+                "pc-vmap",
+            ));
+        }
+        v.check(lights.len(), Some(octree.splats))
+            .map_err(|m| art.invalid(format!("{m}: rerun pc-vmap")))?;
+        Ok(VmapFile { art, meta })
+    }
+
+    /// Open the V-map at `path` on its own (pc-inspect, the reuse of a previous run's links):
+    /// the kind and the structure are checked, not what it was made from.
+    pub fn open_alone(path: impl AsRef<Path>) -> Result<VmapFile, ArtifactError> {
+        VmapFile::from_artifact(Artifact::open_kind(path, ArtifactKind::Vmap)?)
+    }
+
+    /// [`VmapFile::open_alone`] for an artifact opened already (another kind is
+    /// [`ArtifactError::WrongKind`]).
+    pub fn from_artifact(art: Artifact) -> Result<VmapFile, ArtifactError> {
+        art.ensure_kind(ArtifactKind::Vmap)?;
+        let meta: VmapMeta = art.metadata()?;
+        VmapView::sections(&art)?
+            .check(meta.lights.len(), None)
+            .map_err(|m| art.invalid(m))?;
+        Ok(VmapFile { art, meta })
+    }
+
+    /// The checked sections.
+    pub fn view(&self) -> VmapView<'_> {
+        VmapView::sections(&self.art).expect("the sections were checked when the file was opened")
+    }
+
+    pub fn meta(&self) -> &VmapMeta {
+        &self.meta
+    }
+
+    pub fn key(&self) -> Key {
+        self.art.key()
+    }
+
+    pub fn path(&self) -> &Path {
+        self.art.path()
+    }
+
+    /// The container underneath, for tools that print headers and sections.
+    pub fn artifact(&self) -> &Artifact {
+        &self.art
     }
 }

@@ -21,7 +21,8 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_artifact::vmap::Link;
+use pc_artifact::vmap::VmapView;
+use pc_artifact::PointLight;
 use pc_tree::rng::rand;
 use pc_tree::OctreeView;
 
@@ -131,16 +132,6 @@ pub fn level(c: Vec3) -> f32 {
     (c.x + c.y + c.z) / 3.0
 }
 
-/// The inputs from the V-map: node-pool ranges, the links and the light lists.
-pub struct VmapInput<'a> {
-    /// Per node-pool slot: its subtree's own splats `[lo, hi)`.
-    pub node_range: &'a [[u32; 2]],
-    pub link_offsets: &'a [u32],
-    pub links: &'a [Link],
-    /// Per point light: the nodes it sees.
-    pub light_lists: Vec<&'a [Link]>,
-}
-
 /// The expected power of every (source, specular leaf) pair, before the budget is shared out.
 #[derive(Clone, Debug, Default)]
 pub struct Plan {
@@ -155,15 +146,16 @@ pub fn plan(
     view: &OctreeView,
     materials: &[MaterialRecord],
     leaves: &Leaves,
-    lights: &[(Vec3, Vec3)],
-    v: &VmapInput,
+    lights: &[PointLight],
+    v: &VmapView,
 ) -> Plan {
     let mut out = Plan::default();
     let spec = |c: u32| class::is_specular(c);
     // Point lights.
-    for (l, &(pos, intensity)) in lights.iter().enumerate() {
+    for (l, light) in lights.iter().enumerate() {
+        let (pos, intensity) = (Vec3::from(light.position), Vec3::from(light.intensity));
         out.emitted += 4.0 * std::f32::consts::PI * intensity;
-        let list = v.light_lists.get(l).copied().unwrap_or(&[]);
+        let list = v.light_list(l);
         let mut omega: Vec<(u32, f32)> = Vec::new();
         for link in list.iter().filter(|k| k.fraction > 0.0) {
             let [lo, hi] = v.node_range[link.slot() as usize];

@@ -10,6 +10,7 @@ use bytemuck::{Pod, Zeroable};
 use pc_artifact::octree::MaterialRecord;
 use pc_artifact::photons::Photon;
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
+use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::OctreeView;
 
 use crate::emit::{Aim, Leaves, Source};
@@ -67,7 +68,9 @@ const FATE_LOST: u32 = 2;
 /// The scene on the GPU and the compiled kernel.
 pub struct GpuTracer {
     kernel: Kernel,
-    buffers: Vec<wgpu::Buffer>,
+    octree: GpuOctree,
+    /// Materials and leaves, bound after the octree.
+    buffers: Vec<pc_gpu::Buffer>,
     max_bounces: u32,
     self_hit: f32,
     seed: u32,
@@ -109,19 +112,14 @@ impl GpuTracer {
                 _pad: 0,
             })
             .collect();
+        let octree = GpuOctree::upload(ctx, view, OctreeParts::Shade)?;
         let buffers = vec![
-            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
-            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
-            ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?,
-            ctx.storage("splats", bytemuck::cast_slice(view.splats))?,
-            ctx.storage("node_info", bytemuck::cast_slice(view.node_info))?,
-            ctx.storage("splat_area", bytemuck::cast_slice(view.splat_area))?,
-            ctx.storage("splat_leaf", bytemuck::cast_slice(view.splat_leaf))?,
             ctx.storage("materials", bytemuck::cast_slice(materials))?,
             ctx.storage("leaves", bytemuck::cast_slice(&gl))?,
         ];
         Ok(GpuTracer {
             kernel,
+            octree,
             buffers,
             max_bounces,
             self_hit,
@@ -217,7 +215,8 @@ impl GpuTracer {
                 _pad: [0; 2],
             };
             let pb = ctx.uniform("photon_params", bytemuck::bytes_of(&params));
-            let mut bind: Vec<&wgpu::Buffer> = self.buffers.iter().collect();
+            let mut bind: Vec<&pc_gpu::Buffer> =
+                self.octree.buffers().chain(&self.buffers).collect();
             bind.push(&aims_buf);
             bind.push(&pb);
             bind.push(&photons_buf);

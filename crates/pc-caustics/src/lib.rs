@@ -12,6 +12,7 @@
 //!    splat go into the `photons` artifact.
 
 pub mod emit;
+pub mod error;
 pub mod gpu;
 pub mod stage;
 pub mod trace;

@@ -3,31 +3,24 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
 use glam::Vec3;
-use pc_artifact::photons::{sections, tree_bytes, CausticsParams, Photon, PhotonTree, PhotonsMeta};
-use pc_artifact::vmap::Tables;
+use pc_artifact::octree::OctreeFile;
+use pc_artifact::params::CausticsParams;
+use pc_artifact::photons::{sections, tree_bytes, Photon, PhotonTree, PhotonsMeta};
+use pc_artifact::vmap::VmapFile;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
-use pc_scene::config::{Backend, LoadedConfig};
+use pc_config::{Backend, LoadedConfig};
+use pc_stage::{Progress, Stage};
 use pc_tree::accel::Accel;
-use pc_tree::{OctreeView, TraversalStats};
+use pc_tree::TraversalStats;
 use rayon::prelude::*;
 
-use crate::emit::{self, Aim, Leaves, VmapInput};
+use crate::emit::{self, Aim, Leaves};
+use crate::error::CausticsError;
 use crate::trace::{Fate, Tracer};
 
 pub const STAGE: &str = "pc-caustics";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
-
-pub fn params(cfg: &LoadedConfig) -> CausticsParams {
-    let c = &cfg.config.caustics;
-    CausticsParams {
-        photons: c.photons,
-        max_bounces: c.max_bounces,
-        self_hit: c.self_hit,
-        seed: c.seed,
-    }
-}
 
 /// What one run made.
 pub struct Summary {
@@ -100,48 +93,28 @@ pub fn deposit(splats: usize, photons: &[Photon]) -> Vec<[f32; 3]> {
     d
 }
 
-/// Run the stage: `progress(done, total)` as photons are traced.
+/// Run the stage; `progress` counts the photons traced.
 pub fn run(
     cfg: &LoadedConfig,
     octree_path: &Path,
     vmap_path: &Path,
     out: &Path,
     backend: Backend,
-    progress: &(dyn Fn(u64, u64) + Sync),
-) -> anyhow::Result<Summary> {
+    progress: &dyn Progress,
+) -> Result<Summary, CausticsError> {
     let started = Instant::now();
     let mut timings = Vec::new();
-    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
-        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
-    let octree_key = oct.header().key;
-    let lights = cfg.light_records();
-    let tables = Tables::open(
-        &vm,
-        &octree_key,
-        view.nodes.len(),
-        view.splats.len(),
-        &lights,
-    )
-    .map_err(|e| anyhow::anyhow!("{e} (octree {})", octree_path.display()))?;
-    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
-    let p = params(cfg);
+    let octree = OctreeFile::open(octree_path)?;
+    let view = octree.view();
+    let lights = &cfg.config.lights;
+    let vmap = VmapFile::open(vmap_path, &octree.id(), lights)?;
+    let materials = cfg.materials_for(&octree)?;
+    let p = cfg.config.caustics.params;
 
+    progress.phase("emission");
     let t = Instant::now();
     let leaves = Leaves::new(&view, &materials);
-    let point_lights: Vec<(Vec3, Vec3)> = lights
-        .iter()
-        .map(|l| (Vec3::new(l[0], l[1], l[2]), Vec3::new(l[3], l[4], l[5])))
-        .collect();
-    let input = VmapInput {
-        node_range: tables.node_range,
-        link_offsets: tables.link_offsets,
-        links: tables.links,
-        light_lists: (0..lights.len()).map(|l| tables.light_list(l)).collect(),
-    };
-    let plan = emit::plan(&view, &materials, &leaves, &point_lights, &input);
+    let plan = emit::plan(&view, &materials, &leaves, lights, &vmap.view());
     let aims = emit::aims(&plan, p.photons, p.seed);
     let aimed: Vec3 = aims
         .iter()
@@ -151,43 +124,31 @@ pub fn run(
     timings.push(("emission".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
-    let done = std::sync::atomic::AtomicU64::new(0);
-    let step = |n: u64| {
-        let d = done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n;
-        progress(d, total);
+    let start_tracing = || {
+        progress.phase("photons");
+        progress.total(total);
     };
-    let gpu = match backend {
-        Backend::Cpu => None,
-        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
-        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
-    };
-    let gpu_traced = match &gpu {
-        None => None,
-        Some(ctx) => {
-            let traced = crate::gpu::GpuTracer::new(
-                ctx,
+    let (traced, device) = pc_stage::gpu_or_cpu(
+        STAGE,
+        backend,
+        |ctx| {
+            start_tracing();
+            let g = crate::gpu::GpuTracer::new(
+                &ctx,
                 &view,
                 &materials,
                 &leaves,
                 p.max_bounces,
                 p.self_hit,
                 p.seed,
-            )
-            .and_then(|g| g.trace_all(ctx, &aims, &step));
-            match traced {
-                Ok(t) => Some((t, ctx.describe())),
-                Err(e) if backend == Backend::Auto => {
-                    eprintln!("pc-caustics: warning: tracing on the CPU: the GPU cannot: {e}");
-                    done.store(0, std::sync::atomic::Ordering::Relaxed);
-                    None
-                }
-                Err(e) => return Err(anyhow::anyhow!("{e}")),
-            }
-        }
-    };
-    let (traced, device) = match gpu_traced {
-        Some(t) => t,
-        None => {
+            )?;
+            Ok::<_, CausticsError>((
+                g.trace_all(&ctx, &aims, &|n| progress.advance(n))?,
+                ctx.describe(),
+            ))
+        },
+        || {
+            start_tracing();
             let accel = Accel::new(&view);
             let tracer = Tracer {
                 view: &view,
@@ -198,26 +159,27 @@ pub fn run(
                 self_hit: p.self_hit,
                 seed: p.seed,
             };
-            let t = trace_all(&tracer, &aims, &step);
-            (t, format!("CPU ({} threads)", rayon::current_num_threads()))
-        }
-    };
+            let t = trace_all(&tracer, &aims, &|n| progress.advance(n));
+            Ok((t, format!("CPU ({} threads)", rayon::current_num_threads())))
+        },
+    )?;
     timings.push(("trace".to_string(), t.elapsed().as_secs_f64()));
 
+    progress.phase("kd-tree");
     let t = Instant::now();
     let positions: Vec<[f32; 3]> = traced.photons.iter().map(|p| p.position).collect();
     let tree = PhotonTree::new_from_slice(&positions)
-        .map_err(|e| anyhow::anyhow!("building the photon kd-tree: {e:?}"))?;
-    let tree_bytes = tree_bytes(&tree).map_err(|e| anyhow::anyhow!(e))?;
+        .map_err(|e| CausticsError::Tree(format!("{e:?}")))?;
+    let tree_bytes = tree_bytes(&tree).map_err(|e| CausticsError::Tree(e.to_string()))?;
     let deposit = deposit(view.splats.len(), &traced.photons);
     timings.push(("kd-tree".to_string(), t.elapsed().as_secs_f64()));
 
-    let key = photons_key(&octree_key, &vm.header().key, &p, &materials);
+    let key = photons_key(&octree.key(), &vmap.key(), &p, &materials);
     let meta = PhotonsMeta {
-        octree_key: octree_key.to_string(),
-        vmap_key: vm.header().key.to_string(),
+        octree_key: octree.key().to_string(),
+        vmap_key: vmap.key().to_string(),
         params: p,
-        lights,
+        lights: lights.clone(),
         emitted_power: plan.emitted.as_dvec3().into(),
         aimed_power: aimed.as_dvec3().into(),
         traced: traced.traced,
@@ -246,13 +208,16 @@ pub fn run(
 
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
 /// config (nothing is traced).
-pub fn key(cfg: &LoadedConfig, octree_path: &Path, vmap_path: &Path) -> anyhow::Result<Key> {
-    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
-        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
-    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
-    Ok(photons_key(&oct.key(), &vm.key(), &params(cfg), &materials))
+pub fn key(cfg: &LoadedConfig, octree_path: &Path, vmap_path: &Path) -> Result<Key, CausticsError> {
+    let octree = OctreeFile::open(octree_path)?;
+    let vmap = Artifact::open_input(vmap_path, ArtifactKind::Vmap)?;
+    let materials = cfg.materials_for(&octree)?;
+    Ok(photons_key(
+        &octree.key(),
+        &vmap.key(),
+        &cfg.config.caustics.params,
+        &materials,
+    ))
 }
 
 /// The artifact key: stage, build, octree and V-map keys (the V-map key covers the lights),
@@ -282,4 +247,82 @@ pub fn photons_key(
         h.update(bytemuck::bytes_of(&seen));
     }
     h.finish()
+}
+
+/// pc-caustics as its binary runs it.
+pub struct CausticsStage {
+    pub cfg: LoadedConfig,
+    pub octree: PathBuf,
+    pub vmap: PathBuf,
+    pub output: PathBuf,
+    pub backend: Backend,
+}
+
+impl Stage for CausticsStage {
+    const NAME: &'static str = STAGE;
+    const DOING: &'static str = "tracing the photons";
+    type Made = Summary;
+    type Error = CausticsError;
+
+    fn output(&self) -> &Path {
+        &self.output
+    }
+
+    fn key(&self) -> Result<Key, CausticsError> {
+        key(&self.cfg, &self.octree, &self.vmap)
+    }
+
+    fn existing_key(&self) -> Option<Key> {
+        pc_stage::artifact_key(&self.output, ArtifactKind::Photons)
+    }
+
+    fn run(&self, progress: &dyn Progress) -> Result<Summary, CausticsError> {
+        run(
+            &self.cfg,
+            &self.octree,
+            &self.vmap,
+            &self.output,
+            self.backend,
+            progress,
+        )
+    }
+
+    fn summary(&self, s: &Summary, _seconds: f64) -> String {
+        let m = &s.meta;
+        format!(
+            "pc-caustics: wrote {} ({} photons stored of {} traced, {} hidden, {} lost; {:.2} M photons/s) in {:.2} s on {}",
+            s.path.display(),
+            m.stored,
+            m.traced,
+            m.occluded,
+            m.lost,
+            m.traced as f64 / trace_seconds(m).max(1e-9) / 1e6,
+            s.seconds,
+            m.device
+        )
+    }
+
+    fn stats(&self, s: &Summary, _seconds: f64) -> serde_json::Value {
+        let m = &s.meta;
+        let trace_s = trace_seconds(m);
+        serde_json::json!({
+            "budget": m.params.photons,
+            "traced": m.traced,
+            "stored": m.stored,
+            "occluded": m.occluded,
+            "lost": m.lost,
+            "trace_seconds": trace_s,
+            "total_seconds": s.seconds,
+            "photons_per_s": (m.traced as f64 / trace_s.max(1e-9)).round(),
+            "device": m.device,
+        })
+    }
+}
+
+/// The tracing phase's seconds.
+fn trace_seconds(m: &PhotonsMeta) -> f64 {
+    m.timings
+        .iter()
+        .find(|t| t.0 == "trace")
+        .map_or(0.0, |t| t.1)
 }

@@ -9,12 +9,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use pc_artifact::vmap::{sections as vs, Link};
-use pc_artifact::{Artifact, ArtifactKind};
+use pc_artifact::octree::OctreeFile;
+use pc_artifact::vmap::VmapFile;
 use pc_fmm::cpu::{direct, PhaseTimes};
 use pc_fmm::plan::{self, PlanParams};
 use pc_fmm::{tree, Basis, CpuFmm};
-use pc_tree::OctreeView;
 
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
@@ -25,14 +24,13 @@ fn main() -> anyhow::Result<()> {
         args.first()
             .context("usage: direct_speedup CONFIG [KEY=VALUE ...]")?,
     );
-    let cfg = pc_scene::config::load_config(&config, &args[1..])?;
-    let oct = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)?;
-    let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(cfg.vmap_path(), ArtifactKind::Vmap)?;
-    let offsets: &[u32] = vm.section(vs::LINK_OFFSETS)?;
-    let links: &[Link] = vm.section(vs::LINKS)?;
-    let materials = pc_scene::cli::current_materials(&cfg, &oct)?;
-    let f = &cfg.config.fmm;
+    let cfg = pc_config::load_config(&config, &args[1..])?;
+    let oct = OctreeFile::open(cfg.octree_path())?;
+    let view = oct.view();
+    let vm = VmapFile::open(cfg.vmap_path(), &oct.id(), &cfg.config.lights)?;
+    let (offsets, links) = (vm.view().link_offsets, vm.view().links);
+    let materials = cfg.materials_for(&oct)?;
+    let f = &cfg.config.fmm.params;
     let (t, p) = tree::build(&view, &materials);
     let start = Instant::now();
     let plan = plan::build(

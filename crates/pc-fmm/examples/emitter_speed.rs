@@ -1,4 +1,4 @@
-//! Times the emitters' direct light (`solve::emitter_direct`: sampling, shaft culling, shadow
+//! Times the emitters' direct light (`emitter::emitter_direct`: sampling, shaft culling, shadow
 //! tests) alone, on artifacts already made by the chain: three runs, best and all.
 //!
 //! `cargo run --release -p pc-fmm --example emitter_speed -- CONFIG [KEY=VALUE ...]` (after
@@ -8,10 +8,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use pc_artifact::vmap as vs;
-use pc_artifact::{Artifact, ArtifactKind};
-use pc_fmm::{solve, tree};
-use pc_tree::OctreeView;
+use pc_artifact::octree::OctreeFile;
+use pc_artifact::vmap::VmapFile;
+use pc_fmm::emitter::{self, EmitterSampling};
+use pc_fmm::tree;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -19,44 +19,34 @@ fn main() -> anyhow::Result<()> {
         args.first()
             .context("usage: emitter_speed CONFIG [KEY=VALUE ...]")?,
     );
-    let cfg = pc_scene::config::load_config(&config, &args[1..])?;
-    let oct = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)?;
-    let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(cfg.vmap_path(), ArtifactKind::Vmap)?;
-    let lights = cfg.light_records();
-    let tables = vs::Tables::open(
-        &vm,
-        &oct.header().key,
-        view.nodes.len(),
-        view.splats.len(),
-        &lights,
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let materials = pc_scene::cli::current_materials(&cfg, &oct)?;
-    let f = &cfg.config.fmm;
-    let (t, pts) = tree::build(&view, &materials);
+    let cfg = pc_config::load_config(&config, &args[1..])?;
+    let oct = OctreeFile::open(cfg.octree_path())?;
+    let view = oct.view();
+    let lights = &cfg.config.lights;
+    let vm = VmapFile::open(cfg.vmap_path(), &oct.id(), lights)?;
+    let materials = cfg.materials_for(&oct)?;
+    let f = &cfg.config.fmm.params;
+    let (_, pts) = tree::build(&view, &materials);
     let caster = pc_tree::caster::CpuCaster::new(&view);
-    let base =
-        pc_fmm::stage::point_light_system(&view, &materials, &t, &pts, &tables, &lights, &caster)?;
-    let self_hit = tables.meta.params.self_hit;
+    let base = pc_fmm::stage::point_light_system(&view, &materials, &pts, &vm, lights, &caster)?;
+    let self_hit = vm.meta().params.self_hit;
     let mut times = Vec::new();
     let mut rays = Default::default();
     for _ in 0..3 {
         let mut sys = base.clone();
         let start = Instant::now();
-        rays = solve::emitter_direct(
+        rays = emitter::emitter_direct(
             &view,
             &pts,
             &mut sys,
-            solve::EmitterSampling {
+            EmitterSampling {
                 samples: f.emitter_samples,
                 probes: f.emitter_probes,
                 self_hit,
                 shafts: true,
             },
             &caster,
-        )
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+        )?;
         times.push(start.elapsed().as_secs_f64());
     }
     let best = times.iter().copied().fold(f64::INFINITY, f64::min);

@@ -10,6 +10,7 @@ use rayon::prelude::*;
 
 use crate::expansion::{Basis, Coef};
 use crate::lanes;
+use crate::par::Disjoint;
 use crate::plan::{Plan, POINT};
 use crate::tree::{Points, Tree, NONE};
 
@@ -93,20 +94,6 @@ fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
-/// Raw pointer for disjoint parallel writes.
-#[derive(Clone, Copy)]
-struct SyncPtr<T>(*mut T);
-unsafe impl<T> Send for SyncPtr<T> {}
-unsafe impl<T> Sync for SyncPtr<T> {}
-
-impl<T> SyncPtr<T> {
-    #[inline(always)]
-    fn at(self, i: usize) -> *mut T {
-        // SAFETY: callers keep `i` inside the allocation.
-        unsafe { self.0.add(i) }
-    }
-}
-
 /// Per-phase timings of one application, seconds.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PhaseTimes {
@@ -188,13 +175,13 @@ impl CpuFmm<'_> {
         let (t, p) = (self.tree, self.points);
         let np = b.len();
         zeroed(m, t.nodes.len() * np);
-        let mp = SyncPtr(m.as_mut_ptr());
+        let mp = Disjoint::new(m);
         t.leaves.par_iter().for_each_init(
             || Scratch::new(b),
             |s, &leaf| {
                 let ci = t.compact[leaf as usize] as usize;
                 // SAFETY: each leaf writes its own expansion block.
-                let out = unsafe { std::slice::from_raw_parts_mut(mp.at(ci * np), np) };
+                let out = unsafe { mp.block_mut(ci * np..(ci + 1) * np) };
                 let c = t.center[leaf as usize];
                 for j in t.lo[leaf as usize]..t.hi[leaf as usize] {
                     if p.active[j as usize] {
@@ -220,12 +207,10 @@ impl CpuFmm<'_> {
                     let c = t.center[slot as usize];
                     // SAFETY: a parent writes its own block and reads its children's, which
                     // were finished by the previous level.
-                    let out = unsafe { std::slice::from_raw_parts_mut(mp.at(ci * np), np) };
+                    let out = unsafe { mp.block_mut(ci * np..(ci + 1) * np) };
                     for k in t.children(slot) {
                         let kc = t.compact[k as usize] as usize;
-                        let child = unsafe {
-                            std::slice::from_raw_parts(mp.at(kc * np) as *const Coef, np)
-                        };
+                        let child = unsafe { mp.block(kc * np..(kc + 1) * np) };
                         let delta = sub(t.center[k as usize], c);
                         lanes::shift(b, child, delta, &mut s.pow, out, true);
                     }
@@ -265,7 +250,7 @@ impl CpuFmm<'_> {
     ) {
         let (t, p, plan) = (self.tree, self.points, self.plan);
         let np = b.len();
-        let lp = SyncPtr(l.as_mut_ptr());
+        let lp = Disjoint::new(l);
         for level in t.levels.iter().skip(1) {
             level.par_iter().for_each_init(
                 || Scratch::new(b),
@@ -274,15 +259,15 @@ impl CpuFmm<'_> {
                     let pc = t.compact[parent] as usize;
                     let ci = t.compact[slot as usize] as usize;
                     // SAFETY: each node writes its own block; parents are finished.
-                    let src =
-                        unsafe { std::slice::from_raw_parts(lp.at(pc * np) as *const Coef, np) };
-                    let dst = unsafe { std::slice::from_raw_parts_mut(lp.at(ci * np), np) };
+                    let src = unsafe { lp.block(pc * np..(pc + 1) * np) };
+                    let dst = unsafe { lp.block_mut(ci * np..(ci + 1) * np) };
                     let delta = sub(t.center[slot as usize], t.center[parent]);
                     lanes::shift(b, src, delta, &mut s.pow, dst, false);
                 },
             );
         }
-        let op = SyncPtr(out.as_mut_ptr());
+        let l: &[Coef] = l;
+        let op = Disjoint::new(out);
         t.leaves.par_iter().enumerate().for_each_init(
             || (Scratch::new(b), lanes::Scratch::new(b)),
             |s, (li, &leaf)| {
@@ -291,9 +276,7 @@ impl CpuFmm<'_> {
                 let c = t.center[leaf as usize];
                 let (lo, hi) = (t.lo[leaf as usize], t.hi[leaf as usize]);
                 // SAFETY: a leaf writes only its own splats' outputs.
-                let o = unsafe {
-                    std::slice::from_raw_parts_mut(op.at(lo as usize), (hi - lo) as usize)
-                };
+                let o = unsafe { op.block_mut(lo as usize..hi as usize) };
                 for i in lo..hi {
                     let iu = i as usize;
                     let mut v = [0.0f32; 3];

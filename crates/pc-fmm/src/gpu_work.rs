@@ -17,6 +17,7 @@
 //! A receiver with a single item is computed exactly as the CPU twin computes it; one cut into
 //! several sums the same terms in parts (a difference of f32 rounding).
 
+use crate::error::FmmError;
 use crate::plan::{NodeTask, Plan, POINT};
 use crate::tree::{Points, Tree};
 
@@ -98,7 +99,7 @@ pub fn splat_tasks(
     tree: &Tree,
     points: &Points,
     plan: &Plan,
-) -> Result<(Vec<u32>, Vec<SplatTask>), String> {
+) -> Result<(Vec<u32>, Vec<SplatTask>), FmmError> {
     let n = points.pos.len();
     let mut count = vec![0u32; n + 1];
     for (li, w) in plan.leaf_offsets.windows(2).enumerate() {
@@ -107,10 +108,10 @@ pub fn splat_tasks(
         for t in &plan.leaf_tasks[w[0] as usize..w[1] as usize] {
             let end = if t.is_m2p() { t.recv_lo + 1 } else { t.recv_hi };
             if t.recv_lo < lo || end > hi || end <= t.recv_lo {
-                return Err(format!(
-                    "FMM on the GPU: a leaf task to splats {}..{end} of the leaf of splats {lo}..{hi}: the receivers must lie in the leaf",
+                return Err(FmmError::GpuPlan(format!(
+                    "a leaf task to splats {}..{end} of the leaf of splats {lo}..{hi}: the receivers must lie in the leaf",
                     t.recv_lo
-                ));
+                )));
             }
             if t.is_m2p() || (t.recv_lo, t.recv_hi) == (lo, hi) {
                 count[t.recv_lo as usize + 1] += 1;
@@ -156,16 +157,16 @@ pub fn splat_tasks(
 
 /// Per compact node, the index of its first P2L task (its M2L tasks come first). Errs when a
 /// node's tasks are not in that order.
-pub fn node_split(plan: &Plan) -> Result<Vec<u32>, String> {
+pub fn node_split(plan: &Plan) -> Result<Vec<u32>, FmmError> {
     plan.node_offsets
         .windows(2)
         .map(|w| {
             let tasks: &[NodeTask] = &plan.node_tasks[w[0] as usize..w[1] as usize];
             let m2l = tasks.iter().take_while(|t| t.src & POINT == 0).count();
             if tasks[m2l..].iter().any(|t| t.src & POINT == 0) {
-                return Err(
-                    "FMM on the GPU: a node's M2L tasks must precede its P2L tasks".to_string(),
-                );
+                return Err(FmmError::GpuPlan(
+                    "a node's M2L tasks must precede its P2L tasks".to_string(),
+                ));
             }
             Ok(w[0] + m2l as u32)
         })
@@ -219,7 +220,7 @@ pub fn windows(
     total: u32,
     max: u32,
     step: u32,
-) -> Result<Vec<Window>, String> {
+) -> Result<Vec<Window>, FmmError> {
     let step = step.max(1);
     let down = |x: u32| x - x % step;
     let mut out: Vec<Window> = Vec::new();
@@ -244,10 +245,10 @@ pub fn windows(
         let k = k as u32;
         if a < b {
             if b - down(a) > max {
-                return Err(format!(
-                    "FMM on the GPU: one work item spans {} task records, over the {max} one binding holds",
+                return Err(FmmError::GpuPlan(format!(
+                    "one work item spans {} task records, over the {max} one binding holds",
                     b - down(a)
-                ));
+                )));
             }
             let (nlo, nhi) = (lo.min(a), hi.max(b));
             if nhi - down(nlo) > max {
@@ -282,7 +283,7 @@ pub struct Work {
 }
 
 impl Work {
-    pub fn new(tree: &Tree, points: &Points, plan: &Plan) -> Result<Work, String> {
+    pub fn new(tree: &Tree, points: &Points, plan: &Plan) -> Result<Work, FmmError> {
         let (splat_offsets, splat_tasks) = splat_tasks(tree, points, plan)?;
         let split = node_split(plan)?;
         let n = points.pos.len();

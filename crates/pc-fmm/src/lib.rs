@@ -9,21 +9,26 @@
 //! ([`plan`]); [`cpu`] runs it with rayon and [`gpu`] with WGSL compute shaders.
 
 pub mod cpu;
+pub mod emitter;
+pub mod error;
 pub mod expansion;
 pub mod gpu;
 pub mod gpu_work;
 pub mod lanes;
-
+pub(crate) mod par;
 pub mod plan;
 pub mod shaft;
 pub mod solve;
 pub mod stage;
+pub mod system;
 pub mod tree;
 
 pub use cpu::CpuFmm;
+pub use error::FmmError;
 pub use expansion::Basis;
 pub use plan::{Plan, PlanParams};
-pub use solve::{Operator, Solution, System};
+pub use solve::{Operator, Solution};
+pub use system::System;
 pub use tree::{Points, Tree};
 
 /// The CPU operator as a solver [`Operator`], with accumulated phase timings.
@@ -39,7 +44,7 @@ impl Operator for CpuOperator<'_> {
         radiance: &[[f32; 3]],
         out: &mut [[f32; 3]],
         relax: f64,
-    ) -> Result<u32, String> {
+    ) -> Result<u32, FmmError> {
         let order = self.fmm.order_within(relax);
         self.fmm.apply_order(order, radiance, out, &mut self.times);
         self.applications += 1;

@@ -23,6 +23,7 @@ use glam::Vec3;
 use pc_artifact::vmap::Link;
 use rayon::prelude::*;
 
+use crate::par::Disjoint;
 use crate::tree::{Points, Tree, NONE};
 
 /// Flag of a cluster that is a single splat.
@@ -735,7 +736,7 @@ fn gather<E: Sync, T: Copy + Send + Sync + bytemuck::Zeroable>(
         offsets[i + 1] += offsets[i];
     }
     let mut tasks = vec![T::zeroed(); offsets[n] as usize];
-    let out = SyncSlice(tasks.as_mut_ptr());
+    let out = Disjoint::new(&mut tasks);
     parts.par_iter().for_each(|o| {
         let (list, runs) = list(o);
         for &(key, start, len) in runs {
@@ -749,20 +750,6 @@ fn gather<E: Sync, T: Copy + Send + Sync + bytemuck::Zeroable>(
         }
     });
     (offsets, tasks)
-}
-
-/// Raw pointer for the copies of [`gather`].
-#[derive(Clone, Copy)]
-struct SyncSlice<T>(*mut T);
-unsafe impl<T> Send for SyncSlice<T> {}
-unsafe impl<T> Sync for SyncSlice<T> {}
-
-impl<T> SyncSlice<T> {
-    /// # Safety
-    /// `k` inside the allocation, and no other thread writing it.
-    unsafe fn write(self, k: usize, v: T) {
-        unsafe { self.0.add(k).write(v) }
-    }
 }
 
 /// `f` on every CSR run of `tasks`, in parallel.

@@ -1,72 +1,72 @@
-//! The pc-fmm stage: octree + V-map artifacts + config → `radiosity` artifact.
+//! The pc-fmm stage: octree + V-map (+ photon map) artifacts + config → `radiosity` artifact.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
 use glam::Vec3;
-use pc_artifact::octree::MaterialRecord;
-use pc_artifact::radiosity::Solver;
-use pc_artifact::radiosity::{sections, FmmParams, RadiosityMeta};
-use pc_artifact::vmap::{self as vs, Link};
-use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
-use pc_scene::config::{Backend, LoadedConfig};
-use pc_tree::OctreeView;
+use pc_artifact::octree::{MaterialRecord, OctreeFile, OctreeView};
+use pc_artifact::params::{FmmParams, Solver};
+use pc_artifact::photons::PhotonsFile;
+use pc_artifact::radiosity::{sections, RadiosityMeta};
+use pc_artifact::vmap::VmapFile;
+use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointLight};
+use pc_config::{Backend, LoadedConfig};
+use pc_stage::{OptionalInput, Progress, Stage};
+use pc_tree::caster::Caster;
 
+use crate::emitter::{self, EmitterRays, EmitterSampling};
+use crate::error::FmmError;
 use crate::expansion::Basis;
-use crate::plan::{self, PlanParams};
-use crate::solve::{self, Operator, PointLight};
-use crate::{tree, CpuFmm, CpuOperator};
+use crate::plan::{self, Plan, PlanParams};
+use crate::solve::{self, Gmres, Operator, Solution};
+use crate::system::{self, LightLists, System};
+use crate::tree::{self, Points, Tree};
+use crate::{CpuFmm, CpuOperator};
 
 pub const STAGE: &str = "pc-fmm";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
 
-pub fn params(cfg: &LoadedConfig) -> FmmParams {
-    let f = &cfg.config.fmm;
-    FmmParams {
-        order: f.order,
-        theta: f.theta,
-        clamp_tol: f.clamp_tol,
-        tolerance: f.tolerance,
-        max_iterations: f.max_iterations,
-        emitter_samples: f.emitter_samples,
-        emitter_probes: f.emitter_probes,
-        solver: f.solver,
-        relax: f.relax,
+/// The artifacts a solve reads.
+#[derive(Clone, Debug)]
+pub struct Inputs {
+    pub octree: PathBuf,
+    pub vmap: PathBuf,
+    /// Whose caustic energy feeds the solve.
+    pub photons: OptionalInput,
+}
+
+impl Inputs {
+    /// The config's default paths, replaced by those given.
+    pub fn new(
+        cfg: &LoadedConfig,
+        octree: Option<PathBuf>,
+        vmap: Option<PathBuf>,
+        photons: Option<PathBuf>,
+    ) -> Inputs {
+        Inputs {
+            octree: octree.unwrap_or_else(|| cfg.octree_path()),
+            vmap: vmap.unwrap_or_else(|| cfg.vmap_path()),
+            photons: OptionalInput::new(photons, cfg.photons_path()),
+        }
     }
 }
 
 /// The linear system's emission, albedo and source with the point lights' direct light (their
-/// light lists from the V-map `tables` for shadows), before the emitters' direct light.
+/// light lists from the V-map `vmap` for shadows), before the emitters' direct light.
 pub fn point_light_system(
     view: &OctreeView,
     materials: &[MaterialRecord],
-    tree: &crate::tree::Tree,
-    pts: &crate::tree::Points,
-    tables: &vs::Tables,
-    lights: &[[f32; 6]],
-    caster: &dyn pc_tree::caster::Caster,
-) -> anyhow::Result<solve::System> {
-    let point_lights: Vec<PointLight> = lights
-        .iter()
-        .map(|l| PointLight {
-            position: Vec3::new(l[0], l[1], l[2]),
-            intensity: Vec3::new(l[3], l[4], l[5]),
-        })
-        .collect();
-    let lists: Vec<&[Link]> = (0..lights.len()).map(|l| tables.light_list(l)).collect();
-    let ranges = |s: u32| (tree.lo[s as usize], tree.hi[s as usize]);
-    solve::system(
-        view,
-        materials,
-        pts,
-        &point_lights,
-        &lists,
-        &ranges,
-        tables.meta.params.self_hit,
-        caster,
-    )
-    .map_err(|e| anyhow::anyhow!("shadow rays: {e}"))
+    pts: &Points,
+    vmap: &VmapFile,
+    lights: &[PointLight],
+    caster: &dyn Caster,
+) -> Result<System, FmmError> {
+    let v = vmap.view();
+    let seen = LightLists {
+        vmap: &v,
+        self_hit: vmap.meta().params.self_hit,
+    };
+    Ok(system::system(view, materials, pts, lights, seen, caster)?)
 }
 
 /// What one run made.
@@ -76,110 +76,31 @@ pub struct Summary {
     pub seconds: f64,
 }
 
-/// Progress callbacks of a run.
-pub trait Progress {
-    fn phase(&mut self, what: &str);
-    fn iteration(&mut self, it: u32, residual: f64);
-}
-
-/// Run the stage.
-pub fn run(
+/// The source term: emission, the point lights' and the emitters' direct light, and the
+/// caustic photons' first diffuse bounce; returns the system, the emitters' ray counts and the
+/// caustic part of every splat's source (taken out of the stored radiance again, since the
+/// renderer shows it from the photon map itself; seed §8.1).
+fn source_term(
+    view: &OctreeView,
+    materials: &[MaterialRecord],
+    pts: &Points,
+    vmap: &VmapFile,
+    photons: Option<&PhotonsFile>,
     cfg: &LoadedConfig,
-    octree_path: &Path,
-    vmap_path: &Path,
-    photons_path: &Path,
-    out: &Path,
-    backend: Backend,
-    progress: &mut dyn Progress,
-) -> anyhow::Result<Summary> {
-    let started = Instant::now();
-    let mut timings = Vec::new();
-    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let view = OctreeView::from_artifact(&oct)?;
-    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
-        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
-    let octree_key = oct.header().key;
-    let lights = cfg.light_records();
-    let tables = vs::Tables::open(
-        &vm,
-        &octree_key,
-        view.nodes.len(),
-        view.splats.len(),
-        &lights,
-    )
-    .map_err(|e| anyhow::anyhow!("{e} (octree {})", octree_path.display()))?;
-    let vmeta = &tables.meta;
-    let (link_offsets, links) = (tables.link_offsets, tables.links);
-    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
-    let p = params(cfg);
-
-    progress.phase("tree");
-    let t = Instant::now();
-    let (tree, pts) = tree::build(&view, &materials);
-    timings.push(("tree".to_string(), t.elapsed().as_secs_f64()));
-
-    progress.phase("interaction plan");
-    let t = Instant::now();
-    let plan = plan::build(
-        &tree,
-        &pts,
-        link_offsets,
-        links,
-        PlanParams {
-            theta: p.theta,
-            clamp_tol: p.clamp_tol,
-        },
-    );
-    timings.push(("plan".to_string(), t.elapsed().as_secs_f64()));
-
-    progress.phase("direct light");
-    let t = Instant::now();
-    let caster = pc_tree::caster::CpuCaster::new(&view);
-    let mut sys = point_light_system(&view, &materials, &tree, &pts, &tables, &lights, &caster)?;
-    let emitter = solve::emitter_direct(
-        &view,
-        &pts,
-        &mut sys,
-        solve::EmitterSampling {
-            samples: p.emitter_samples,
-            probes: p.emitter_probes,
-            self_hit: vmeta.params.self_hit,
-            shafts: true,
-        },
-        &caster,
-    )
-    .map_err(|e| anyhow::anyhow!("emitter shadow rays: {e}"))?;
-    let (emitter_rays, emitter_samples) = (emitter.cast, emitter.samples);
-    // Caustic energy (LS⁺D, seed §8.1): the photon map's first diffuse bounce feeds the later
-    // ones. It is a source of the solve, and taken out of the stored radiance again, because
-    // the renderer shows it from the photon map itself.
-    let photons = if photons_path.exists() {
-        Some(Artifact::open_kind(photons_path, ArtifactKind::Photons)?)
-    } else {
-        None
+) -> Result<(System, EmitterRays, Vec<[f32; 3]>), FmmError> {
+    let p = &cfg.config.fmm.params;
+    let caster = pc_tree::caster::CpuCaster::new(view);
+    let mut sys = point_light_system(view, materials, pts, vmap, &cfg.config.lights, &caster)?;
+    let sampling = EmitterSampling {
+        samples: p.emitter_samples,
+        probes: p.emitter_probes,
+        self_hit: vmap.meta().params.self_hit,
+        shafts: true,
     };
+    let emitter = emitter::emitter_direct(view, pts, &mut sys, sampling, &caster)?;
     let mut caustic = vec![[0.0f32; 3]; view.splats.len()];
-    if let Some(a) = &photons {
-        let meta: pc_artifact::photons::PhotonsMeta = a.metadata()?;
-        if meta.octree_key != octree_key.to_string() {
-            anyhow::bail!(
-                "{}: stale photon map: it was traced on another octree than {}: rerun pc-caustics",
-                photons_path.display(),
-                octree_path.display()
-            );
-        }
-        let deposit: &[[f32; 3]] = a.section(pc_artifact::photons::sections::DEPOSIT)?;
-        if deposit.len() != view.splats.len() || deposit.iter().flatten().any(|x| !x.is_finite()) {
-            anyhow::bail!(
-                "{}: the caustic deposit does not fit the octree {} ({} splats, {} deposits): rerun pc-caustics",
-                photons_path.display(),
-                octree_path.display(),
-                view.splats.len(),
-                deposit.len()
-            );
-        }
-        for (i, d) in deposit.iter().enumerate() {
+    if let Some(photons) = photons {
+        for (i, d) in photons.view().deposit.iter().enumerate() {
             let area = view.splat_area[i];
             if !pts.active[i] || area <= 0.0 || *d == [0.0; 3] {
                 continue;
@@ -190,104 +111,165 @@ pub fn run(
             sys.source[i] = (Vec3::from(sys.source[i]) + c).into();
         }
     }
-    timings.push(("source term".to_string(), t.elapsed().as_secs_f64()));
+    Ok((sys, emitter, caustic))
+}
 
-    let basis = Basis::new(p.order as usize);
-    let cpu_op = || CpuOperator {
-        fmm: CpuFmm::new(&basis, &tree, &pts, &plan),
-        times: Default::default(),
-        applications: 0,
-    };
-    let gpu = match backend {
-        Backend::Cpu => None,
-        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
-        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
-    };
-    let mut op: Box<dyn Operator + '_> = match gpu {
-        None => Box::new(cpu_op()),
-        Some(ctx) => match crate::gpu::GpuFmm::new(ctx, &basis, &tree, &pts, &plan) {
-            Ok(g) => Box::new(g),
-            Err(e) if backend == Backend::Auto => {
-                eprintln!("pc-fmm: warning: solving on the CPU: the GPU cannot: {e}");
-                Box::new(cpu_op())
-            }
-            Err(e) => return Err(anyhow::anyhow!("{e}")),
+/// The transport operator on the device `backend` asks for ([`pc_stage::gpu_or_cpu`]).
+fn operator<'a>(
+    backend: Backend,
+    basis: &'a Basis,
+    tree: &'a Tree,
+    pts: &'a Points,
+    plan: &'a Plan,
+) -> Result<Box<dyn Operator + 'a>, FmmError> {
+    pc_stage::gpu_or_cpu(
+        STAGE,
+        backend,
+        |ctx| {
+            let g = crate::gpu::GpuFmm::new(ctx, basis, tree, pts, plan)?;
+            Ok(Box::new(g) as Box<dyn Operator>)
         },
-    };
-    let device = op.device();
+        || {
+            Ok(Box::new(CpuOperator {
+                fmm: CpuFmm::new(basis, tree, pts, plan),
+                times: Default::default(),
+                applications: 0,
+            }))
+        },
+    )
+}
 
-    progress.phase("solve");
-    let t = Instant::now();
-    let mut report = |it, r| progress.iteration(it, r);
-    let sol = match p.solver {
+/// The solve by the configured method; `progress` hears of each iteration.
+fn solve(
+    op: &mut dyn Operator,
+    sys: &System,
+    pts: &Points,
+    p: &FmmParams,
+    progress: &dyn Progress,
+) -> Result<Solution, FmmError> {
+    let mut report = |it: u32, r: f64| {
+        progress.phase(&format!("solve: iteration {it}, residual {r:.3e}"));
+        progress.note(&format!("  iteration {it:3}: residual {r:.3e}"));
+    };
+    match p.solver {
         Solver::Gmres => solve::solve_gmres(
-            op.as_mut(),
-            &sys,
-            &pts,
-            p.tolerance as f64,
-            p.max_iterations,
-            solve::GMRES_RESTART,
-            p.relax,
+            op,
+            sys,
+            pts,
+            Gmres {
+                tolerance: p.tolerance as f64,
+                max_iterations: p.max_iterations,
+                restart: solve::GMRES_RESTART,
+                relaxed: p.relax,
+            },
             &mut report,
         ),
         Solver::Jacobi => solve::solve(
-            op.as_mut(),
-            &sys,
-            &pts,
+            op,
+            sys,
+            pts,
             p.tolerance as f64,
             p.max_iterations,
             &mut report,
         ),
     }
-    .map_err(|e| anyhow::anyhow!("FMM on {device}: {e}"))?;
+}
+
+/// Run the stage.
+pub fn run(
+    cfg: &LoadedConfig,
+    inputs: &Inputs,
+    out: &Path,
+    backend: Backend,
+    progress: &dyn Progress,
+) -> Result<Summary, FmmError> {
+    let started = Instant::now();
+    let mut timings = Vec::new();
+    let mut time =
+        |what: &str, t: Instant| timings.push((what.to_string(), t.elapsed().as_secs_f64()));
+    let octree = OctreeFile::open(&inputs.octree)?;
+    let view = octree.view();
+    let lights = &cfg.config.lights;
+    let vmap = VmapFile::open(&inputs.vmap, &octree.id(), lights)?;
+    let photons = match inputs.photons.wanted() {
+        true => Some(PhotonsFile::open(inputs.photons.path(), &octree.id())?),
+        false => None,
+    };
+    let materials = cfg.materials_for(&octree)?;
+    let p = cfg.config.fmm.params;
+
+    progress.phase("tree");
+    let t = Instant::now();
+    let (tree, pts) = tree::build(&view, &materials);
+    time("tree", t);
+
+    progress.phase("interaction plan");
+    let t = Instant::now();
+    let v = vmap.view();
+    let plan_params = PlanParams {
+        theta: p.theta,
+        clamp_tol: p.clamp_tol,
+    };
+    let plan = plan::build(&tree, &pts, v.link_offsets, v.links, plan_params);
+    time("plan", t);
+
+    progress.phase("direct light");
+    let t = Instant::now();
+    let (sys, emitter, caustic) =
+        source_term(&view, &materials, &pts, &vmap, photons.as_ref(), cfg)?;
+    time("source term", t);
+
+    let basis = Basis::new(p.order as usize);
+    let mut op = operator(backend, &basis, &tree, &pts, &plan)?;
+    let device = op.device();
+    progress.phase("solve");
+    let t = Instant::now();
+    let sol = solve(op.as_mut(), &sys, &pts, &p, progress)?;
     let solve_s = t.elapsed().as_secs_f64();
-    timings.push(("solve".to_string(), solve_s));
+    time("solve", t);
     timings.push((
         "per iteration".to_string(),
         solve_s / sol.residuals.len().max(1) as f64,
     ));
     drop(op);
 
-    let photons_key = photons.as_ref().map(|a| a.header().key);
     let key = radiosity_key(
-        &octree_key,
-        &vm.header().key,
-        photons_key.as_ref(),
+        &octree.key(),
+        &vmap.key(),
+        photons.as_ref().map(|p| p.key()).as_ref(),
         &p,
         &materials,
-        &lights,
+        lights,
     );
-    let active = pts.active.iter().filter(|&&a| a).count() as u64;
+    // The stored radiance: every bounce but the caustic energy's first (shown from the photon
+    // map), zero for inactive splats.
     let radiance: Vec<[f32; 3]> = sol
         .radiance
         .iter()
         .zip(&pts.active)
         .zip(&caustic)
-        .map(|((l, &a), c)| {
-            if a {
-                std::array::from_fn(|k| (l[k] - c[k]).max(0.0))
-            } else {
-                [0.0; 3]
-            }
+        .map(|((l, &a), c)| match a {
+            true => std::array::from_fn(|k| (l[k] - c[k]).max(0.0)),
+            false => [0.0; 3],
         })
         .collect();
     let meta = RadiosityMeta {
-        octree_key: octree_key.to_string(),
-        vmap_key: vm.header().key.to_string(),
-        photons_key: photons_key.map(|k| k.to_string()),
+        octree_key: octree.key().to_string(),
+        vmap_key: vmap.key().to_string(),
+        photons_key: photons.as_ref().map(|a| a.key().to_string()),
         params: p,
         iterations: sol.residuals.len() as u32,
         converged: sol.converged,
         residuals: sol.residuals.clone(),
         orders: sol.orders.clone(),
-        active_splats: active,
+        active_splats: pts.active.iter().filter(|&&a| a).count() as u64,
         m2l: plan.counts.m2l,
         p2l: plan.counts.p2l,
         m2p: plan.counts.m2p,
         p2p: plan.counts.p2p,
         p2p_pairs: plan.counts.p2p_pairs,
-        emitter_samples,
-        emitter_rays,
+        emitter_samples: emitter.samples,
+        emitter_rays: emitter.cast,
         emitter_settled: emitter.settled,
         device,
         timings,
@@ -306,30 +288,22 @@ pub fn run(
 }
 
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
-/// config (nothing is solved). The photon map counts when it exists, as in [`run`].
-pub fn key(
-    cfg: &LoadedConfig,
-    octree_path: &Path,
-    vmap_path: &Path,
-    photons_path: &Path,
-) -> anyhow::Result<Key> {
-    let oct = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let vm = Artifact::open_kind(vmap_path, ArtifactKind::Vmap)
-        .with_context(|| format!("run pc-vmap first to make {}", vmap_path.display()))?;
-    let photons = if photons_path.exists() {
-        Some(Artifact::open_kind(photons_path, ArtifactKind::Photons)?.key())
-    } else {
-        None
+/// config (nothing is solved). The photon map counts when it is read, as in [`run`].
+pub fn key(cfg: &LoadedConfig, inputs: &Inputs) -> Result<Key, FmmError> {
+    let octree = OctreeFile::open(&inputs.octree)?;
+    let vmap = Artifact::open_input(&inputs.vmap, ArtifactKind::Vmap)?;
+    let photons = match inputs.photons.wanted() {
+        true => Some(Artifact::open_input(inputs.photons.path(), ArtifactKind::Photons)?.key()),
+        false => None,
     };
-    let materials = pc_scene::cli::current_materials(cfg, &oct)?;
+    let materials = cfg.materials_for(&octree)?;
     Ok(radiosity_key(
-        &oct.key(),
-        &vm.key(),
+        &octree.key(),
+        &vmap.key(),
         photons.as_ref(),
-        &params(cfg),
+        &cfg.config.fmm.params,
         &materials,
-        &cfg.light_records(),
+        &cfg.config.lights,
     ))
 }
 
@@ -339,8 +313,8 @@ pub fn radiosity_key(
     vmap: &Key,
     photons: Option<&Key>,
     p: &FmmParams,
-    materials: &[pc_artifact::octree::MaterialRecord],
-    lights: &[[f32; 6]],
+    materials: &[MaterialRecord],
+    lights: &[PointLight],
 ) -> Key {
     let mut h = KeyHasher::new();
     h.update_str(STAGE)
@@ -353,6 +327,68 @@ pub fn radiosity_key(
     }
     h.update_serialize(p)
         .update(bytemuck::cast_slice(materials))
-        .update_serialize(&lights.to_vec());
+        .update_serialize(lights);
     h.finish()
+}
+
+/// pc-fmm as its binary runs it.
+pub struct FmmStage {
+    pub cfg: LoadedConfig,
+    pub inputs: Inputs,
+    pub output: PathBuf,
+    pub backend: Backend,
+}
+
+impl Stage for FmmStage {
+    const NAME: &'static str = STAGE;
+    const DOING: &'static str = "solving the radiosity";
+    type Made = Summary;
+    type Error = FmmError;
+
+    fn output(&self) -> &Path {
+        &self.output
+    }
+
+    fn key(&self) -> Result<Key, FmmError> {
+        key(&self.cfg, &self.inputs)
+    }
+
+    fn existing_key(&self) -> Option<Key> {
+        pc_stage::artifact_key(&self.output, ArtifactKind::Radiosity)
+    }
+
+    fn run(&self, progress: &dyn Progress) -> Result<Summary, FmmError> {
+        run(
+            &self.cfg,
+            &self.inputs,
+            &self.output,
+            self.backend,
+            progress,
+        )
+    }
+
+    fn summary(&self, s: &Summary, _seconds: f64) -> String {
+        let m = &s.meta;
+        let per_it = m
+            .timings
+            .iter()
+            .find(|t| t.0 == "per iteration")
+            .map_or(0.0, |t| t.1);
+        format!(
+            "pc-fmm: wrote {} ({} splats, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs) in {:.2} s on {}",
+            s.path.display(),
+            m.active_splats,
+            m.iterations,
+            if m.converged { "" } else { " (not converged)" },
+            m.residuals.last().copied().unwrap_or(0.0),
+            per_it,
+            m.m2l,
+            m.p2l,
+            m.m2p,
+            m.p2p,
+            m.p2p_pairs,
+            s.seconds,
+            m.device
+        )
+    }
 }

@@ -141,17 +141,20 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
             }
         }
     }
-    // Ranges, area and active counts bottom-up.
+    // Ranges and normal cones as every stage computes them; area and active counts
+    // bottom-up.
+    let ranges = pc_tree::nodes::subtree_ranges(view);
+    let cones = pc_tree::nodes::normal_cones(view, &ranges);
     for slot in (0..slots).rev() {
+        let [lo, hi] = ranges[slot];
+        t.lo[slot] = lo;
+        t.hi[slot] = hi;
         let w = view.nodes[slot];
         if node::is_empty(w) {
             continue;
         }
         if node::is_leaf(w) {
-            let (r, _) = view.leaf(w);
-            t.lo[slot] = r.start;
-            t.hi[slot] = r.end;
-            for i in r {
+            for i in lo..hi {
                 if pts.active[i as usize] {
                     t.area[slot] += pts.area[i as usize];
                     t.active[slot] += 1;
@@ -159,41 +162,24 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
             }
         } else {
             let c = t.first_child[slot] as usize;
-            let (mut lo, mut hi) = (u32::MAX, 0u32);
             for k in c..c + 8 {
                 if t.hi[k] > t.lo[k] {
-                    lo = lo.min(t.lo[k]);
-                    hi = hi.max(t.hi[k]);
                     t.area[slot] += t.area[k];
                     t.active[slot] += t.active[k];
                 }
             }
-            if lo < hi {
-                t.lo[slot] = lo;
-                t.hi[slot] = hi;
-            }
         }
     }
-    // Centres and exact normal cones in parallel (a subtree's range is contiguous).
+    // Centres in the normalised frame, and the cones' axes.
     let geo: Vec<([f32; 3], [f32; 3], f32)> = (0..slots)
         .into_par_iter()
         .map(|slot| {
-            let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
-            if lo >= hi {
+            if ranges[slot][0] >= ranges[slot][1] {
                 return ([0.0; 3], [0.0; 3], -1.0);
             }
             let info = &view.node_info[slot];
             let c = (Vec3::from(info.centroid) - origin) * inv;
-            let axis = Vec3::from(info.normal);
-            let cone = if axis == Vec3::ZERO {
-                -1.0
-            } else {
-                pts.normal[lo..hi]
-                    .iter()
-                    .map(|&m| axis.dot(Vec3::from(m)))
-                    .fold(1.0f32, f32::min)
-            };
-            (c.into(), axis.into(), cone)
+            (c.into(), info.normal, cones[slot])
         })
         .collect();
     for (slot, (c, a, k)) in geo.into_iter().enumerate() {

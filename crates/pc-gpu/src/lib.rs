@@ -9,6 +9,10 @@ use std::sync::mpsc;
 
 pub mod shaders;
 
+/// A GPU buffer (wgpu's), as kernels bind it: stage crates name it through here and never
+/// depend on wgpu themselves.
+pub use wgpu::Buffer;
+
 use wgpu::util::DeviceExt;
 
 /// Errors from the GPU layer.

@@ -3,9 +3,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::{bail, Context};
 use clap::Parser;
-use pc_artifact::Artifact;
-use pc_inspect::View;
+use pc_artifact::octree::OctreeFile;
+use pc_inspect::{Opened, View};
+use pc_stage::say;
 
 /// Look inside a pcgi artifact (octree, vmap, photons, radiosity).
 #[derive(Parser)]
@@ -13,7 +15,8 @@ use pc_inspect::View;
 struct Args {
     /// The artifact file.
     file: PathBuf,
-    /// Also run the kind's structural checks (checksums are always checked).
+    /// Also check that point location finds every splat's leaf (octree artifacts; checksums
+    /// and the kind's structure are always checked).
     #[arg(long)]
     verify: bool,
     /// Print the metadata (parameters, counts, timings, provenance) as JSON.
@@ -34,49 +37,51 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("pc-inspect: error: {e:#}");
-            ExitCode::from(2)
-        }
-    }
+    pc_stage::exit("pc-inspect", run(&Args::parse()))
 }
 
 fn run(args: &Args) -> anyhow::Result<()> {
-    let a = Artifact::open(&args.file)?;
-    print!("{}", pc_inspect::describe(&a));
-    print!("{}", pc_inspect::statistics(&a)?);
+    let o = Opened::open(&args.file)?;
+    let mut text = pc_inspect::describe(o.artifact());
+    text.push_str(&pc_inspect::statistics(&o));
+    say(text.trim_end());
     if args.metadata {
-        println!("{}", pc_inspect::metadata_json(&a)?);
+        say(&pc_inspect::metadata_json(o.artifact())?);
     }
     if args.verify {
-        println!("{}", pc_inspect::verify(&args.file)?);
+        say(&pc_inspect::verify(&o)?);
     }
-    if let Some(out) = &args.export_ply {
-        if a.header().kind == pc_artifact::ArtifactKind::Vmap {
-            let node = args.node.ok_or_else(|| {
-                anyhow::anyhow!("--export-ply of a V-map needs --node N (a node-pool index)")
-            })?;
+    let Some(out) = &args.export_ply else {
+        return Ok(());
+    };
+    match &o {
+        Opened::Vmap(vmap) => {
+            let node = args
+                .node
+                .context("--export-ply of a V-map needs --node N (a node-pool index)")?;
             let octree_path = args
                 .octree
                 .clone()
                 .unwrap_or_else(|| args.file.with_file_name("octree.pcgi"));
-            let octree = Artifact::open(&octree_path)?;
-            let n = pc_inspect::export_vmap_links(&a, &octree, node, out)?;
-            println!(
+            let octree = OctreeFile::open(&octree_path)?;
+            let n = pc_inspect::export_vmap_links(vmap, &octree, node, out)?;
+            say(&format!(
                 "pc-inspect: wrote {} ({n} points: node {node} and the nodes it links to)",
                 out.display()
-            );
-        } else {
-            let n = pc_inspect::export_ply(&a, args.view, out)?;
-            println!(
+            ));
+        }
+        Opened::Octree(octree) => {
+            let n = pc_inspect::export_ply(octree, args.view, out)?;
+            say(&format!(
                 "pc-inspect: wrote {} ({n} points, {:?} view)",
                 out.display(),
                 args.view
-            );
+            ));
         }
+        _ => bail!(
+            "{}: --export-ply supports octree and V-map artifacts",
+            args.file.display()
+        ),
     }
     Ok(())
 }

@@ -7,7 +7,8 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use pc_artifact::octree::{class, node, tangent_frame, Frame, NodeInfo, Splat};
+use pc_artifact::octree::{class, node, tangent_frame, Frame, NodeInfo, OctreeStats, Splat};
+use pc_artifact::params::OctreeParams;
 use pc_tree::{locate_normalized, OctreeView};
 use rayon::prelude::*;
 
@@ -30,24 +31,6 @@ pub enum BuildError {
     Param(String),
 }
 
-/// Build parameters (pipeline.toml `[octree]`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BuildParams {
-    pub max_leaf_points: u32,
-    pub max_depth: u32,
-    pub area_samples: u32,
-}
-
-impl Default for BuildParams {
-    fn default() -> Self {
-        BuildParams {
-            max_leaf_points: 16,
-            max_depth: morton::BITS,
-            area_samples: 8,
-        }
-    }
-}
-
 /// The splats to build over (structure of arrays, as the importer makes them).
 #[derive(Clone, Copy, Debug)]
 pub struct BuildInput<'a> {
@@ -61,23 +44,6 @@ pub struct BuildInput<'a> {
     pub material_class: &'a [u32],
 }
 
-/// Counts that describe a built tree.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct BuildStats {
-    pub splats: u64,
-    pub nodes: u64,
-    pub leaves: u64,
-    pub empty_nodes: u64,
-    /// Leaves without own splats that exist only because neighbouring disks reach into them.
-    pub ref_leaves: u64,
-    /// Splat references added to leaves other than the owner (§8.5.13).
-    pub extra_refs: u64,
-    pub depth: u32,
-    /// Leaves at the maximum depth that still exceed k or mix classes.
-    pub leaves_at_max_depth: u64,
-    pub timings: Vec<(String, f64)>,
-}
-
 /// A built octree, owning its sections.
 #[derive(Clone, Debug)]
 pub struct Octree {
@@ -88,7 +54,7 @@ pub struct Octree {
     pub node_info: Vec<NodeInfo>,
     pub splat_area: Vec<f32>,
     pub splat_leaf: Vec<u32>,
-    pub stats: BuildStats,
+    pub stats: OctreeStats,
 }
 
 impl Octree {
@@ -130,7 +96,7 @@ fn purity_key(material: u32, material_class: &[u32]) -> u32 {
 /// Build the octree. `phase` is called with the name of each phase as it starts.
 pub fn build(
     input: &BuildInput,
-    params: &BuildParams,
+    params: &OctreeParams,
     phase: &mut dyn FnMut(&str),
 ) -> Result<Octree, BuildError> {
     let n = input.positions.len();
@@ -488,7 +454,7 @@ pub fn build(
     frame.node_count = nodes.len() as u32;
     frame.leaf_count = leaf_count as u32;
     frame.ref_count = refs.len() as u32;
-    let stats = BuildStats {
+    let stats = OctreeStats {
         splats: n as u64,
         nodes: nodes.len() as u64,
         leaves: leaf_count,

@@ -4,12 +4,15 @@
 //! ones), §8.5.5 (per-leaf average disk and normal field), §8.5.10-§8.5.12 (node pool of 32-bit
 //! nodes with 8 contiguous children in SFC order, begin/end table, data pool), §8.5.13 (splats
 //! referenced by every leaf they overlap). The binary `pc-octree` is a thin wrapper around
-//! [`stage::run`]. See docs/octree.md.
+//! [`stage::OctreeStage`]. See docs/octree.md.
 
 pub mod build;
+pub mod error;
 pub mod gpu;
 pub mod morton;
 pub mod stage;
 
-pub use build::{build, BuildError, BuildInput, BuildParams, BuildStats, Octree};
+pub use build::{build, BuildError, BuildInput, Octree};
+pub use pc_artifact::octree::OctreeStats;
+pub use pc_artifact::params::OctreeParams;
 pub use pc_tree::field_normal;

@@ -5,29 +5,27 @@ use std::time::Instant;
 
 use pc_artifact::octree::{sections, InputFile, OctreeMeta};
 use pc_artifact::{ArtifactKind, ArtifactWriter, Key, KeyHasher};
-use pc_scene::config::{LoadedConfig, MaterialConfig};
-use pc_scene::load::{load_scene, material_table, model_path, LoadedScene};
+use pc_config::{material_table, LoadedConfig, MaterialConfig};
+use pc_import::load::{load_scene, model_path, LoadedScene};
+use pc_stage::{Progress, Stage};
 
-use crate::build::{build, BuildInput, BuildParams, Octree};
+use crate::build::{build, BuildInput, Octree};
+use crate::error::OctreeError;
 
 /// The producing stage's name and version, written into every artifact header.
 pub const STAGE: &str = "pc-octree";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// The octree artifact's key: this stage's version, the octree and import parameters, each
-/// model's transform, material name and class, and the content of each PLY. Material colors,
-/// lights and the camera are deliberately left out: they do not change the tree.
-pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, anyhow::Error> {
+/// model's transform, material name and class, and the content of each model file. Material
+/// colors, lights and the camera are deliberately left out: they do not change the tree.
+pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, OctreeError> {
     let c = &cfg.config;
     let mut h = KeyHasher::new();
     h.update_str(STAGE);
     h.update_str(STAGE_VERSION);
     h.update_key(&pc_artifact::build_id());
-    h.update_serialize(&(
-        c.octree.max_leaf_points,
-        c.octree.max_depth,
-        c.octree.area_samples,
-    ));
+    h.update_serialize(&c.octree.params);
     h.update_serialize(&c.import);
     for m in &c.models {
         let mat = &c.materials[&m.material];
@@ -47,7 +45,7 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, anyhow::Error> {
         ));
         let path = model_path(cfg, m);
         h.update_file(&path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            .map_err(|source| OctreeError::Model { path, source })?;
     }
     // Material indices are positions in the sorted name list: the set of names matters too.
     h.update_serialize(&c.materials.keys().collect::<Vec<_>>());
@@ -65,21 +63,13 @@ pub struct Summary {
     pub dropped: usize,
 }
 
-/// Import the scene of `cfg`.
-pub fn import(
-    cfg: &LoadedConfig,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<LoadedScene, anyhow::Error> {
-    Ok(load_scene(cfg, progress)?)
-}
-
 /// Build the octree of a loaded scene with the config's parameters.
 pub fn build_scene(
     cfg: &LoadedConfig,
     scene: &LoadedScene,
     phase: &mut dyn FnMut(&str),
-) -> Result<Octree, anyhow::Error> {
-    let records = material_table(&scene.materials);
+) -> Result<Octree, OctreeError> {
+    let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let classes: Vec<u32> = records.iter().map(|m| m.class).collect();
     let s = &scene.splats;
     let input = BuildInput {
@@ -90,13 +80,10 @@ pub fn build_scene(
         material: &s.material,
         material_class: &classes,
     };
-    let o = &cfg.config.octree;
-    let params = BuildParams {
-        max_leaf_points: o.max_leaf_points,
-        max_depth: o.max_depth,
-        area_samples: o.area_samples,
-    };
-    Ok(build(&input, &params, phase)?)
+    build(&input, &cfg.config.octree.params, phase).map_err(|error| OctreeError::Build {
+        config: cfg.path.clone(),
+        error,
+    })
 }
 
 /// Write an octree artifact atomically.
@@ -106,9 +93,8 @@ pub fn write(
     octree: &Octree,
     scene: &LoadedScene,
     cfg: &LoadedConfig,
-) -> Result<(), anyhow::Error> {
-    let records = material_table(&scene.materials);
-    let st = &octree.stats;
+) -> Result<(), OctreeError> {
+    let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let inputs = cfg
         .config
         .models
@@ -128,18 +114,9 @@ pub fn write(
     let meta = OctreeMeta {
         config: cfg.text.clone(),
         inputs,
-        max_leaf_points: octree.frame.max_leaf_points,
-        max_depth: octree.frame.max_depth,
-        splats: st.splats,
-        nodes: st.nodes,
-        leaves: st.leaves,
-        empty_nodes: st.empty_nodes,
-        ref_leaves: st.ref_leaves,
-        extra_refs: st.extra_refs,
-        depth: st.depth,
-        leaves_at_max_depth: st.leaves_at_max_depth,
+        params: cfg.config.octree.params,
+        stats: octree.stats.clone(),
         material_names: scene.materials.iter().map(|(n, _)| n.clone()).collect(),
-        timings: st.timings.clone(),
         dropped_points: scene.dropped() as u64,
     };
     let mut w = ArtifactWriter::create(path, ArtifactKind::Octree, STAGE, STAGE_VERSION, key)?;
@@ -156,22 +133,25 @@ pub fn write(
     Ok(())
 }
 
-/// Run the whole stage: import, build, write. Progress goes through the two callbacks.
+/// Run the whole stage: import, build, write; `progress` hears of each model and phase.
 pub fn run(
     cfg: &LoadedConfig,
     out: &Path,
-    import_progress: &mut dyn FnMut(usize, usize),
-    phase: &mut dyn FnMut(&str),
-) -> Result<Summary, anyhow::Error> {
+    progress: &dyn Progress,
+) -> Result<Summary, OctreeError> {
     let key = octree_key(cfg)?;
     let t = Instant::now();
-    let scene = import(cfg, import_progress)?;
+    progress.phase("import");
+    progress.total(cfg.config.models.len() as u64);
+    let scene = load_scene(cfg, &mut |_, _| progress.advance(1))?;
     let import_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let octree = build_scene(cfg, &scene, phase)?;
+    let octree = build_scene(cfg, &scene, &mut |name| {
+        progress.phase(&format!("build: {name}"))
+    })?;
     let build_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    phase("write");
+    progress.phase("write");
     write(out, key, &octree, &scene, cfg)?;
     let write_seconds = t.elapsed().as_secs_f64();
     Ok(Summary {
@@ -182,4 +162,85 @@ pub fn run(
         write_seconds,
         dropped: scene.dropped(),
     })
+}
+
+/// pc-octree as its binary runs it.
+pub struct OctreeStage {
+    pub cfg: LoadedConfig,
+    pub output: PathBuf,
+}
+
+impl Stage for OctreeStage {
+    const NAME: &'static str = STAGE;
+    const DOING: &'static str = "building the octree";
+    type Made = Summary;
+    type Error = OctreeError;
+
+    fn output(&self) -> &Path {
+        &self.output
+    }
+
+    fn key(&self) -> Result<Key, OctreeError> {
+        octree_key(&self.cfg)
+    }
+
+    fn existing_key(&self) -> Option<Key> {
+        pc_stage::artifact_key(&self.output, ArtifactKind::Octree)
+    }
+
+    fn run(&self, progress: &dyn Progress) -> Result<Summary, OctreeError> {
+        run(&self.cfg, &self.output, progress)
+    }
+
+    fn summary(&self, summary: &Summary, seconds: f64) -> String {
+        let s = &summary.octree.stats;
+        let dropped = match summary.dropped {
+            0 => String::new(),
+            n => format!(", dropped {n} invalid points"),
+        };
+        format!(
+            "pc-octree: wrote {} ({} splats, {} nodes, {} leaves, depth {}, {} extra refs{dropped}) in {:.2} s (import {:.2} s, build {:.2} s, {:.1} M splats/s)",
+            summary.path.display(),
+            s.splats,
+            s.nodes,
+            s.leaves,
+            s.depth,
+            s.extra_refs,
+            seconds,
+            summary.import_seconds,
+            summary.build_seconds,
+            s.splats as f64 / summary.build_seconds.max(1e-9) / 1e6
+        )
+    }
+
+    fn stats(&self, summary: &Summary, seconds: f64) -> serde_json::Value {
+        let s = &summary.octree.stats;
+        let phases: Vec<serde_json::Value> = s
+            .timings
+            .iter()
+            .map(|(n, t)| serde_json::json!({ "phase": n, "seconds": t }))
+            .collect();
+        serde_json::json!({
+            "splats": s.splats,
+            "nodes": s.nodes,
+            "leaves": s.leaves,
+            "extra_refs": s.extra_refs,
+            "depth": s.depth,
+            "import_seconds": summary.import_seconds,
+            "build_seconds": summary.build_seconds,
+            "write_seconds": summary.write_seconds,
+            "total_seconds": seconds,
+            "peak_rss_bytes": peak_rss_bytes().unwrap_or(0),
+            "threads": rayon::current_num_threads(),
+            "phases": phases,
+        })
+    }
+}
+
+/// Peak resident memory of this process (Linux: VmHWM in /proc/self/status).
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }

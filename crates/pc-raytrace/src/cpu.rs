@@ -118,7 +118,7 @@ pub fn trace_sample(
             break;
         }
         // Blend every splat of this surface that covers the hit point (§8.5.8).
-        view.covering(hit.leaf, x, ns, p.blend_thickness, &mut blend);
+        pc_tree::covering(view, hit.leaf, x, ns, p.blend_thickness, &mut blend);
         if blend.is_empty() {
             blend.push((hit.splat, 1.0));
         }

@@ -6,8 +6,9 @@
 //! EXR files hold the standard unnamed layer with linear `f32` channels `R`, `G`, `B` (scan lines,
 //! ZIP compression, one resolution level). When [`Image::aovs`] is set, the same layer also holds
 //! `depth.Z`, `normal.X`, `normal.Y`, `normal.Z`, `albedo.R`, `albedo.G`, `albedo.B` (`f32`) and
-//! `splat.id` (`u32`). All files are written atomically: the data goes to `<path>.tmp` in the same
-//! folder, which is then renamed onto `<path>` (and removed if anything fails).
+//! `splat.id` (`u32`). All files are written atomically ([`pc_artifact::atomic`]): the data goes
+//! to a temporary file in the same folder, which is then renamed onto `<path>` (and removed if
+//! anything fails).
 
 use std::fs;
 use std::io::Cursor;
@@ -197,8 +198,8 @@ impl ImageError {
     }
 }
 
-/// Writes `bytes` to `<path>.tmp` and renames it onto `path`, creating the parent folder.
-/// The temporary file is removed on failure.
+/// Writes `bytes` to `path` atomically ([`pc_artifact::write_file_atomically`]), creating the
+/// parent folder.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
     pc_artifact::write_file_atomically(path, bytes).map_err(|source| ImageError::Io {
         path: path.to_path_buf(),
@@ -211,8 +212,9 @@ pub fn write_exr(path: &Path, img: &Image) -> Result<(), ImageError> {
     write_exr_keyed(path, img, None)
 }
 
-/// The name of the EXR header attribute (text) that holds the key of the render: the stage's
-/// version, its parameters, the camera, and the keys of the artifacts it read.
+/// The name of the EXR header attribute (text), and of the PNG's `tEXt` chunk, that holds the
+/// key of the render: the stage's version, its parameters, the camera, and the keys of the
+/// artifacts it read.
 pub const KEY_ATTRIBUTE: &str = "pcgiKey";
 
 /// The key a render wrote into the EXR at `path` ([`KEY_ATTRIBUTE`]), when the file reads as a
@@ -456,26 +458,80 @@ fn to_srgb8(linear: f32) -> u8 {
     (srgb_encode(linear) * 255.0).round() as u8
 }
 
-/// Encodes 8-bit RGB pixels (row-major, top row first) as PNG and writes it atomically.
-fn write_png_bytes(path: &Path, width: u32, height: u32, pixels: &[u8]) -> Result<(), ImageError> {
-    use ::image::ImageEncoder as _;
+/// Encodes 8-bit RGB pixels (row-major, top row first) as PNG, with the render's key in a
+/// `tEXt` chunk ([`KEY_ATTRIBUTE`]) when given, and writes it atomically.
+fn write_png_bytes(
+    path: &Path,
+    width: u32,
+    height: u32,
+    pixels: &[u8],
+    key: Option<&pc_artifact::Key>,
+) -> Result<(), ImageError> {
+    let err = |e: png::EncodingError| ImageError::png(path, e);
     let mut bytes = Vec::new();
-    ::image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(pixels, width, height, ::image::ExtendedColorType::Rgb8)
-        .map_err(|e| ImageError::png(path, e))?;
+    let mut enc = png::Encoder::new(&mut bytes, width, height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    if let Some(key) = key {
+        enc.add_text_chunk(KEY_ATTRIBUTE.to_string(), key.to_string())
+            .map_err(err)?;
+    }
+    let mut w = enc.write_header().map_err(err)?;
+    w.write_image_data(pixels).map_err(err)?;
+    w.finish().map_err(err)?;
     write_atomically(path, &bytes)
 }
 
 /// Writes `img` as an 8-bit sRGB PNG:
 /// each channel is `round(255 * srgb_encode(linear * exposure))`.
 pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<(), ImageError> {
+    write_png_keyed(path, img, exposure, None)
+}
+
+/// [`write_png`], with the render's key in a `tEXt` chunk ([`KEY_ATTRIBUTE`]) when given.
+pub fn write_png_keyed(
+    path: &Path,
+    img: &Image,
+    exposure: f32,
+    key: Option<&pc_artifact::Key>,
+) -> Result<(), ImageError> {
     img.check_sizes().map_err(|m| ImageError::format(path, m))?;
     let pixels: Vec<u8> = img
         .rgb
         .iter()
         .flat_map(|p| p.map(|v| to_srgb8(v * exposure)))
         .collect();
-    write_png_bytes(path, img.width, img.height, &pixels)
+    write_png_bytes(path, img.width, img.height, &pixels, key)
+}
+
+/// The key a render wrote into the PNG at `path` ([`KEY_ATTRIBUTE`] text chunk), when the file
+/// decodes as a whole; `None` when it is missing, damaged or has no key.
+pub fn png_key(path: &Path) -> Option<pc_artifact::Key> {
+    let file = std::io::BufReader::new(fs::File::open(path).ok()?);
+    let mut reader = png::Decoder::new(file).read_info().ok()?;
+    let text = reader
+        .info()
+        .uncompressed_latin1_text
+        .iter()
+        .find(|t| t.keyword == KEY_ATTRIBUTE)?
+        .text
+        .clone();
+    let mut buf = vec![0; reader.output_buffer_size()?];
+    reader.next_frame(&mut buf).ok()?;
+    pc_artifact::Key::from_hex(&text)
+}
+
+/// The key of the image pair at `exr` (the EXR and the PNG beside it, [`png_path`]) when both
+/// read whole and carry the same key; `None` otherwise, so a pair left mismatched by a run
+/// killed between its two writes is redone.
+pub fn rendered_key(exr: &Path) -> Option<pc_artifact::Key> {
+    let key = exr_key(exr)?;
+    (png_key(&png_path(exr)) == Some(key)).then_some(key)
+}
+
+/// The PNG preview written beside the EXR `exr`.
+pub fn png_path(exr: &Path) -> PathBuf {
+    exr.with_extension("png")
 }
 
 /// Error statistics of an image `a` against a reference `b`.
@@ -587,7 +643,7 @@ pub fn write_diff_png(path: &Path, a: &Image, b: &Image, scale: f32) -> Result<(
             })
         })
         .collect();
-    write_png_bytes(path, a.width, a.height, &pixels)
+    write_png_bytes(path, a.width, a.height, &pixels, None)
 }
 
 #[cfg(test)]

@@ -4,11 +4,17 @@
 //! `shaders/raytrace/`) follows it line by line with the same sample pattern (`sample`), and a
 //! test holds the two images together. See docs/raytrace.md.
 
+pub mod camera;
 pub mod caustic;
 pub mod cpu;
+pub mod error;
 pub mod gpu;
 pub mod image;
 pub mod reference;
+pub mod renderer;
 pub mod sample;
 pub mod scene;
 pub mod stage;
+pub mod walkthrough;
+
+pub use error::RenderError;

@@ -4,20 +4,11 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_scene::camera::Camera;
-use pc_scene::config::{RaytraceConfig, ShadingMode};
-use pc_tree::OctreeView;
+use pc_artifact::PointLight;
+use pc_config::{RaytraceConfig, ShadingMode};
 
-/// A point light (WGSL twin `PointLight` in shaders/raytrace/render.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct PointLight {
-    pub position: [f32; 3],
-    pub _pad0: f32,
-    /// Radiant intensity, W/sr.
-    pub intensity: [f32; 3],
-    pub _pad1: f32,
-}
+use crate::camera::Camera;
+use pc_tree::OctreeView;
 
 /// Emitter splats with a cumulative distribution proportional to their emitted power
 /// (luminance of the radiance times the area the splat stands for), for direct lighting.
@@ -129,9 +120,9 @@ pub struct RenderScene<'a> {
     pub lights: Vec<PointLight>,
     pub emitters: EmitterTable,
     pub params: Params,
-    /// Per-splat outgoing diffuse radiance (pc-fmm's radiosity artifact), xyz and a pad; when
-    /// present, diffuse hits show it instead of the materials' emission.
-    pub radiance: Option<Vec<[f32; 4]>>,
+    /// Per-splat outgoing diffuse radiance (pc-fmm's radiosity artifact, mapped); when present,
+    /// diffuse hits show it instead of the materials' emission.
+    pub radiance: Option<&'a [[f32; 3]]>,
     /// pc-caustics' photon map: diffuse hits add its density estimate.
     pub caustics: Option<crate::caustic::Caustics<'a>>,
 }
@@ -140,19 +131,12 @@ impl<'a> RenderScene<'a> {
     pub fn new(
         view: OctreeView<'a>,
         materials: Vec<MaterialRecord>,
-        lights: &[pc_scene::config::PointLightConfig],
+        lights: &[PointLight],
         camera: &Camera,
         cfg: &RaytraceConfig,
     ) -> RenderScene<'a> {
         let emitters = EmitterTable::new(&view, &materials);
-        let lights: Vec<PointLight> = lights
-            .iter()
-            .map(|l| PointLight {
-                position: l.position,
-                intensity: l.intensity,
-                ..Default::default()
-            })
-            .collect();
+        let lights = lights.to_vec();
         let params = Params {
             cam_origin: camera.origin.into(),
             width: camera.width,
@@ -205,8 +189,8 @@ impl<'a> RenderScene<'a> {
     }
 
     /// Show this per-splat radiance at diffuse hits (one RGB per data-pool splat).
-    pub fn set_radiance(&mut self, radiance: &[[f32; 3]]) {
-        self.radiance = Some(radiance.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect());
+    pub fn set_radiance(&mut self, radiance: &'a [[f32; 3]]) {
+        self.radiance = Some(radiance);
         self.params.stored_radiance = 1;
     }
 
@@ -226,7 +210,7 @@ impl<'a> RenderScene<'a> {
     ) -> Option<pc_tree::Hit> {
         match &self.accel {
             Some(a) => a.intersect(&self.view, ray, st),
-            None => self.view.intersect(ray, st),
+            None => pc_tree::intersect(&self.view, ray, st),
         }
     }
 
@@ -235,7 +219,7 @@ impl<'a> RenderScene<'a> {
     pub fn occluded(&self, ray: &pc_tree::Ray, st: &mut pc_tree::TraversalStats) -> bool {
         match &self.accel {
             Some(a) => a.occluded(&self.view, ray, st),
-            None => self.view.occluded(ray, st),
+            None => pc_tree::occluded(&self.view, ray, st),
         }
     }
 

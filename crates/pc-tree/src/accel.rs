@@ -142,7 +142,7 @@ impl Accel {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
-        view.walk_with(ray, stats, |w, limit, st| {
+        crate::ray::walk_with(view, ray, stats, |w, limit, st| {
             self.test(view, ray, w, limit, false, st)
         })
     }
@@ -156,7 +156,7 @@ impl Accel {
 
     /// Same as [`OctreeView::occluded`].
     pub fn occluded(&self, view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
-        view.walk_with(ray, stats, |w, limit, st| {
+        crate::ray::walk_with(view, ray, stats, |w, limit, st| {
             self.test(view, ray, w, limit, true, st)
         })
         .is_some()

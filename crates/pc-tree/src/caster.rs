@@ -1,11 +1,14 @@
 //! Batches of visibility rays, on the CPU or the GPU: the one interface the stages that test
 //! visibility use (pc-vmap's links and light lists, pc-fmm's shadow rays, tests).
 
+use pc_gpu::GpuError;
+
 use crate::{OctreeView, Ray};
 
 /// Casts batches of visibility rays: `true` where the segment `[t_min, t_max]` is unoccluded.
+/// Only a GPU can fail (a dispatch or a readback).
 pub trait Caster: Sync {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String>;
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError>;
     fn name(&self) -> String;
 }
 
@@ -25,7 +28,7 @@ impl<'a> CpuCaster<'a> {
 }
 
 impl Caster for CpuCaster<'_> {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
         Ok(self.accel.visible(self.view, rays))
     }
     fn name(&self) -> String {
@@ -40,12 +43,9 @@ pub struct GpuCaster {
 }
 
 impl Caster for GpuCaster {
-    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, String> {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
         let input: Vec<crate::gpu::RayIn> = rays.iter().map(Into::into).collect();
-        let hits = self
-            .caster
-            .cast(&self.ctx, &input, true)
-            .map_err(|e| e.to_string())?;
+        let hits = self.caster.cast(&self.ctx, &input, true)?;
         Ok(hits.iter().map(Option::is_none).collect())
     }
     fn name(&self) -> String {

@@ -1,10 +1,58 @@
-//! Ray casting on the GPU: `shaders/tree/cast.wgsl`, twin of [`OctreeView::intersect`] and
-//! [`OctreeView::occluded`]. Shared by every stage that casts rays in bulk.
+//! The octree on the GPU ([`GpuOctree`], the one upload every kernel binds) and ray casting on
+//! the GPU: `shaders/tree/cast.wgsl`, twin of [`crate::intersect`] and [`crate::occluded`],
+//! shared by every stage that casts rays in bulk.
 
 use bytemuck::{Pod, Zeroable};
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 
 use crate::{OctreeView, Ray};
+
+/// How much of the octree a kernel binds. The sections go into bindings 0, 1, 2, … in the
+/// order of `shaders/common/octree.wgsl`: frame (uniform), nodes, begin/end table, splats,
+/// node info, splat areas, splat leaves; each part includes the ones before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OctreeParts {
+    /// Frame and nodes: point location.
+    Locate,
+    /// And the begin/end table and the splats: the traversal.
+    Walk,
+    /// And the node info, splat areas and splat leaves: shading and photons.
+    Shade,
+}
+
+/// The octree's sections in GPU buffers, in binding order.
+pub struct GpuOctree {
+    buffers: Vec<pc_gpu::Buffer>,
+}
+
+impl GpuOctree {
+    /// Uploads `parts` of `view` (the mapped sections go into buffers as they are).
+    pub fn upload(
+        ctx: &GpuContext,
+        view: &OctreeView,
+        parts: OctreeParts,
+    ) -> Result<GpuOctree, GpuError> {
+        let mut buffers = vec![
+            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
+            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
+        ];
+        if parts != OctreeParts::Locate {
+            buffers.push(ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?);
+            buffers.push(ctx.storage("splats", bytemuck::cast_slice(view.splats))?);
+        }
+        if parts == OctreeParts::Shade {
+            buffers.push(ctx.storage("node_info", bytemuck::cast_slice(view.node_info))?);
+            buffers.push(ctx.storage("splat_area", bytemuck::cast_slice(view.splat_area))?);
+            buffers.push(ctx.storage("splat_leaf", bytemuck::cast_slice(view.splat_leaf))?);
+        }
+        Ok(GpuOctree { buffers })
+    }
+
+    /// The buffers, in binding order from 0.
+    pub fn buffers(&self) -> impl Iterator<Item = &pc_gpu::Buffer> {
+        self.buffers.iter()
+    }
+}
 
 /// The cast kernel's source (`shaders/tree/cast.wgsl` with the files it requires).
 pub fn cast_source() -> Result<String, GpuError> {
@@ -43,7 +91,7 @@ struct CastParams {
 /// The octree on the GPU and a compiled cast kernel.
 pub struct RayCaster {
     kernel: Kernel,
-    tree: [wgpu::Buffer; 4],
+    tree: GpuOctree,
 }
 
 /// Rays per dispatch (bounded so a dispatch stays short).
@@ -61,12 +109,7 @@ impl RayCaster {
             Binding::ReadWrite,
         ];
         let kernel = ctx.kernel("tree/cast", &cast_source()?, "main", &b)?;
-        let tree = [
-            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
-            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
-            ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?,
-            ctx.storage("splats", bytemuck::cast_slice(view.splats))?,
-        ];
+        let tree = GpuOctree::upload(ctx, view, OctreeParts::Walk)?;
         Ok(RayCaster { kernel, tree })
     }
 
@@ -88,12 +131,8 @@ impl RayCaster {
             let pb = ctx.uniform("cast_params", bytemuck::bytes_of(&params));
             let size = (chunk.len() * 8) as u64;
             let hb = ctx.output("hits", size)?;
-            let [f, n, be, sp] = &self.tree;
-            self.kernel.run(
-                ctx,
-                &[f, n, be, sp, &rb, &pb, &hb],
-                grid(chunk.len() as u32, 64),
-            )?;
+            let binds: Vec<&pc_gpu::Buffer> = self.tree.buffers().chain([&rb, &pb, &hb]).collect();
+            self.kernel.run(ctx, &binds, grid(chunk.len() as u32, 64))?;
             let bytes = ctx.read(&hb, size)?;
             let words: &[[u32; 2]] = bytemuck::cast_slice(&bytes);
             out.extend(

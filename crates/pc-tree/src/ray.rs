@@ -105,152 +105,157 @@ fn below(x: f32) -> f32 {
     f32::from_bits(x.to_bits() - 1)
 }
 
-impl<'a> OctreeView<'a> {
-    /// The nearest splat hit in `[ray.t_min, ray.t_max]`.
-    pub fn intersect(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
-        self.walk(ray, stats, false)
-    }
+/// The nearest splat hit in `[ray.t_min, ray.t_max]`.
+pub fn intersect(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
+    walk(view, ray, stats, false)
+}
 
-    /// Whether any splat is hit in `[ray.t_min, ray.t_max]` (shadow rays).
-    pub fn occluded(&self, ray: &Ray, stats: &mut TraversalStats) -> bool {
-        self.walk(ray, stats, true).is_some()
-    }
+/// Whether any splat is hit in `[ray.t_min, ray.t_max]` (shadow rays).
+pub fn occluded(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
+    walk(view, ray, stats, true).is_some()
+}
 
-    fn walk(&self, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
-        self.walk_with(ray, stats, |w, limit, stats| {
-            let (range, refs) = self.leaf(w);
-            let mut best: Option<Hit> = None;
-            stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
-            for i in range.chain(refs.iter().copied()) {
-                if let Some(th) = intersect_splat(ray.origin, ray.dir, &self.splats[i as usize]) {
-                    if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                        best = Some(Hit {
-                            t: th,
-                            splat: i,
-                            leaf: w,
-                        });
-                        if any {
-                            return best;
-                        }
+fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
+    walk_with(view, ray, stats, |w, limit, stats| {
+        let (range, refs) = view.leaf(w);
+        let mut best: Option<Hit> = None;
+        stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
+        for i in range.chain(refs.iter().copied()) {
+            if let Some(th) = intersect_splat(ray.origin, ray.dir, &view.splats[i as usize]) {
+                if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
+                    best = Some(Hit {
+                        t: th,
+                        splat: i,
+                        leaf: w,
+                    });
+                    if any {
+                        return best;
                     }
                 }
             }
-            best
-        })
-    }
+        }
+        best
+    })
+}
 
-    /// The walk, with the test of one leaf's splats supplied by the caller (`test(node word,
-    /// t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the packed
-    /// layout of [`crate::accel::Accel`] shares the same traversal.
-    #[inline(always)]
-    pub(crate) fn walk_with(
-        &self,
-        ray: &Ray,
-        stats: &mut TraversalStats,
-        mut test: impl FnMut(u32, f32, &mut TraversalStats) -> Option<Hit>,
-    ) -> Option<Hit> {
-        // Normalised root coordinates: the root is [0,1)³ and t is the same parameter.
-        let origin = Vec3::from(self.frame.origin);
-        let qo = (ray.origin - origin) * self.frame.inv_size;
-        // Adding +0 turns -0 into +0, so a zero component never picks the wrong exit face.
-        let qd = ray.dir * self.frame.inv_size + Vec3::ZERO;
-        let inv = qd.recip();
-        let (t0, t1) = ray_box(qo, inv, Vec3::ZERO, Vec3::ONE)?;
-        let t = t0.max(ray.t_min).max(0.0);
-        let t_end = t1.min(ray.t_max);
-        if t > t_end {
+/// The walk, with the test of one leaf's splats supplied by the caller (`test(node word,
+/// t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the packed
+/// layout of [`crate::accel::Accel`] shares the same traversal.
+#[inline(always)]
+pub(crate) fn walk_with(
+    view: &OctreeView,
+    ray: &Ray,
+    stats: &mut TraversalStats,
+    mut test: impl FnMut(u32, f32, &mut TraversalStats) -> Option<Hit>,
+) -> Option<Hit> {
+    // Normalised root coordinates: the root is [0,1)³ and t is the same parameter.
+    let origin = Vec3::from(view.frame.origin);
+    let qo = (ray.origin - origin) * view.frame.inv_size;
+    // Adding +0 turns -0 into +0, so a zero component never picks the wrong exit face.
+    let qd = ray.dir * view.frame.inv_size + Vec3::ZERO;
+    let inv = qd.recip();
+    let (t0, t1) = ray_box(qo, inv, Vec3::ZERO, Vec3::ONE)?;
+    let t = t0.max(ray.t_min).max(0.0);
+    let t_end = t1.min(ray.t_max);
+    if t > t_end {
+        return None;
+    }
+    // The current point as 21-bit integer cell coordinates (exact: q·2²¹ is a scaling by a
+    // power of two and the floor reads its bits), and the path of node words from the root.
+    let q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
+    let mut qi = quantize(q);
+    let mut path = [0u32; MAX_LEVELS + 1];
+    path[0] = view.nodes[0];
+    let mut depth = 0usize; // the deepest valid entry of `path` for qi
+    loop {
+        stats.cells += 1;
+        // Descend from the deepest ancestor that still contains qi (§8.5.11, resumed).
+        let mut w = path[depth];
+        while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
+            let shift = (MAX_LEVELS - 1 - depth) as u32;
+            let child = ((qi[0] >> shift) & 1)
+                | (((qi[1] >> shift) & 1) << 1)
+                | (((qi[2] >> shift) & 1) << 2);
+            w = view.nodes[(node::ptr(w) + child) as usize];
+            depth += 1;
+            path[depth] = w;
+        }
+        let shift = (MAX_LEVELS - depth) as u32;
+        let lo_i = qi.map(|c| (c >> shift) << shift);
+        let size_i = 1u32 << shift;
+        let lo = Vec3::from_array(lo_i.map(|c| c as f32 * CELL));
+        let hi = Vec3::from_array(lo_i.map(|c| (c + size_i) as f32 * CELL));
+        // Where the ray leaves this cell.
+        let far = Vec3::select(qd.cmpge(Vec3::ZERO), hi, lo);
+        let ta = (far - qo) * inv;
+        let t_exit = ta.min_element();
+        if node::is_leaf(w) {
+            let hit = test(w, t_exit.min(t_end), stats);
+            if hit.is_some() {
+                return hit;
+            }
+        }
+        if t_exit >= t_end {
             return None;
         }
-        // The current point as 21-bit integer cell coordinates (exact: q·2²¹ is a scaling by a
-        // power of two and the floor reads its bits), and the path of node words from the root.
-        let q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
-        let mut qi = quantize(q);
-        let mut path = [0u32; MAX_LEVELS + 1];
-        path[0] = self.nodes[0];
-        let mut depth = 0usize; // the deepest valid entry of `path` for qi
-        loop {
-            stats.cells += 1;
-            // Descend from the deepest ancestor that still contains qi (§8.5.11, resumed).
-            let mut w = path[depth];
-            while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
-                let shift = (MAX_LEVELS - 1 - depth) as u32;
-                let child = ((qi[0] >> shift) & 1)
-                    | (((qi[1] >> shift) & 1) << 1)
-                    | (((qi[2] >> shift) & 1) << 2);
-                w = self.nodes[(node::ptr(w) + child) as usize];
-                depth += 1;
-                path[depth] = w;
-            }
-            let shift = (MAX_LEVELS - depth) as u32;
-            let lo_i = qi.map(|c| (c >> shift) << shift);
-            let size_i = 1u32 << shift;
-            let lo = Vec3::from_array(lo_i.map(|c| c as f32 * CELL));
-            let hi = Vec3::from_array(lo_i.map(|c| (c + size_i) as f32 * CELL));
-            // Where the ray leaves this cell.
-            let far = Vec3::select(qd.cmpge(Vec3::ZERO), hi, lo);
-            let ta = (far - qo) * inv;
-            let t_exit = ta.min_element();
-            if node::is_leaf(w) {
-                let hit = test(w, t_exit.min(t_end), stats);
-                if hit.is_some() {
-                    return hit;
-                }
-            }
-            if t_exit >= t_end {
-                return None;
-            }
-            // Exact step into the face neighbour(s): the exit coordinate becomes the face (+) or
-            // the last cell below it (−); the others are the exit point clamped into the face.
-            let next = qo + qd * t_exit;
-            let mut ni = [0u32; 3];
-            for axis in 0..3 {
-                if ta[axis] <= t_exit {
-                    if qd[axis] >= 0.0 {
-                        if lo_i[axis] + size_i >= ROOT {
-                            return None; // leaves the root
-                        }
-                        ni[axis] = lo_i[axis] + size_i;
-                    } else {
-                        if lo_i[axis] == 0 {
-                            return None;
-                        }
-                        ni[axis] = lo_i[axis] - 1;
+        // Exact step into the face neighbour(s): the exit coordinate becomes the face (+) or
+        // the last cell below it (−); the others are the exit point clamped into the face.
+        let next = qo + qd * t_exit;
+        let mut ni = [0u32; 3];
+        for axis in 0..3 {
+            if ta[axis] <= t_exit {
+                if qd[axis] >= 0.0 {
+                    if lo_i[axis] + size_i >= ROOT {
+                        return None; // leaves the root
                     }
+                    ni[axis] = lo_i[axis] + size_i;
                 } else {
-                    let c = ((next[axis].max(0.0) * ROOT as f32) as u32).min(ROOT - 1);
-                    ni[axis] = c.clamp(lo_i[axis], lo_i[axis] + size_i - 1);
+                    if lo_i[axis] == 0 {
+                        return None;
+                    }
+                    ni[axis] = lo_i[axis] - 1;
                 }
+            } else {
+                let c = ((next[axis].max(0.0) * ROOT as f32) as u32).min(ROOT - 1);
+                ni[axis] = c.clamp(lo_i[axis], lo_i[axis] + size_i - 1);
             }
-            // The deepest common ancestor of the old and new points: their top equal bits.
-            let diff = (qi[0] ^ ni[0]) | (qi[1] ^ ni[1]) | (qi[2] ^ ni[2]);
-            let common = (diff.leading_zeros() as usize).saturating_sub(32 - MAX_LEVELS);
-            depth = depth.min(common);
-            qi = ni;
         }
+        // The deepest common ancestor of the old and new points: their top equal bits.
+        let diff = (qi[0] ^ ni[0]) | (qi[1] ^ ni[1]) | (qi[2] ^ ni[2]);
+        let common = (diff.leading_zeros() as usize).saturating_sub(32 - MAX_LEVELS);
+        depth = depth.min(common);
+        qi = ni;
     }
+}
 
-    /// Every splat of the leaf `leaf` (own and referenced) whose disk covers the point `x` of a
-    /// surface with normal `n`: within its radius in its plane and inside its border clip,
-    /// within `thickness · radius` of its plane, facing the same way. Used to blend overlapping splats at a hit (§8.5.8's open
-    /// issue). Returns (data-pool index, weight) with the weight `(1 − (ρ/r)²)²` of the in-plane
-    /// distance ρ, which falls smoothly to zero at the rim.
-    pub fn covering(&self, leaf: u32, x: Vec3, n: Vec3, thickness: f32, out: &mut Vec<(u32, f32)>) {
-        out.clear();
-        let (range, refs) = self.leaf(leaf);
-        for i in range.chain(refs.iter().copied()) {
-            let s = &self.splats[i as usize];
-            let sn = Vec3::from(s.normal);
-            if sn.dot(n) <= 0.0 {
-                continue;
-            }
-            let d = x - Vec3::from(s.position);
-            let h = d.dot(sn);
-            let rho2 = d.length_squared() - h * h;
-            let r2 = s.radius * s.radius;
-            if h.abs() <= thickness * s.radius && rho2 < r2 && s.within_clip((x - sn * h).into()) {
-                let u = 1.0 - rho2 / r2;
-                out.push((i, u * u));
-            }
+/// Every splat of the leaf `leaf` (own and referenced) whose disk covers the point `x` of a
+/// surface with normal `n`: within its radius in its plane and inside its border clip,
+/// within `thickness · radius` of its plane, facing the same way. Used to blend overlapping splats at a hit (§8.5.8's open
+/// issue). Returns (data-pool index, weight) with the weight `(1 − (ρ/r)²)²` of the in-plane
+/// distance ρ, which falls smoothly to zero at the rim.
+pub fn covering(
+    view: &OctreeView,
+    leaf: u32,
+    x: Vec3,
+    n: Vec3,
+    thickness: f32,
+    out: &mut Vec<(u32, f32)>,
+) {
+    out.clear();
+    let (range, refs) = view.leaf(leaf);
+    for i in range.chain(refs.iter().copied()) {
+        let s = &view.splats[i as usize];
+        let sn = Vec3::from(s.normal);
+        if sn.dot(n) <= 0.0 {
+            continue;
+        }
+        let d = x - Vec3::from(s.position);
+        let h = d.dot(sn);
+        let rho2 = d.length_squared() - h * h;
+        let r2 = s.radius * s.radius;
+        if h.abs() <= thickness * s.radius && rho2 < r2 && s.within_clip((x - sn * h).into()) {
+            let u = 1.0 - rho2 / r2;
+            out.push((i, u * u));
         }
     }
 }

@@ -8,13 +8,15 @@
 
 use glam::Vec3;
 use pc_artifact::octree::node;
-use pc_artifact::vmap::{Link, VmapParams};
+use pc_artifact::params::VmapParams;
+use pc_artifact::vmap::Link;
 use pc_tree::rng::{pcg, rand};
 use pc_tree::{OctreeView, Ray};
 use rayon::prelude::*;
 
 // The casters live in pc-tree, shared with pc-fmm's shadow rays; re-exported here, where the
 // V-map's callers have always found them.
+use pc_gpu::GpuError;
 pub use pc_tree::caster::{Caster, CpuCaster, GpuCaster};
 
 /// What the V-map needs per node-pool slot.
@@ -38,72 +40,36 @@ impl VNode {
     }
 }
 
-/// Subtree ranges, normal cones and V-map leaves of every node-pool slot.
+/// Subtree ranges, normal cones ([`pc_tree::nodes`]) and V-map leaves of every node-pool slot.
 pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
-    let n = view.nodes.len();
-    let mut out = vec![
-        VNode {
-            cone_cos: -1.0,
-            ..Default::default()
-        };
-        n
-    ];
-    // Ranges bottom-up: children are always after their parent in the pool.
-    let mut range = vec![(u32::MAX, 0u32); n];
-    for slot in (0..n).rev() {
-        let w = view.nodes[slot];
-        if node::is_empty(w) {
-            continue;
-        }
-        if node::is_leaf(w) {
-            let (r, _) = view.leaf(w);
-            if r.end > r.start {
-                range[slot] = (r.start, r.end);
+    let ranges = pc_tree::nodes::subtree_ranges(view);
+    let cones = pc_tree::nodes::normal_cones(view, &ranges);
+    ranges
+        .par_iter()
+        .zip(&cones)
+        .enumerate()
+        .map(|(slot, (&[lo, hi], &cone_cos))| {
+            if lo >= hi {
+                return VNode {
+                    cone_cos: -1.0,
+                    ..Default::default()
+                };
             }
-        } else {
-            let c = node::ptr(w) as usize;
-            let (mut lo, mut hi) = (u32::MAX, 0u32);
-            for k in 0..8 {
-                let (a, b) = range[c + k];
-                if a < b {
-                    lo = lo.min(a);
-                    hi = hi.max(b);
-                }
+            let info = &view.node_info[slot];
+            VNode {
+                lo,
+                hi,
+                center: Vec3::from(info.centroid),
+                radius: info.disk_radius,
+                axis: Vec3::from(info.normal),
+                cone_cos,
+                // A V-map leaf's fraction applies to all its splats alike: never mix classes (a
+                // light and the ceiling just behind it are not equally visible).
+                vleaf: node::is_leaf(view.nodes[slot])
+                    || (hi - lo <= leaf_splats && info.class != pc_artifact::octree::class::MIXED),
             }
-            if lo < hi {
-                range[slot] = (lo, hi);
-            }
-        }
-    }
-    out.par_iter_mut().enumerate().for_each(|(slot, v)| {
-        let (lo, hi) = range[slot];
-        if lo >= hi {
-            return;
-        }
-        let info = &view.node_info[slot];
-        let axis = Vec3::from(info.normal);
-        let cone_cos = if axis == Vec3::ZERO {
-            -1.0
-        } else {
-            view.splats[lo as usize..hi as usize]
-                .iter()
-                .map(|s| axis.dot(Vec3::from(s.normal)))
-                .fold(1.0f32, f32::min)
-        };
-        *v = VNode {
-            lo,
-            hi,
-            center: Vec3::from(info.centroid),
-            radius: info.disk_radius,
-            axis,
-            cone_cos,
-            // A V-map leaf's fraction applies to all its splats alike: never mix classes (a
-            // light and the ceiling just behind it are not equally visible).
-            vleaf: node::is_leaf(view.nodes[slot])
-                || (hi - lo <= leaf_splats && info.class != pc_artifact::octree::class::MIXED),
-        };
-    });
-    out
+        })
+        .collect()
 }
 
 /// Non-empty children of an internal node.
@@ -274,7 +240,7 @@ fn decide(
     caster: &dyn Caster,
     tested: &[(u32, u32, bool)],
     links: &mut Links,
-) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), String> {
+) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
     let mut next = Vec::new();
     let mut partial = Vec::new();
     let per_pair: Vec<Vec<(Ray, f32)>> = tested
@@ -370,7 +336,7 @@ fn exact_partial(
     caster: &dyn Caster,
     partial: &[(u32, u32)],
     links: &mut Links,
-) -> Result<(), String> {
+) -> Result<(), GpuError> {
     {
         let per_pair: Vec<Vec<(Ray, f32)>> = partial
             .par_iter()
@@ -494,7 +460,7 @@ pub fn build_links(
     p: &VmapParams,
     caster: &dyn Caster,
     round: &mut dyn FnMut(usize, usize),
-) -> Result<Links, String> {
+) -> Result<Links, GpuError> {
     let mut links = Links::default();
     if vn[0].count() == 0 {
         return Ok(links);
@@ -554,7 +520,7 @@ pub fn light_lists(
     lights: &[Vec3],
     p: &VmapParams,
     caster: &dyn Caster,
-) -> Result<Vec<Vec<Link>>, String> {
+) -> Result<Vec<Vec<Link>>, GpuError> {
     let mut out = Vec::with_capacity(lights.len());
     for (li, &pos) in lights.iter().enumerate() {
         let mut list = Vec::new();

@@ -2,4 +2,5 @@
 //! each point light sees (§8.5.3). See docs/vmap.md.
 
 pub mod build;
+pub mod error;
 pub mod stage;

@@ -2,19 +2,18 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 
-use anyhow::Context;
 use clap::Parser;
-use indicatif::{ProgressBar, ProgressStyle};
-use pc_scene::config::Backend;
+use pc_config::Backend;
+use pc_stage::StageArgs;
+use pc_vmap::stage::VmapStage;
 
 /// View-independent visibility links between octree nodes, and the nodes each light sees.
 #[derive(Parser)]
 #[command(name = "pc-vmap", version, about)]
 struct Args {
     #[command(flatten)]
-    stage: pc_scene::cli::StageArgs,
+    stage: StageArgs,
     /// Where rays are cast: cpu, gpu, or auto; default: vmap.backend.
     #[arg(long, value_enum)]
     backend: Option<Backend>,
@@ -27,57 +26,13 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    pc_scene::cli::exit("pc-vmap", run(&Args::parse()))
-}
-
-fn run(args: &Args) -> anyhow::Result<()> {
-    let cfg = args.stage.load()?;
-    let octree = args.octree.clone().unwrap_or_else(|| cfg.octree_path());
-    let out = args.output.clone().unwrap_or_else(|| cfg.vmap_path());
-    let backend = args.backend.unwrap_or(cfg.config.vmap.backend);
-    let key = pc_vmap::stage::key(&cfg, &octree)
-        .with_context(|| format!("computing the V-map for {}", args.stage.config.display()))?;
-    let started = std::time::Instant::now();
-    if args
-        .stage
-        .gate_artifact("pc-vmap", &out, &key, pc_artifact::ArtifactKind::Vmap)?
-        == pc_scene::cli::Gate::Done
-    {
-        return Ok(());
-    }
-    let bar = if args.stage.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new_spinner()
-    };
-    bar.set_style(ProgressStyle::with_template(
-        "{spinner} vmap {msg} {elapsed}",
-    )?);
-    bar.enable_steady_tick(Duration::from_millis(100));
-    let mut round = |level: usize, frontier: usize| {
-        bar.set_message(format!("round {level}: {frontier} node pairs next"))
-    };
-    let s = pc_vmap::stage::run(&cfg, &octree, &out, backend, &mut round)
-        .with_context(|| format!("computing the V-map for {}", args.stage.config.display()))?;
-    bar.finish_and_clear();
-    let m = &s.meta;
-    println!(
-        "pc-vmap: wrote {} ({} far and {} near links{}, {} node pairs tested, {} rays, {} light lists) in {:.2} s on {}",
-        s.path.display(),
-        m.far_links,
-        m.near_links,
-        if m.links_reused { " reused" } else { "" },
-        m.pairs_tested,
-        m.rays_cast,
-        m.lights.len(),
-        s.seconds,
-        m.device
-    );
-    args.stage.finish(
-        "pc-vmap",
-        "ran",
-        &s.path,
-        &key,
-        started.elapsed().as_secs_f64(),
-    )
+    let a = Args::parse();
+    pc_stage::main(&a.stage, |cfg| {
+        Ok(VmapStage {
+            octree: a.octree.clone().unwrap_or_else(|| cfg.octree_path()),
+            output: a.output.clone().unwrap_or_else(|| cfg.vmap_path()),
+            backend: a.backend.unwrap_or(cfg.config.vmap.backend),
+            cfg,
+        })
+    })
 }

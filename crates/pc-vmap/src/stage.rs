@@ -4,33 +4,19 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
 use glam::Vec3;
-use pc_artifact::octree::OctreeMeta;
-use pc_artifact::vmap::{sections, Link, VmapMeta, VmapParams};
-use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
-use pc_scene::config::{Backend, LoadedConfig};
-use pc_tree::OctreeView;
+use pc_artifact::octree::{OctreeFile, OctreeView};
+use pc_artifact::params::VmapParams;
+use pc_artifact::vmap::{sections, Link, VmapFile, VmapMeta};
+use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointLight};
+use pc_config::{Backend, LoadedConfig};
+use pc_stage::{Progress, Stage};
 
 use crate::build::{build_links, csr, light_lists, vnodes, Caster, CpuCaster, GpuCaster};
+use crate::error::VmapError;
 
 pub const STAGE: &str = "pc-vmap";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
-
-pub fn params(cfg: &LoadedConfig) -> VmapParams {
-    let v = &cfg.config.vmap;
-    VmapParams {
-        theta: v.theta,
-        rays: v.rays,
-        near_rays: v.near_rays,
-        leaf_splats: v.leaf_splats,
-        self_hit: v.self_hit,
-        refine_form_factor: v.refine_form_factor,
-        heavy_rays: v.heavy_rays,
-        heavy_form_factor: v.heavy_form_factor,
-        seed: v.seed,
-    }
-}
 
 /// The key of the links: this stage's version, the octree's key and the V-map parameters.
 pub fn links_key(octree_key: &Key, p: &VmapParams) -> Key {
@@ -44,10 +30,18 @@ pub fn links_key(octree_key: &Key, p: &VmapParams) -> Key {
 }
 
 /// The artifact's key: the links key and the point lights.
-pub fn vmap_key(links: &Key, lights: &[[f32; 6]]) -> Key {
+pub fn vmap_key(links: &Key, lights: &[PointLight]) -> Key {
     let mut h = KeyHasher::new();
-    h.update_key(links).update_serialize(&lights.to_vec());
+    h.update_key(links).update_serialize(lights);
     h.finish()
+}
+
+/// The key a run on `cfg` would give its artifact, from the octree artifact's header (nothing
+/// is computed): [`vmap_key`] of [`links_key`] and the lights.
+pub fn key(cfg: &LoadedConfig, octree_path: &Path) -> Result<Key, VmapError> {
+    let octree = Artifact::open_input(octree_path, ArtifactKind::Octree)?.key();
+    let lkey = links_key(&octree, &cfg.config.vmap.params);
+    Ok(vmap_key(&lkey, &cfg.config.lights))
 }
 
 /// What one run made.
@@ -57,100 +51,103 @@ pub struct Summary {
     pub seconds: f64,
 }
 
-/// The key a run on `cfg` would give its artifact, from the octree artifact's header (nothing
-/// is computed): [`vmap_key`] of [`links_key`] and the lights.
-pub fn key(cfg: &LoadedConfig, octree_path: &Path) -> anyhow::Result<Key> {
-    let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let lkey = links_key(&art.key(), &params(cfg));
-    Ok(vmap_key(&lkey, &cfg.light_records()))
-}
-
-/// The link sections of a previous artifact whose links key matches, if any.
-struct Reused {
+/// The link sections and counts of a run, computed or reused.
+struct Links {
     offsets: Vec<u32>,
     links: Vec<Link>,
     far: u64,
     near: u64,
     pairs: u64,
     rays: u64,
+    reused: bool,
 }
 
-fn reusable(path: &Path, key: &Key, nodes: usize) -> Option<Reused> {
-    let a = Artifact::open_kind(path, ArtifactKind::Vmap).ok()?;
-    let meta: VmapMeta = a.metadata().ok()?;
-    if meta.links_key != key.to_string() {
-        return None;
-    }
-    let offsets: &[u32] = a.section(sections::LINK_OFFSETS).ok()?;
-    let links: &[Link] = a.section(sections::LINKS).ok()?;
-    (offsets.len() == nodes + 1 && *offsets.last()? as usize == links.len()).then(|| Reused {
-        offsets: offsets.to_vec(),
-        links: links.to_vec(),
+/// The links of the previous artifact at `path` when its links key is `key` and it fits an
+/// octree of `nodes` slots.
+fn reusable(path: &Path, key: &Key, nodes: usize) -> Option<Links> {
+    let f = VmapFile::open_alone(path).ok()?;
+    let (meta, v) = (f.meta(), f.view());
+    (meta.links_key == key.to_string() && v.node_range.len() == nodes).then(|| Links {
+        offsets: v.link_offsets.to_vec(),
+        links: v.links.to_vec(),
         far: meta.far_links,
         near: meta.near_links,
         pairs: meta.pairs_tested,
         rays: meta.rays_cast,
+        reused: true,
     })
 }
 
-/// Run the stage. `round(level, frontier)` reports progress of the link build.
+/// The caster of the device `backend` asks for ([`pc_stage::gpu_or_cpu`]).
+fn caster<'v>(
+    view: &'v OctreeView<'v>,
+    backend: Backend,
+) -> Result<Box<dyn Caster + 'v>, VmapError> {
+    pc_stage::gpu_or_cpu(
+        STAGE,
+        backend,
+        |ctx| {
+            let caster = pc_tree::gpu::RayCaster::new(&ctx, view)?;
+            Ok(Box::new(GpuCaster { ctx, caster }) as Box<dyn Caster>)
+        },
+        || Ok(Box::new(CpuCaster::new(view))),
+    )
+}
+
+/// Run the stage; `progress` hears of each round of the link build.
 pub fn run(
     cfg: &LoadedConfig,
     octree_path: &Path,
     out: &Path,
     backend: Backend,
-    round: &mut dyn FnMut(usize, usize),
-) -> anyhow::Result<Summary> {
+    progress: &dyn Progress,
+) -> Result<Summary, VmapError> {
     let started = Instant::now();
-    let art = Artifact::open_kind(octree_path, ArtifactKind::Octree)
-        .with_context(|| format!("run pc-octree first to make {}", octree_path.display()))?;
-    let view = OctreeView::from_artifact(&art)?;
-    let _: OctreeMeta = art.metadata()?;
-    let p = params(cfg);
-    let octree_key = art.header().key;
-    let lkey = links_key(&octree_key, &p);
-    let lights = cfg.light_records();
-    let key = vmap_key(&lkey, &lights);
+    let octree = OctreeFile::open(octree_path)?;
+    let view = octree.view();
+    let p = &cfg.config.vmap.params;
+    let lkey = links_key(&octree.key(), p);
+    let lights = &cfg.config.lights;
+    let key = vmap_key(&lkey, lights);
     let mut timings = Vec::new();
     let t = Instant::now();
     let vn = vnodes(&view, p.leaf_splats);
     timings.push(("nodes and cones".to_string(), t.elapsed().as_secs_f64()));
-    let gpu = match backend {
-        Backend::Cpu => None,
-        Backend::Gpu => Some(pc_gpu::GpuContext::new()?),
-        Backend::Auto => pc_gpu::GpuContext::new().ok().filter(|g| !g.is_software()),
-    };
-    let caster: Box<dyn Caster> = match gpu {
-        Some(ctx) => match pc_tree::gpu::RayCaster::new(&ctx, &view) {
-            Ok(caster) => Box::new(GpuCaster { ctx, caster }),
-            Err(e) if backend == Backend::Auto => {
-                eprintln!("pc-vmap: warning: casting on the CPU: the GPU cannot: {e}");
-                Box::new(CpuCaster::new(&view))
-            }
-            Err(e) => return Err(e.into()),
-        },
-        None => Box::new(CpuCaster::new(&view)),
-    };
+    let caster = caster(&view, backend)?;
     let t = Instant::now();
-    let (offsets, links, far, near, pairs, rays, reused) =
-        match reusable(out, &lkey, view.nodes.len()) {
-            Some(r) => (r.offsets, r.links, r.far, r.near, r.pairs, r.rays, true),
-            None => {
-                let l = build_links(&view, &vn, &p, caster.as_ref(), round)
-                    .map_err(|e| anyhow::anyhow!("casting visibility rays: {e}"))?;
-                let (o, k) = csr(view.nodes.len(), l.pairs);
-                (o, k, l.far, l.near, l.pairs_tested, l.rays, false)
+    let links = match reusable(out, &lkey, view.nodes.len()) {
+        Some(r) => r,
+        None => {
+            progress.phase("links");
+            let mut round = |level: usize, frontier: usize| {
+                progress.phase(&format!("links, round {level}: {frontier} node pairs next"))
+            };
+            let l = build_links(&view, &vn, p, caster.as_ref(), &mut round)?;
+            let (offsets, links) = csr(view.nodes.len(), l.pairs);
+            Links {
+                offsets,
+                links,
+                far: l.far,
+                near: l.near,
+                pairs: l.pairs_tested,
+                rays: l.rays,
+                reused: false,
             }
-        };
+        }
+    };
     timings.push((
-        if reused { "links (reused)" } else { "links" }.to_string(),
+        if links.reused {
+            "links (reused)"
+        } else {
+            "links"
+        }
+        .to_string(),
         t.elapsed().as_secs_f64(),
     ));
+    progress.phase("light lists");
     let t = Instant::now();
-    let positions: Vec<Vec3> = lights.iter().map(|l| Vec3::new(l[0], l[1], l[2])).collect();
-    let lists = light_lists(&view, &vn, &positions, &p, caster.as_ref())
-        .map_err(|e| anyhow::anyhow!("casting light rays: {e}"))?;
+    let positions: Vec<Vec3> = lights.iter().map(|l| Vec3::from(l.position)).collect();
+    let lists = light_lists(&view, &vn, &positions, p, caster.as_ref())?;
     let mut light_offsets = vec![0u32];
     let mut light_links = Vec::new();
     for l in &lists {
@@ -159,24 +156,24 @@ pub fn run(
     }
     timings.push(("light lists".to_string(), t.elapsed().as_secs_f64()));
     let meta = VmapMeta {
-        octree_key: octree_key.to_string(),
+        octree_key: octree.key().to_string(),
         links_key: lkey.to_string(),
-        params: p,
-        lights,
-        far_links: far,
-        near_links: near,
-        pairs_tested: pairs,
-        rays_cast: rays,
-        links_reused: reused,
+        params: p.clone(),
+        lights: lights.clone(),
+        far_links: links.far,
+        near_links: links.near,
+        pairs_tested: links.pairs,
+        rays_cast: links.rays,
+        links_reused: links.reused,
         device: caster.name(),
         timings,
     };
-    let range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo.min(v.hi), v.hi]).collect();
+    let range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo, v.hi]).collect();
     let cone: Vec<f32> = vn.iter().map(|v| v.cone_cos).collect();
     let vnode: Vec<u32> = vn.iter().map(|v| v.vleaf as u32).collect();
     let mut w = ArtifactWriter::create(out, ArtifactKind::Vmap, STAGE, STAGE_VERSION, key)?;
-    w.section(sections::LINK_OFFSETS, &offsets)?;
-    w.section(sections::LINKS, &links)?;
+    w.section(sections::LINK_OFFSETS, &links.offsets)?;
+    w.section(sections::LINKS, &links.links)?;
     w.section(sections::LIGHT_OFFSETS, &light_offsets)?;
     w.section(sections::LIGHT_LINKS, &light_links)?;
     w.section(sections::NODE_RANGE, &range)?;
@@ -189,4 +186,57 @@ pub fn run(
         meta,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// pc-vmap as its binary runs it.
+pub struct VmapStage {
+    pub cfg: LoadedConfig,
+    pub octree: PathBuf,
+    pub output: PathBuf,
+    pub backend: Backend,
+}
+
+impl Stage for VmapStage {
+    const NAME: &'static str = STAGE;
+    const DOING: &'static str = "computing the V-map";
+    type Made = Summary;
+    type Error = VmapError;
+
+    fn output(&self) -> &Path {
+        &self.output
+    }
+
+    fn key(&self) -> Result<Key, VmapError> {
+        key(&self.cfg, &self.octree)
+    }
+
+    fn existing_key(&self) -> Option<Key> {
+        pc_stage::artifact_key(&self.output, ArtifactKind::Vmap)
+    }
+
+    fn run(&self, progress: &dyn Progress) -> Result<Summary, VmapError> {
+        run(
+            &self.cfg,
+            &self.octree,
+            &self.output,
+            self.backend,
+            progress,
+        )
+    }
+
+    fn summary(&self, s: &Summary, _seconds: f64) -> String {
+        let m = &s.meta;
+        format!(
+            "pc-vmap: wrote {} ({} far and {} near links{}, {} node pairs tested, {} rays, {} light lists) in {:.2} s on {}",
+            s.path.display(),
+            m.far_links,
+            m.near_links,
+            if m.links_reused { " reused" } else { "" },
+            m.pairs_tested,
+            m.rays_cast,
+            m.lights.len(),
+            s.seconds,
+            m.device
+        )
+    }
 }

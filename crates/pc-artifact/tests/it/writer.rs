@@ -6,10 +6,15 @@ use pc_artifact::{Artifact, ArtifactError, ArtifactKind, ArtifactWriter, KeyHash
 
 use crate::common::*;
 
-fn tmp_of(path: &Path) -> std::path::PathBuf {
-    let mut name = path.file_name().unwrap().to_os_string();
-    name.push(".tmp");
-    path.with_file_name(name)
+/// The temporary files of writes of `path` in its folder (`NAME.<pid>.<unique>.tmp`).
+fn tmps_of(path: &Path) -> Vec<std::path::PathBuf> {
+    let name = path.file_name().unwrap();
+    std::fs::read_dir(path.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap())
+        .filter(|e| pc_artifact::atomic::tmp_owner(&e.file_name(), name).is_some())
+        .map(|e| e.path())
+        .collect()
 }
 
 fn files_in(dir: &Path) -> Vec<String> {
@@ -28,7 +33,11 @@ fn finish_leaves_no_tmp_and_creates_folders() {
     let mut w =
         ArtifactWriter::create(&path, ArtifactKind::Octree, "pc-octree", "0.0.0", key()).unwrap();
     assert_eq!(w.path(), path);
-    assert!(tmp_of(&path).exists(), "the writer works in NAME.tmp");
+    assert_eq!(
+        tmps_of(&path).len(),
+        1,
+        "the writer works in a temporary file"
+    );
     assert!(!path.exists(), "nothing at NAME before finish");
     w.section("nodes", &nodes()).unwrap();
     assert_eq!(w.finish().unwrap(), path);
@@ -45,7 +54,7 @@ fn dropped_writer_removes_tmp_and_keeps_older_artifact() {
             ArtifactWriter::create(&path, ArtifactKind::Octree, "pc-octree", "0.0.0", key())
                 .unwrap();
         w.section("nodes", &[1u64; 1000]).unwrap();
-        assert!(tmp_of(&path).exists());
+        assert_eq!(tmps_of(&path).len(), 1);
         // Dropped without finish, as on an error or a panic in the stage.
     }
     assert_eq!(files_in(dir.path()), ["sample.octree"]);
@@ -69,13 +78,16 @@ fn writer_error_then_drop_removes_tmp() {
 }
 
 #[test]
-fn a_stale_tmp_is_replaced() {
+fn a_stale_tmp_neither_disturbs_a_write_nor_survives_the_cleanup() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("x.vmap");
-    std::fs::write(tmp_of(&path), vec![0xffu8; 10_000]).unwrap();
+    // What a run killed before its rename leaves (the old fixed name and a dead process's).
+    std::fs::write(dir.path().join("x.vmap.tmp"), vec![0xffu8; 10_000]).unwrap();
+    std::fs::write(dir.path().join("x.vmap.0.0123456789abcdef.tmp"), [0u8; 64]).unwrap();
     let mut w = ArtifactWriter::create(&path, ArtifactKind::Vmap, "pc-vmap", "1", key()).unwrap();
     w.section("a", &[1u32]).unwrap();
     w.finish().unwrap();
+    assert_eq!(pc_artifact::atomic::remove_stale_temps(&path).unwrap(), 2);
     assert_eq!(files_in(dir.path()), ["x.vmap"]);
     assert_eq!(
         Artifact::open(&path).unwrap().section::<u32>("a").unwrap(),

@@ -4,11 +4,14 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_artifact::vmap::{Link, VmapParams};
-use pc_caustics::emit::{self, Aim, Leaves, VmapInput};
+use pc_artifact::params::VmapParams;
+use pc_artifact::vmap::Link;
+use pc_artifact::vmap::VmapView;
+use pc_artifact::PointLight;
+use pc_caustics::emit::{self, Aim, Leaves};
 use pc_caustics::stage::{trace_all, Traced};
 use pc_caustics::trace::Tracer;
-use pc_octree::{build, BuildInput, BuildParams};
+use pc_octree::{build, BuildInput, OctreeParams};
 use pc_testkit::Soa;
 use pc_tree::accel::Accel;
 use pc_tree::OctreeView;
@@ -92,7 +95,7 @@ pub fn with_setup<R>(
         material: &soa.m,
         material_class: &classes,
     };
-    let params = BuildParams {
+    let params = OctreeParams {
         max_leaf_points: 16,
         area_samples: 16,
         ..Default::default()
@@ -116,13 +119,20 @@ pub fn with_setup<R>(
     let (offsets, links) = csr(view.nodes.len(), l.pairs);
     let lists: Vec<Vec<Link>> = light_lists(&view, &vn, &[light.0], &p, &caster).unwrap();
     let node_range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo.min(v.hi), v.hi]).collect();
-    let input = VmapInput {
-        node_range: &node_range,
+    let light_offsets = [0, lists[0].len() as u32];
+    let cones: Vec<f32> = vn.iter().map(|v| v.cone_cos).collect();
+    let vleaves: Vec<u32> = vn.iter().map(|v| v.vleaf as u32).collect();
+    let input = VmapView {
         link_offsets: &offsets,
         links: &links,
-        light_lists: lists.iter().map(|l| l.as_slice()).collect(),
+        light_offsets: &light_offsets,
+        light_links: &lists[0],
+        node_range: &node_range,
+        node_cone: &cones,
+        vnode: &vleaves,
     };
     let leaves = Leaves::new(&view, materials);
+    let light = PointLight::new(light.0.into(), light.1.into());
     let plan = emit::plan(&view, materials, &leaves, &[light], &input);
     let aims = emit::aims(&plan, budget, 3);
     let accel = Accel::new(&view);

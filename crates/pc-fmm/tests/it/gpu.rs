@@ -118,7 +118,7 @@ fn gpu_solve_matches_the_cpu() {
             [0.6 + 0.2 * x.sin(), 0.5, 0.4 + 0.1 * x.cos()]
         })
         .collect();
-    let sys = solve::System {
+    let sys = pc_fmm::System {
         source,
         emission: vec![[0.0; 3]; n],
         albedo,

@@ -3,12 +3,13 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_artifact::vmap::{Link, VmapParams};
+use pc_artifact::params::VmapParams;
+use pc_artifact::vmap::Link;
 use pc_fmm::cpu::{direct, PhaseTimes};
 use pc_fmm::plan::{self, PlanParams};
 use pc_fmm::solve::{self, Operator};
 use pc_fmm::{tree, Basis, CpuFmm, CpuOperator};
-use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_octree::{build, BuildInput, Octree, OctreeParams};
 use pc_vmap::build::{build_links, csr, vnodes, CpuCaster};
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
@@ -55,7 +56,7 @@ pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
         material: &soa.m,
         material_class: &classes,
     };
-    let params = BuildParams {
+    let params = OctreeParams {
         max_leaf_points: k,
         area_samples: 16,
         ..Default::default()
@@ -121,7 +122,11 @@ pub fn tree_and_plan(
 
 /// Relative L2 error of one FMM product against the direct sum.
 fn product_error(sc: &Scene, order: usize, theta: f32, radiance: &[[f32; 3]]) -> (f64, f64) {
-    let (t, p, plan) = tree_and_plan(sc, theta, pc_scene::config::FmmConfig::default().clamp_tol);
+    let (t, p, plan) = tree_and_plan(
+        sc,
+        theta,
+        pc_artifact::params::FmmParams::default().clamp_tol,
+    );
     let basis = Basis::new(order);
     let fmm = CpuFmm::new(&basis, &t, &p, &plan);
     let mut out = vec![[0.0f32; 3]; radiance.len()];
@@ -158,7 +163,7 @@ fn fmm_matches_the_direct_sum_and_improves_with_order() {
         println!("order {order}: relative L2 error {e:.3e}");
         errs.push(e);
     }
-    let default = pc_scene::config::FmmConfig::default().order as usize;
+    let default = pc_artifact::params::FmmParams::default().order as usize;
     assert!(
         errs[default - 1] < 1e-3,
         "default order {default}: {}",
@@ -222,7 +227,7 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
             applications: 0,
         };
         // `emission` left zero: the operator transports all of L, the classic L = E + ρ T L.
-        let sys = solve::System {
+        let sys = pc_fmm::System {
             source: vec![[e; 3]; soa.len()],
             emission: vec![[0.0; 3]; soa.len()],
             albedo: vec![[rho; 3]; soa.len()],
@@ -234,10 +239,12 @@ fn furnace_sphere_converges_to_e_over_one_minus_rho() {
             &mut op,
             &sys,
             &p,
-            1e-5,
-            500,
-            solve::GMRES_RESTART,
-            false,
+            solve::Gmres {
+                tolerance: 1e-5,
+                max_iterations: 500,
+                restart: solve::GMRES_RESTART,
+                relaxed: false,
+            },
             &mut |_, _| {},
         )
         .unwrap();
@@ -284,7 +291,7 @@ fn relaxed_products_lower_the_order_and_keep_the_answer() {
     let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
     let view = sc.octree.view();
     let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
-    let order = pc_scene::config::FmmConfig::default().order as usize;
+    let order = pc_artifact::params::FmmParams::default().order as usize;
     let basis = Basis::new(order);
     let mut op = CpuOperator {
         fmm: CpuFmm::new(&basis, &t, &p, &plan),
@@ -305,7 +312,7 @@ fn relaxed_products_lower_the_order_and_keep_the_answer() {
             [if lamp { 10.0 } else { 0.0 }; 3]
         })
         .collect();
-    let sys = solve::System {
+    let sys = pc_fmm::System {
         source: source.clone(),
         emission: vec![[0.0; 3]; soa.len()],
         albedo,
@@ -314,7 +321,7 @@ fn relaxed_products_lower_the_order_and_keep_the_answer() {
     let (err_p, _) = product_error(&sc, order, 0.5, &varied_radiance(soa.len()));
     // The default tolerance, and one below what the order can deliver.
     for tol in [
-        pc_scene::config::FmmConfig::default().tolerance as f64,
+        pc_artifact::params::FmmParams::default().tolerance as f64,
         1e-5,
     ] {
         let run = |op: &mut CpuOperator, relaxed| {
@@ -322,10 +329,12 @@ fn relaxed_products_lower_the_order_and_keep_the_answer() {
                 op,
                 &sys,
                 &p,
-                tol,
-                100,
-                solve::GMRES_RESTART,
-                relaxed,
+                solve::Gmres {
+                    tolerance: tol,
+                    max_iterations: 100,
+                    restart: solve::GMRES_RESTART,
+                    relaxed,
+                },
                 &mut |_, _| {},
             )
             .unwrap()
@@ -483,7 +492,7 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     let tester = pc_tree::caster::CpuCaster::new(&view);
     let base = || {
         let n = view.splats.len();
-        let mut sys = solve::System {
+        let mut sys = pc_fmm::System {
             source: vec![[0.0; 3]; n],
             emission: vec![[0.0; 3]; n],
             albedo: vec![[0.0; 3]; n],
@@ -499,13 +508,13 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     };
     let direct = |probes: u32, shafts: bool| {
         let mut sys = base();
-        let how = solve::EmitterSampling {
+        let how = pc_fmm::emitter::EmitterSampling {
             samples: 64,
             probes,
             self_hit: 0.5,
             shafts,
         };
-        let r = solve::emitter_direct(&view, &pts, &mut sys, how, &tester).unwrap();
+        let r = pc_fmm::emitter::emitter_direct(&view, &pts, &mut sys, how, &tester).unwrap();
         (sys.source, r)
     };
     let (every, all) = direct(0, false);

@@ -2,6 +2,7 @@
 
 use glam::Vec3;
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
+use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::{Located, OctreeView};
 
 /// The kernel's source (`shaders/octree/locate.wgsl` with the files it requires).
@@ -38,16 +39,13 @@ impl LocateKernel {
             return Ok(Vec::new());
         }
         let queries: Vec<[f32; 4]> = points.iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-        let frame = ctx.uniform("frame", bytemuck::bytes_of(&tree.frame));
-        let nodes = ctx.storage("nodes", bytemuck::cast_slice(tree.nodes))?;
+        let octree = GpuOctree::upload(ctx, tree, OctreeParts::Locate)?;
         let q = ctx.storage("queries", bytemuck::cast_slice(&queries))?;
         let size = (points.len() * 16) as u64;
         let out = ctx.output("results", size)?;
-        self.kernel.run(
-            ctx,
-            &[&frame, &nodes, &q, &out],
-            grid(points.len() as u32, 64),
-        )?;
+        let binds: Vec<&pc_gpu::Buffer> = octree.buffers().chain([&q, &out]).collect();
+        self.kernel
+            .run(ctx, &binds, grid(points.len() as u32, 64))?;
         let bytes = ctx.read(&out, size)?;
         let words: &[[u32; 4]] = bytemuck::cast_slice(&bytes);
         Ok(words

@@ -3,9 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use pc_artifact::{Artifact, ArtifactError, ArtifactKind};
+use pc_import::ply_write::{write_ply, PlyFormat, PlyPoints};
 use pc_octree::stage;
-use pc_scene::ply_write::{write_ply, PlyFormat, PlyPoints};
-use pc_tree::OctreeView;
 
 use crate::{mixed_scene, Soa};
 
@@ -64,14 +63,11 @@ area_samples = 4
     path
 }
 
-fn run_stage(
-    config: &Path,
-    overrides: &[&str],
-) -> (stage::Summary, pc_scene::config::LoadedConfig) {
+fn run_stage(config: &Path, overrides: &[&str]) -> (stage::Summary, pc_config::LoadedConfig) {
     let set: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    let cfg = pc_scene::config::load_config(config, &set).unwrap();
+    let cfg = pc_config::load_config(config, &set).unwrap();
     let out = cfg.octree_path();
-    let summary = stage::run(&cfg, &out, &mut |_, _| {}, &mut |_| {}).unwrap();
+    let summary = stage::run(&cfg, &out, &pc_stage::Silent).unwrap();
     (summary, cfg)
 }
 
@@ -83,14 +79,15 @@ fn stage_writes_an_artifact_that_maps_back_identically() {
     let a = Artifact::open_kind(&summary.path, ArtifactKind::Octree).unwrap();
     assert_eq!(a.header().stage, "pc-octree");
     assert_eq!(a.header().key, stage::octree_key(&cfg).unwrap());
-    let view = OctreeView::from_artifact(&a).unwrap();
+    let file = pc_artifact::octree::OctreeFile::open(&summary.path).unwrap();
+    let view = file.view();
     let o = &summary.octree;
     assert_eq!(view.nodes, &o.nodes[..]);
     assert_eq!(view.begin_end, &o.begin_end[..]);
     assert_eq!(view.splats, &o.splats[..]);
     assert_eq!(view.node_info, &o.node_info[..]);
     let meta: pc_artifact::octree::OctreeMeta = a.metadata().unwrap();
-    assert_eq!(meta.splats, o.splats.len() as u64);
+    assert_eq!(meta.stats.splats, o.splats.len() as u64);
     assert_eq!(meta.material_names, vec!["chrome", "glass", "white"]);
     assert_eq!(meta.inputs.len(), 3);
     // The material table carries the classes; the splats reference it.
@@ -112,7 +109,7 @@ fn key_follows_what_changes_the_tree_only() {
     let config = write_scene(dir.path());
     let key = |over: &[&str]| {
         let set: Vec<String> = over.iter().map(|s| s.to_string()).collect();
-        stage::octree_key(&pc_scene::config::load_config(&config, &set).unwrap()).unwrap()
+        stage::octree_key(&pc_config::load_config(&config, &set).unwrap()).unwrap()
     };
     let base = key(&[]);
     assert_eq!(base, key(&[]));

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, node, Frame, NodeInfo, Splat};
-use pc_octree::{build, field_normal, BuildError, BuildInput, BuildParams, Octree};
+use pc_octree::{build, field_normal, BuildError, BuildInput, Octree, OctreeParams};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
@@ -14,11 +14,11 @@ pub use pc_testkit::Soa;
 
 /// Building an octree straight from a test scene.
 pub trait BuildSoa {
-    fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError>;
+    fn build(&self, classes: &[u32], params: OctreeParams) -> Result<Octree, BuildError>;
 }
 
 impl BuildSoa for Soa {
-    fn build(&self, classes: &[u32], params: BuildParams) -> Result<Octree, BuildError> {
+    fn build(&self, classes: &[u32], params: OctreeParams) -> Result<Octree, BuildError> {
         let albedo = self.ones();
         let input = BuildInput {
             positions: &self.p,
@@ -84,7 +84,7 @@ fn own_range(o: &Octree, slot: u32) -> (u32, u32, Vec<u32>) {
 #[test]
 fn every_splat_is_owned_by_exactly_one_leaf() {
     let (s, classes) = mixed_scene(0.05);
-    let o = s.build(&classes, BuildParams::default()).unwrap();
+    let o = s.build(&classes, OctreeParams::default()).unwrap();
     o.view().check().unwrap();
     let mut owned = vec![0u32; o.splats.len()];
     for (slot, _, _) in cells(&o) {
@@ -113,7 +113,7 @@ fn leaves_respect_k_and_purity_and_own_their_cell() {
         let o = s
             .build(
                 &classes,
-                BuildParams {
+                OctreeParams {
                     max_leaf_points: k,
                     ..Default::default()
                 },
@@ -148,7 +148,7 @@ fn leaves_respect_k_and_purity_and_own_their_cell() {
 #[test]
 fn node_pool_groups_are_contiguous_in_sfc_order() {
     let (s, classes) = mixed_scene(0.08);
-    let o = s.build(&classes, BuildParams::default()).unwrap();
+    let o = s.build(&classes, OctreeParams::default()).unwrap();
     assert_eq!((o.nodes.len() - 1) % 8, 0);
     // The splats under child k of a node all lie in octant k of the node's cell.
     for (slot, depth, c) in cells(&o) {
@@ -190,7 +190,7 @@ fn duplicated_points_terminate_at_max_depth() {
     let o = s
         .build(
             &[class::DIFFUSE],
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 4,
                 max_depth: 12,
                 area_samples: 4,
@@ -206,13 +206,13 @@ fn duplicated_points_terminate_at_max_depth() {
 fn bad_input_is_an_error_not_a_panic() {
     let s = Soa::default();
     assert!(matches!(
-        s.build(&[class::DIFFUSE], BuildParams::default()),
+        s.build(&[class::DIFFUSE], OctreeParams::default()),
         Err(BuildError::Empty)
     ));
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.1, 0);
     s.push(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::Y, 0.1, 0);
-    match s.build(&[class::DIFFUSE], BuildParams::default()) {
+    match s.build(&[class::DIFFUSE], OctreeParams::default()) {
         Err(BuildError::BadSplat {
             index: 1,
             what: "position",
@@ -222,7 +222,7 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.0, 0);
     assert!(matches!(
-        s.build(&[class::DIFFUSE], BuildParams::default()),
+        s.build(&[class::DIFFUSE], OctreeParams::default()),
         Err(BuildError::BadSplat {
             index: 0,
             what: "radius"
@@ -231,7 +231,7 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut s = Soa::default();
     s.push(Vec3::ZERO, Vec3::Y, 0.1, 3);
     assert!(matches!(
-        s.build(&[class::DIFFUSE], BuildParams::default()),
+        s.build(&[class::DIFFUSE], OctreeParams::default()),
         Err(BuildError::Param(_))
     ));
     let mut s = Soa::default();
@@ -239,7 +239,7 @@ fn bad_input_is_an_error_not_a_panic() {
     assert!(matches!(
         s.build(
             &[class::DIFFUSE],
-            BuildParams {
+            OctreeParams {
                 max_depth: 22,
                 ..Default::default()
             }
@@ -268,7 +268,7 @@ fn every_leaf_a_disk_overlaps_references_it() {
     let o = s
         .build(
             &classes,
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 4,
                 ..Default::default()
             },
@@ -309,7 +309,7 @@ fn point_location_agrees_with_brute_force() {
     let o = s
         .build(
             &classes,
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 8,
                 ..Default::default()
             },
@@ -343,7 +343,7 @@ fn gpu_point_location_matches_cpu() {
     let o = s
         .build(
             &classes,
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 8,
                 ..Default::default()
             },
@@ -415,7 +415,7 @@ fn splat_areas_sum_to_the_surface_area() {
         let o = s
             .build(
                 &[class::DIFFUSE],
-                BuildParams {
+                OctreeParams {
                     area_samples: 16,
                     ..Default::default()
                 },
@@ -502,7 +502,7 @@ fn splat_areas_stop_half_a_spacing_beyond_a_border() {
     ];
     for (name, soa, want) in cases {
         let o = soa
-            .build(&[class::DIFFUSE, class::EMITTER], BuildParams::default())
+            .build(&[class::DIFFUSE, class::EMITTER], OctreeParams::default())
             .unwrap();
         for (m, &want) in want.iter().enumerate() {
             let (mut area, mut disks) = (0.0f32, 0.0f32);
@@ -528,7 +528,7 @@ fn normal_fields_follow_the_curvature() {
     let o = s
         .build(
             &[class::MIRROR],
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 32,
                 ..Default::default()
             },
@@ -566,7 +566,7 @@ fn normal_fields_follow_the_curvature() {
 #[test]
 fn node_statistics_describe_the_subtree() {
     let (s, classes) = mixed_scene(0.05);
-    let o = s.build(&classes, BuildParams::default()).unwrap();
+    let o = s.build(&classes, OctreeParams::default()).unwrap();
     let root = &o.node_info[0];
     assert_eq!(root.count as usize, o.splats.len());
     assert_eq!(root.class, class::MIXED);

@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 use pc_artifact::octree::class;
-use pc_octree::BuildParams;
+use pc_octree::OctreeParams;
 use pc_tree::{intersect_splat, Ray, TraversalStats};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -39,7 +39,7 @@ fn check_scene(o: &pc_octree::Octree, rays: &[Ray]) {
     let mut stats = TraversalStats::default();
     let mut hits = 0;
     for (k, ray) in rays.iter().enumerate() {
-        let got = view.intersect(ray, &mut stats);
+        let got = pc_tree::intersect(&view, ray, &mut stats);
         let want = brute(o, ray);
         match (got, want) {
             (None, None) => {}
@@ -55,7 +55,7 @@ fn check_scene(o: &pc_octree::Octree, rays: &[Ray]) {
             (g, w) => panic!("ray {k} {ray:?}: octree {g:?}, brute force {w:?}"),
         }
         assert_eq!(
-            view.occluded(ray, &mut stats),
+            pc_tree::occluded(&view, ray, &mut stats),
             want.is_some(),
             "ray {k}: occlusion"
         );
@@ -72,7 +72,7 @@ fn nearest_hits_agree_with_brute_force_from_inside_and_outside() {
         let o = s
             .build(
                 &classes,
-                BuildParams {
+                OctreeParams {
                     max_leaf_points: k,
                     ..Default::default()
                 },
@@ -125,7 +125,7 @@ fn tiny_cells_at_max_depth_are_not_skipped() {
     let o = s
         .build(
             &[class::DIFFUSE],
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 2,
                 ..Default::default()
             },
@@ -152,7 +152,7 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
     let o = s
         .build(
             &classes,
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 8,
                 ..Default::default()
             },
@@ -181,10 +181,10 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
     let mut stats = TraversalStats::default();
     let (mut agree, mut hits) = (0, 0);
     for (k, r) in rays.iter().enumerate() {
-        let cpu = view.intersect(r, &mut stats);
+        let cpu = pc_tree::intersect(&view, r, &mut stats);
         assert_eq!(
             any[k].is_some(),
-            view.occluded(r, &mut stats),
+            pc_tree::occluded(&view, r, &mut stats),
             "ray {k}: occlusion differs"
         );
         match (cpu, nearest[k]) {
@@ -214,7 +214,7 @@ fn packed_leaf_lists_give_identical_hits() {
     let o = s
         .build(
             &classes,
-            BuildParams {
+            OctreeParams {
                 max_leaf_points: 8,
                 ..Default::default()
             },
@@ -237,12 +237,12 @@ fn packed_leaf_lists_give_identical_hits() {
         }
         assert_eq!(
             accel.intersect(&view, &r, &mut st),
-            view.intersect(&r, &mut st),
+            pc_tree::intersect(&view, &r, &mut st),
             "ray {k}"
         );
         assert_eq!(
             accel.occluded(&view, &r, &mut st),
-            view.occluded(&r, &mut st),
+            pc_tree::occluded(&view, &r, &mut st),
             "ray {k}"
         );
     }

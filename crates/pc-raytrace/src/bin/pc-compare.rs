@@ -45,7 +45,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    pc_scene::cli::exit("pc-compare", run(&Args::parse()))
+    pc_stage::exit("pc-compare", run(&Args::parse()))
 }
 
 fn run(a: &Args) -> anyhow::Result<()> {

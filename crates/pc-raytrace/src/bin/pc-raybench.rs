@@ -9,9 +9,10 @@ use anyhow::Context;
 use clap::Parser;
 use glam::Vec3;
 use pc_artifact::octree::tangent_frame;
-use pc_artifact::{Artifact, ArtifactKind};
+use pc_artifact::octree::OctreeFile;
+use pc_artifact::photons::PhotonsFile;
+use pc_raytrace::camera::Camera;
 use pc_raytrace::sample::rand;
-use pc_scene::camera::Camera;
 use pc_tree::{OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
 
@@ -68,7 +69,7 @@ fn cpu_rate(view: &OctreeView, accel: &pc_tree::accel::Accel, rays: &[Ray]) -> (
 fn work(view: &OctreeView, rays: &[Ray]) -> (f64, f64) {
     let mut st = TraversalStats::default();
     for r in rays.iter().step_by(16) {
-        view.intersect(r, &mut st);
+        pc_tree::intersect(view, r, &mut st);
     }
     let n = rays.len().div_ceil(16) as f64;
     (st.cells as f64 / n, st.splat_tests as f64 / n)
@@ -78,10 +79,9 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let mut set = args.set.clone();
     set.push(format!("camera.width={}", args.width));
     set.push(format!("camera.height={}", args.width));
-    let cfg = pc_scene::config::load_config(&args.config, &set)?;
-    let art = Artifact::open_kind(cfg.octree_path(), ArtifactKind::Octree)
-        .context("run pc-octree first")?;
-    let view = OctreeView::from_artifact(&art)?;
+    let cfg = pc_config::load_config(&args.config, &set)?;
+    let art = OctreeFile::open(cfg.octree_path())?;
+    let view = art.view();
     let cam = Camera::new(&cfg.config.camera);
     let primary: Vec<Ray> = (0..args.width * args.width)
         .map(|i| {
@@ -188,8 +188,8 @@ fn run(args: &Args) -> anyhow::Result<()> {
 
 /// Time the caustic lookups at the primary rays' diffuse hits; returns the JSON object.
 fn caustic_lookups(
-    cfg: &pc_scene::config::LoadedConfig,
-    art: &Artifact,
+    cfg: &pc_config::LoadedConfig,
+    art: &OctreeFile,
     view: &OctreeView,
     accel: &pc_tree::accel::Accel,
     primary: &[Ray],
@@ -197,12 +197,17 @@ fn caustic_lookups(
     use pc_artifact::octree::class;
     use pc_raytrace::caustic::PhotonGrid;
     let path = cfg.photons_path();
-    let pa = Artifact::open_kind(&path, ArtifactKind::Photons)
-        .with_context(|| format!("run pc-caustics first to make {}", path.display()))?;
+    let pa = PhotonsFile::open(&path, &art.id())?;
     let rt = &cfg.config.raytrace;
     let radius = pc_raytrace::stage::caustic_radius(rt, view);
-    let mut c = pc_raytrace::stage::load_photons(&pa, art, radius, 0)?;
-    let materials = pc_scene::cli::current_materials(cfg, art)?;
+    let pv = pa.view();
+    let mut c = pc_raytrace::caustic::Caustics {
+        photons: pv.photons,
+        tree: pv.tree,
+        radius,
+        k: 0,
+    };
+    let materials = cfg.materials_for(art)?;
     let hits: Vec<(Vec3, Vec3)> = primary
         .par_iter()
         .map_init(TraversalStats::default, |st, r| {

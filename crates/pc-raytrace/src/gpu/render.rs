@@ -1,11 +1,13 @@
 //! The GPU renderer: `shaders/raytrace/render.wgsl`, twin of `crate::cpu::render`.
 //!
-//! The octree artifact's sections go into storage buffers as they are; the image is rendered in
+//! The octree artifact's sections (and the radiosity's) go into storage buffers as they are; the image is rendered in
 //! bands of rows so that one dispatch stays short (drivers reset devices whose dispatches run
 //! for seconds).
 
 use bytemuck::{Pod, Zeroable};
 use pc_gpu::{Binding, GpuContext, GpuError, Kernel};
+
+use pc_tree::gpu::{GpuOctree, OctreeParts};
 
 use crate::caustic::PhotonGrid;
 use crate::image::{Aovs, Image};
@@ -31,10 +33,12 @@ pub struct PixelOut {
 /// Scene buffers uploaded once, and the compiled kernel.
 pub struct GpuRenderer {
     kernel: Kernel,
-    buffers: Vec<wgpu::Buffer>,
-    radiance: wgpu::Buffer,
-    photons: wgpu::Buffer,
-    grid_offsets: wgpu::Buffer,
+    octree: GpuOctree,
+    /// Materials, lights and emitters, bound after the octree.
+    buffers: Vec<pc_gpu::Buffer>,
+    radiance: pc_gpu::Buffer,
+    photons: pc_gpu::Buffer,
+    grid_offsets: pc_gpu::Buffer,
     /// The photon-map fields of [`Params`].
     grid: Params,
 }
@@ -59,7 +63,6 @@ impl GpuRenderer {
             });
         }
         let kernel = ctx.kernel("raytrace/render", &source()?, "main", &b)?;
-        let v = &sc.view;
         let emitters: Vec<[u32; 2]> = sc
             .emitters
             .splats
@@ -67,19 +70,14 @@ impl GpuRenderer {
             .zip(&sc.emitters.cdf)
             .map(|(&i, &c)| [i, c.to_bits()])
             .collect();
+        let octree = GpuOctree::upload(ctx, &sc.view, OctreeParts::Shade)?;
         let buffers = vec![
-            ctx.uniform("frame", bytemuck::bytes_of(&v.frame)),
-            ctx.storage("nodes", bytemuck::cast_slice(v.nodes))?,
-            ctx.storage("begin_end", bytemuck::cast_slice(v.begin_end))?,
-            ctx.storage("splats", bytemuck::cast_slice(v.splats))?,
-            ctx.storage("node_info", bytemuck::cast_slice(v.node_info))?,
-            ctx.storage("splat_area", bytemuck::cast_slice(v.splat_area))?,
-            ctx.storage("splat_leaf", bytemuck::cast_slice(v.splat_leaf))?,
             ctx.storage("materials", bytemuck::cast_slice(&sc.materials))?,
             ctx.storage("lights", bytemuck::cast_slice(&sc.lights))?,
             ctx.storage("emitters", bytemuck::cast_slice(&emitters))?,
         ];
-        let radiance = match &sc.radiance {
+        // The radiosity artifact's mapped section, as it is.
+        let radiance = match sc.radiance {
             Some(r) => ctx.storage("radiance", bytemuck::cast_slice(r))?,
             None => ctx.storage("radiance", &[0u8; 16])?,
         };
@@ -114,6 +112,7 @@ impl GpuRenderer {
         };
         Ok(GpuRenderer {
             kernel,
+            octree,
             buffers,
             radiance,
             photons,
@@ -156,7 +155,8 @@ impl GpuRenderer {
                 ..sc.params
             };
             let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
-            let mut bind: Vec<&wgpu::Buffer> = self.buffers.iter().collect();
+            let mut bind: Vec<&pc_gpu::Buffer> =
+                self.octree.buffers().chain(&self.buffers).collect();
             bind.push(&uniform);
             bind.push(&out);
             bind.push(&self.radiance);

@@ -3,10 +3,11 @@
 
 use glam::Vec3;
 use pc_artifact::photons::{archived_tree, sections, tree_bytes, Photon, PhotonTree, TREE_ALIGN};
+use pc_artifact::PointLight;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key};
+use pc_config::ShadingMode;
 use pc_raytrace::caustic::{Caustics, PhotonGrid};
 use pc_raytrace::scene::RenderScene;
-use pc_scene::config::{PointLightConfig, ShadingMode};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
@@ -132,10 +133,7 @@ fn cpu_and_gpu_render_the_same_caustics() {
     let a = photon_file(&dir.path().join("photons.pcgi"), &photons);
     let (o, mats) = mixed_room();
     let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
-    let light = PointLightConfig {
-        position: [0.2, 0.7, 0.3],
-        intensity: [0.6; 3],
-    };
+    let light = PointLight::new([0.2, 0.7, 0.3], [0.6; 3]);
     let mut p = params(4, ShadingMode::Direct);
     p.max_bounces = 6;
     let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);

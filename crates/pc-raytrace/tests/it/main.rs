@@ -2,10 +2,11 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_artifact::PointLight;
+use pc_config::{CameraConfig, FovAxis, RaytraceConfig, ShadingMode};
+use pc_octree::{build, BuildInput, Octree, OctreeParams};
+use pc_raytrace::camera::Camera;
 use pc_raytrace::scene::RenderScene;
-use pc_scene::camera::Camera;
-use pc_scene::config::{CameraConfig, FovAxis, PointLightConfig, RaytraceConfig, ShadingMode};
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
@@ -31,7 +32,7 @@ impl BuildSoa for Soa {
             material: &self.m,
             material_class: &classes,
         };
-        let params = BuildParams {
+        let params = OctreeParams {
             max_leaf_points: 16,
             area_samples: 16,
             ..Default::default()
@@ -95,10 +96,7 @@ fn point_light_over_a_plane_matches_the_inverse_square_law() {
     s.rect(Vec3::ZERO, Vec3::X * 2.0, -Vec3::Z * 2.0, 0.02, 0, &mut rng);
     let mats = vec![diffuse(0.5)];
     let o = s.build(&mats);
-    let light = PointLightConfig {
-        position: [0.3, 1.0, -0.2],
-        intensity: [2.0; 3],
-    };
+    let light = PointLight::new([0.3, 1.0, -0.2], [2.0; 3]);
     let cam = camera(Vec3::new(0.0, 3.0, 0.0), Vec3::ZERO, -Vec3::Z, 40.0, 48, 48);
     let sc = RenderScene::new(
         o.view(),
@@ -271,10 +269,7 @@ fn cpu_and_gpu_render_the_same_image() {
     };
     let (o, mats) = mixed_room();
     let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
-    let light = PointLightConfig {
-        position: [0.2, 0.7, 0.3],
-        intensity: [0.6; 3],
-    };
+    let light = PointLight::new([0.2, 0.7, 0.3], [0.6; 3]);
     let mut p = params(4, ShadingMode::Direct);
     p.max_bounces = 6;
     let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
@@ -318,10 +313,7 @@ fn wgsl_records_match_rust_layouts() {
     let module = pc_gpu::validate_wgsl(&pc_raytrace::gpu::render::source().unwrap()).unwrap();
     for (name, size) in [
         ("Params", std::mem::size_of::<pc_raytrace::scene::Params>()),
-        (
-            "PointLight",
-            std::mem::size_of::<pc_raytrace::scene::PointLight>(),
-        ),
+        ("PointLight", std::mem::size_of::<PointLight>()),
         ("Material", std::mem::size_of::<MaterialRecord>()),
         (
             "PixelOut",

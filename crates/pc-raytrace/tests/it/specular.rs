@@ -87,9 +87,7 @@ fn directions_off_point_sampled_spheres_match_the_analytic_sphere() {
         let target = center + Vec3::new(a.cos() * rr, a.sin() * rr, 0.0);
         let origin = Vec3::new(target.x, target.y, 3.0);
         let ray = Ray::new(origin, (target - origin).normalize());
-        let hit = view
-            .intersect(&ray, &mut stats)
-            .expect("ray aimed at a sphere");
+        let hit = pc_tree::intersect(&view, &ray, &mut stats).expect("ray aimed at a sphere");
         let x = ray.origin + ray.dir * hit.t;
         let truth = (x - center).normalize();
         let n = shading_normal(&view, hit.splat, x);

@@ -3,8 +3,9 @@
 
 use glam::Vec3;
 use pc_artifact::octree::class;
-use pc_artifact::vmap::{Link, VmapParams};
-use pc_octree::{build, BuildInput, BuildParams, Octree};
+use pc_artifact::params::VmapParams;
+use pc_artifact::vmap::Link;
+use pc_octree::{build, BuildInput, Octree, OctreeParams};
 use pc_tree::{OctreeView, Ray, TraversalStats};
 use pc_vmap::build::{build_links, csr, light_lists, vnodes, Caster, CpuCaster, VNode};
 use rand::{Rng, SeedableRng};
@@ -30,7 +31,7 @@ impl BuildSoa for Soa {
             material: &self.m,
             material_class: &[class::DIFFUSE],
         };
-        let params = BuildParams {
+        let params = OctreeParams {
             max_leaf_points: k,
             area_samples: 8,
             ..Default::default()
@@ -70,7 +71,7 @@ fn visible(view: &OctreeView, a: usize, b: usize, st: &mut TraversalStats) -> bo
         t_min: 0.5 * sa.radius,
         t_max: len - 0.5 * sb.radius,
     };
-    ray.t_max <= ray.t_min || !view.occluded(&ray, st)
+    ray.t_max <= ray.t_min || !pc_tree::occluded(view, &ray, st)
 }
 
 /// The point-to-point form-factor kernel times the source area: cos θi cos θj / (π r²) A_j,

@@ -2,8 +2,8 @@
 
 use pc_artifact::vmap::{sections, Link, VmapMeta};
 use pc_artifact::{Artifact, ArtifactKind};
-use pc_scene::config::Backend;
-use pc_scene::ply_write::{write_ply, PlyFormat, PlyPoints};
+use pc_config::Backend;
+use pc_import::ply_write::{write_ply, PlyFormat, PlyPoints};
 
 fn scene(dir: &std::path::Path) -> std::path::PathBuf {
     let s = crate::room(0.08);
@@ -31,10 +31,11 @@ fn scene(dir: &std::path::Path) -> std::path::PathBuf {
 
 fn run(cfg: &std::path::Path, set: &[&str]) -> (VmapMeta, std::path::PathBuf) {
     let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
-    let c = pc_scene::config::load_config(cfg, &set).unwrap();
+    let c = pc_config::load_config(cfg, &set).unwrap();
     let octree = c.octree_path();
-    pc_octree::stage::run(&c, &octree, &mut |_, _| {}, &mut |_| {}).unwrap();
-    let s = pc_vmap::stage::run(&c, &octree, &c.vmap_path(), Backend::Cpu, &mut |_, _| {}).unwrap();
+    pc_octree::stage::run(&c, &octree, &pc_stage::Silent).unwrap();
+    let s =
+        pc_vmap::stage::run(&c, &octree, &c.vmap_path(), Backend::Cpu, &pc_stage::Silent).unwrap();
     (s.meta, s.path)
 }
 

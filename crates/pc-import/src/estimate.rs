@@ -1,0 +1,609 @@
+//! Normal and radius estimation for point clouds that lack them: k-nearest-neighbour PCA,
+//! normal orientation (towards a sensor, or by propagation over the neighbour graph), and
+//! splat radii from the local point spacing.
+//!
+//! Neighbours come from a kiddo `ImmutableKdTree` (f32, built once per call) queried in
+//! parallel with rayon. Positions must be finite (`read_ply` guarantees it; the `try_`
+//! functions check it).
+
+use std::num::NonZeroUsize;
+use std::path::Path;
+
+use glam::{DVec3, Vec3};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+use crate::ImportError;
+
+/// How estimated normals are oriented (PCA gives a direction only up to sign).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Orientation {
+    /// Every normal faces this point (the scanner position): `n · (sensor - p) >= 0`.
+    Sensor(Vec3),
+    /// Consistent orientation by propagation over the k-nearest-neighbour graph, outward at the
+    /// extremes of each connected part; see [`estimate_normals`].
+    Propagate,
+}
+
+/// Neighbours per point kept for the orientation graph (memory: 4 bytes each per point).
+const GRAPH_NEIGHBOURS: usize = 8;
+
+/// Unit normals by principal component analysis of each point's `k` nearest neighbours.
+///
+/// **Direction.** For each point, the covariance of itself and its `k` nearest neighbours is
+/// accumulated in f64 (relative to the point, so large coordinates lose no precision) and
+/// diagonalized with a cyclic Jacobi solver; the normal is the eigenvector of the smallest
+/// eigenvalue, i.e. the direction in which the neighbourhood is thinnest. Degenerate
+/// neighbourhoods (coincident or collinear points) still give a unit vector, just an arbitrary
+/// one among the equally thin directions.
+///
+/// **Orientation.**
+/// * [`Orientation::Sensor`]: each normal is flipped to face the sensor point.
+/// * [`Orientation::Propagate`] (Hoppe et al. 1992, "Surface reconstruction from unorganized
+///   points", §3.3): the graph joins every point to its nearest neighbours (the first
+///   `min(k, 8)`, made symmetric). Each connected component is handled on its own. Its seed is
+///   the point that is extreme along one of the six directions ±x, ±y, ±z — of those six
+///   candidates, the one whose normal is most parallel to its direction — and the seed normal
+///   is oriented along that direction (outward: at the extreme point of a closed surface the
+///   outward normal points away from the rest of it). The orientation then propagates along a
+///   minimum spanning tree of the component with edge weight `1 - |n_i · n_j|` (Prim's
+///   algorithm; a bucket queue over the weight, quantized in steps of ≈ 0.08° of angle): the
+///   next point reached is always the one whose normal is most nearly parallel to an already
+///   oriented neighbour, so the sign is decided across flat
+///   regions first and across sharp creases last, and each new normal is flipped to agree
+///   (`n_j · n_i >= 0`) with the tree neighbour it is reached from. Hoppe adds the Euclidean MST
+///   to the graph to make it connected; here separate components are instead seeded
+///   separately, which is the same for a component that is one closed surface.
+///
+/// `k` is clamped to `positions.len() - 1`; for fewer than 3 points the result is degenerate
+/// (use [`try_estimate_normals`] to get an error instead). Costs one kd-tree build and one
+/// k-NN query per point (parallel), plus O(E) sequential work for `Propagate` (E ≈ 10 n).
+pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Vec<Vec3> {
+    let n = positions.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let k = k.min(n - 1);
+    let kg = match orient {
+        Orientation::Propagate => k.min(GRAPH_NEIGHBOURS),
+        Orientation::Sensor(_) => 0,
+    };
+    let tree = build_tree(positions);
+    let mut normals = vec![Vec3::ZERO; n];
+    let mut graph = vec![u32::MAX; n * kg];
+    let pca = |buf: &mut Vec<(u32, f32)>, i: usize, out_n: &mut Vec3, out_g: &mut [u32]| {
+        neighbours(&tree, positions, i, k, buf);
+        *out_n = pca_normal(positions, i, buf);
+        for (g, &(j, _)) in out_g.iter_mut().zip(buf.iter()) {
+            *g = j;
+        }
+    };
+    if kg == 0 {
+        normals
+            .par_iter_mut()
+            .enumerate()
+            .for_each_init(Vec::new, |buf, (i, out)| pca(buf, i, out, &mut []));
+    } else {
+        normals
+            .par_iter_mut()
+            .zip(graph.par_chunks_mut(kg))
+            .enumerate()
+            .for_each_init(Vec::new, |buf, (i, (out, g))| pca(buf, i, out, g));
+    }
+    match orient {
+        Orientation::Sensor(s) => {
+            normals
+                .par_iter_mut()
+                .zip(positions.par_iter())
+                .for_each(|(nrm, p)| {
+                    if nrm.dot(s - *p) < 0.0 {
+                        *nrm = -*nrm;
+                    }
+                });
+        }
+        Orientation::Propagate => propagate(positions, &mut normals, &graph, kg),
+    }
+    normals
+}
+
+/// [`estimate_normals`], with an [`ImportError::Estimate`] naming `path` when the input cannot
+/// give meaningful normals: `k < 2`, fewer than `k + 1` points, or a non-finite position.
+pub fn try_estimate_normals(
+    path: &Path,
+    positions: &[Vec3],
+    k: usize,
+    orient: Orientation,
+) -> Result<Vec<Vec3>, ImportError> {
+    if k < 2 {
+        return Err(ImportError::estimate(
+            path,
+            format!("normal estimation needs at least 2 neighbours, k = {k}"),
+        ));
+    }
+    check_input(path, positions, k, "normal")?;
+    if let Orientation::Sensor(s) = orient {
+        if !s.is_finite() {
+            return Err(ImportError::estimate(
+                path,
+                format!("sensor {s} is not finite"),
+            ));
+        }
+    }
+    Ok(estimate_normals(positions, k, orient))
+}
+
+/// Splat radius per point from the local point spacing.
+///
+/// With `d_j` the distances to the point's `k` nearest neighbours (itself excluded),
+///
+/// ```text
+/// r = sqrt(2π · mean(d_j²) / k)
+/// ```
+///
+/// Why: if the `k` neighbours fill a disk of radius `R` uniformly, `mean(d²) = R²/2` and the
+/// disk holds about `k` points, so the surface area per point is `πR²/k = 2π·mean(d²)/k`; `r` is
+/// the side of that area, i.e. the local grid spacing `h`. Averaging all `k` squared distances is
+/// much less noisy than using the k-th distance alone. On a square grid of spacing `h`, `k = 8`
+/// gives `mean(d²) = 1.5h²` and `r ≈ 1.09h`; `k = 4` gives `1.25h`, `k = 12` `1.10h`, `k = 20`
+/// `1.03h`. Coverage needs `r` above the largest distance from a surface point to its nearest
+/// sample: `0.71h` on a square grid, `0.58×` the spacing on a hexagonal one; so disks of
+/// neighbours overlap by a wide margin, and jittered grids (samples moved by up to ±h/4) stay
+/// closed. At the border of a scan there are fewer neighbours on one side and `r` grows
+/// (up to ~1.4×), which closes borders rather than opening them.
+///
+/// Points whose neighbours all coincide with them (duplicates) get the median radius of the
+/// others. `k` is clamped to `positions.len() - 1`; a single point, or all points coincident,
+/// gets radius 1 (use [`try_estimate_radii`] to get an error instead).
+pub fn estimate_radii(positions: &[Vec3], k: usize) -> Vec<f32> {
+    let n = positions.len();
+    if n < 2 {
+        return vec![1.0; n];
+    }
+    let k = k.clamp(1, n - 1);
+    let tree = build_tree(positions);
+    let mut radii: Vec<f32> = (0..n)
+        .into_par_iter()
+        .map_init(Vec::new, |buf, i| {
+            neighbours(&tree, positions, i, k, buf);
+            let sum: f64 = buf.iter().map(|&(_, d2)| d2 as f64).sum();
+            let mean = sum / buf.len().max(1) as f64;
+            (2.0 * std::f64::consts::PI * mean / k as f64).sqrt() as f32
+        })
+        .collect();
+    let good = |r: f32| r.is_finite() && r > 0.0;
+    if radii.iter().all(|&r| good(r)) {
+        return radii;
+    }
+    let mut ok: Vec<f32> = radii.iter().copied().filter(|&r| good(r)).collect();
+    let fallback = if ok.is_empty() {
+        1.0
+    } else {
+        let mid = ok.len() / 2;
+        *ok.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    for r in &mut radii {
+        if !good(*r) {
+            *r = fallback;
+        }
+    }
+    radii
+}
+
+/// [`estimate_radii`], with an [`ImportError::Estimate`] naming `path` when `k == 0`, there are
+/// fewer than `k + 1` points, a position is not finite, or all points coincide.
+pub fn try_estimate_radii(
+    path: &Path,
+    positions: &[Vec3],
+    k: usize,
+) -> Result<Vec<f32>, ImportError> {
+    if k == 0 {
+        return Err(ImportError::estimate(
+            path,
+            "radius estimation needs at least 1 neighbour, k = 0",
+        ));
+    }
+    check_input(path, positions, k, "radius")?;
+    if positions.iter().all(|&p| p == positions[0]) {
+        return Err(ImportError::estimate(
+            path,
+            format!(
+                "all {} points coincide: there is no spacing to estimate radii from",
+                positions.len()
+            ),
+        ));
+    }
+    Ok(estimate_radii(positions, k))
+}
+
+fn check_input(path: &Path, positions: &[Vec3], k: usize, what: &str) -> Result<(), ImportError> {
+    let n = positions.len();
+    if n < k + 1 {
+        return Err(ImportError::estimate(
+            path,
+            format!(
+                "{what} estimation with {k} neighbours needs at least {} points, the model has {n}",
+                k + 1
+            ),
+        ));
+    }
+    if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+        return Err(ImportError::estimate(
+            path,
+            format!("point {i} has a non-finite position {}", positions[i]),
+        ));
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Neighbours
+
+type Tree = ImmutableKdTree<f32, 3>;
+
+fn build_tree(positions: &[Vec3]) -> Tree {
+    let pts: &[[f32; 3]] = bytemuck::cast_slice(positions);
+    // Item indices are u32: more than 4G points would not fit in memory here anyway.
+    Tree::new_from_slice(pts).expect("kd-tree construction: more than u32::MAX points")
+}
+
+/// The `k` nearest neighbours of point `i` (itself excluded) as (index, squared distance),
+/// nearest first, into `buf`.
+fn neighbours(tree: &Tree, positions: &[Vec3], i: usize, k: usize, buf: &mut Vec<(u32, f32)>) {
+    buf.clear();
+    if k == 0 {
+        return;
+    }
+    let q = positions[i].to_array();
+    let res = tree
+        .query(&q)
+        .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k + 1).unwrap())
+        .execute();
+    let me = i as u32;
+    buf.extend(
+        res.iter()
+            .filter(|r| r.item != me)
+            .map(|r| (r.item, r.distance)),
+    );
+    // With duplicates the point itself may be missing from the results: keep k.
+    buf.truncate(k);
+}
+
+// ---------------------------------------------------------------------------------------------
+// PCA
+
+/// Normal of point `i` from itself and its neighbours `nb`.
+fn pca_normal(positions: &[Vec3], i: usize, nb: &[(u32, f32)]) -> Vec3 {
+    let o = positions[i].as_dvec3();
+    let m = (nb.len() + 1) as f64;
+    let mut mean = DVec3::ZERO; // the point itself contributes 0
+    for &(j, _) in nb {
+        mean += positions[j as usize].as_dvec3() - o;
+    }
+    mean /= m;
+    let mut c = [[0f64; 3]; 3];
+    let mut add = |d: DVec3| {
+        let d = d.to_array();
+        for r in 0..3 {
+            for s in r..3 {
+                c[r][s] += d[r] * d[s];
+            }
+        }
+    };
+    add(-mean);
+    for &(j, _) in nb {
+        add(positions[j as usize].as_dvec3() - o - mean);
+    }
+    c[1][0] = c[0][1];
+    c[2][0] = c[0][2];
+    c[2][1] = c[1][2];
+    let (vals, vecs) = sym_eigen3(c);
+    let mut best = 0;
+    for e in 1..3 {
+        if vals[e] < vals[best] {
+            best = e;
+        }
+    }
+    let v = DVec3::new(vecs[0][best], vecs[1][best], vecs[2][best]);
+    let l = v.length();
+    if l.is_finite() && l > 0.0 {
+        (v / l).as_vec3()
+    } else {
+        Vec3::Z
+    }
+}
+
+/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (Numerical
+/// Recipes §11.1). Returns the eigenvalues and the matrix whose *columns* are the unit
+/// eigenvectors (`vecs[row][col]`). Robust for repeated eigenvalues and zero matrices.
+pub(crate) fn sym_eigen3(m: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    let mut a = m;
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _sweep in 0..50 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off == 0.0 || off <= 1e-300 || off < diag * 1e-17 {
+            break;
+        }
+        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let apq = a[p][q];
+            if apq == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+            let t = if theta.is_finite() {
+                theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
+            } else {
+                0.0
+            };
+            let t = if t.is_finite() { t } else { 0.0 };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            a[p][p] -= t * apq;
+            a[q][q] += t * apq;
+            a[p][q] = 0.0;
+            a[q][p] = 0.0;
+            let r = 3 - p - q;
+            let (arp, arq) = (a[r][p], a[r][q]);
+            a[r][p] = c * arp - s * arq;
+            a[p][r] = a[r][p];
+            a[r][q] = s * arp + c * arq;
+            a[q][r] = a[r][q];
+            for row in &mut v {
+                let (vp, vq) = (row[p], row[q]);
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    ([a[0][0], a[1][1], a[2][2]], v)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Orientation by propagation
+
+/// Orient `normals` consistently; `graph` holds `kg` neighbour indices per point (u32::MAX for
+/// none). See [`estimate_normals`].
+fn propagate(positions: &[Vec3], normals: &mut [Vec3], graph: &[u32], kg: usize) {
+    let n = positions.len();
+    if kg == 0 {
+        // One point at most per component: orient each as a seed.
+        for i in 0..n {
+            orient_seed(positions, normals, &[i as u32]);
+        }
+        return;
+    }
+    let row = |i: usize| {
+        graph[i * kg..(i + 1) * kg]
+            .iter()
+            .copied()
+            .filter(|&j| j != u32::MAX)
+    };
+    // Make the graph symmetric: store the reverse edges j -> i that j's own list lacks.
+    let mut rev_count = vec![0u32; n + 1];
+    let mutual = |i: usize, j: usize| graph[j * kg..(j + 1) * kg].contains(&(i as u32));
+    for i in 0..n {
+        for j in row(i) {
+            if !mutual(i, j as usize) {
+                rev_count[j as usize + 1] += 1;
+            }
+        }
+    }
+    for i in 0..n {
+        rev_count[i + 1] += rev_count[i];
+    }
+    let rev_start = rev_count;
+    let mut fill = rev_start.clone();
+    let mut rev = vec![0u32; rev_start[n] as usize];
+    for i in 0..n {
+        for j in row(i) {
+            if !mutual(i, j as usize) {
+                let f = &mut fill[j as usize];
+                rev[*f as usize] = i as u32;
+                *f += 1;
+            }
+        }
+    }
+    let adj = |i: usize| {
+        row(i).chain(
+            rev[rev_start[i] as usize..rev_start[i + 1] as usize]
+                .iter()
+                .copied(),
+        )
+    };
+
+    let mut seen = vec![false; n]; // component labelling
+    let mut done = vec![false; n]; // oriented
+    let mut stack: Vec<u32> = Vec::new();
+    let mut comp: Vec<u32> = Vec::new();
+    let mut queue = BucketQueue::new();
+    let mut best = vec![u16::MAX; n]; // best queued weight bucket per point
+    for start in 0..n {
+        if seen[start] {
+            continue;
+        }
+        // The component of `start`.
+        comp.clear();
+        stack.push(start as u32);
+        seen[start] = true;
+        while let Some(i) = stack.pop() {
+            comp.push(i);
+            for j in adj(i as usize) {
+                if !seen[j as usize] {
+                    seen[j as usize] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        let seed = orient_seed(positions, normals, &comp);
+        // Prim's MST from the seed, orienting each point from the tree edge that reaches it.
+        let mut push = |queue: &mut BucketQueue, normals: &[Vec3], done: &[bool], i: u32| {
+            let ni = normals[i as usize];
+            for j in adj(i as usize) {
+                if !done[j as usize] {
+                    let b = weight_bucket(ni.dot(normals[j as usize]));
+                    if b < best[j as usize] {
+                        best[j as usize] = b;
+                        queue.push(b, j, i);
+                    }
+                }
+            }
+        };
+        done[seed as usize] = true;
+        push(&mut queue, normals, &done, seed);
+        while let Some((j, from)) = queue.pop() {
+            if done[j as usize] {
+                continue;
+            }
+            done[j as usize] = true;
+            if normals[j as usize].dot(normals[from as usize]) < 0.0 {
+                normals[j as usize] = -normals[j as usize];
+            }
+            push(&mut queue, normals, &done, j);
+        }
+    }
+}
+
+/// Buckets of the Prim queue.
+const BUCKETS: usize = 1024;
+
+/// The MST edge weight `1 - |cos|`, quantized monotonically: `sqrt(1 - |cos|)` is nearly
+/// proportional to the angle between the normals (≈ θ/√2), so one bucket is ≈ 0.08°.
+#[inline]
+fn weight_bucket(cos: f32) -> u16 {
+    let w = (1.0 - cos.abs()).max(0.0);
+    ((w.sqrt() * (BUCKETS - 1) as f32).round() as usize).min(BUCKETS - 1) as u16
+}
+
+/// A priority queue over small integer keys (a bucket queue): O(1) push, pop scans forward
+/// from the lowest possibly non-empty bucket. Entries are (point, the point it is reached
+/// from). Within a bucket the order is last-in first-out.
+struct BucketQueue {
+    buckets: Vec<Vec<(u32, u32)>>,
+    low: usize,
+    len: usize,
+}
+
+impl BucketQueue {
+    fn new() -> Self {
+        Self {
+            buckets: (0..BUCKETS).map(|_| Vec::new()).collect(),
+            low: BUCKETS,
+            len: 0,
+        }
+    }
+
+    fn push(&mut self, key: u16, j: u32, from: u32) {
+        let k = key as usize;
+        self.buckets[k].push((j, from));
+        self.low = self.low.min(k);
+        self.len += 1;
+    }
+
+    fn pop(&mut self) -> Option<(u32, u32)> {
+        if self.len == 0 {
+            self.low = BUCKETS;
+            return None;
+        }
+        while self.buckets[self.low].is_empty() {
+            self.low += 1;
+        }
+        self.len -= 1;
+        self.buckets[self.low].pop()
+    }
+}
+
+/// Pick the seed of a component (see [`estimate_normals`]), orient its normal outward, and
+/// return its index.
+fn orient_seed(positions: &[Vec3], normals: &mut [Vec3], comp: &[u32]) -> u32 {
+    let mut best = (comp[0], Vec3::X, f32::NEG_INFINITY);
+    for axis in 0..3 {
+        for sign in [1.0f32, -1.0] {
+            let ext = *comp
+                .iter()
+                .max_by(|&&a, &&b| {
+                    (sign * positions[a as usize][axis])
+                        .total_cmp(&(sign * positions[b as usize][axis]))
+                })
+                .unwrap();
+            let mut dir = Vec3::ZERO;
+            dir[axis] = sign;
+            let score = normals[ext as usize].dot(dir).abs();
+            if score > best.2 {
+                best = (ext, dir, score);
+            }
+        }
+    }
+    let (seed, dir, _) = best;
+    if normals[seed as usize].dot(dir) < 0.0 {
+        normals[seed as usize] = -normals[seed as usize];
+    }
+    seed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check_eigen(m: [[f64; 3]; 3]) {
+        let (vals, v) = sym_eigen3(m);
+        let scale = m
+            .iter()
+            .flatten()
+            .map(|x| x.abs())
+            .fold(0.0, f64::max)
+            .max(1e-300);
+        for e in 0..3 {
+            let x = [v[0][e], v[1][e], v[2][e]];
+            let len: f64 = x.iter().map(|a| a * a).sum::<f64>().sqrt();
+            assert!(
+                (len - 1.0).abs() < 1e-12,
+                "{m:?}: eigenvector {e} length {len}"
+            );
+            for r in 0..3 {
+                let mx: f64 = (0..3).map(|c| m[r][c] * x[c]).sum();
+                assert!(
+                    (mx - vals[e] * x[r]).abs() < 1e-12 * scale,
+                    "{m:?}: A v != λ v"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn jacobi_eigen() {
+        check_eigen([[0.0; 3]; 3]);
+        check_eigen([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        check_eigen([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 3.0]]);
+        check_eigen([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]);
+        check_eigen([
+            [1e-20, 3e-21, 0.0],
+            [3e-21, 1e-20, 1e-22],
+            [0.0, 1e-22, 5e-33],
+        ]);
+        check_eigen([[1e8, 1.0, 1e-3], [1.0, 1e-8, 2.0], [1e-3, 2.0, 5.0]]);
+        // Pseudo-random matrices.
+        let mut s = 12345u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        for _ in 0..1000 {
+            let (a, b, c, d, e, f) = (rnd(), rnd(), rnd(), rnd(), rnd(), rnd());
+            check_eigen([[a, b, c], [b, d, e], [c, e, f]]);
+        }
+    }
+
+    #[test]
+    fn plane_normal_is_axis() {
+        let mut pts = Vec::new();
+        for i in 0..20 {
+            for j in 0..20 {
+                pts.push(Vec3::new(i as f32 * 0.1, j as f32 * 0.1, 3.0));
+            }
+        }
+        let n = estimate_normals(&pts, 8, Orientation::Sensor(Vec3::new(0.0, 0.0, -10.0)));
+        assert!(n.iter().all(|v| (v.z + 1.0).abs() < 1e-5), "{:?}", n[0]);
+    }
+}

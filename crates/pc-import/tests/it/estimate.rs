@@ -1,0 +1,309 @@
+//! Normal and radius estimation tests on analytic point sets (spheres, jittered grids).
+
+use std::path::Path;
+
+use glam::Vec3;
+use pc_import::estimate::{
+    estimate_normals, estimate_radii, try_estimate_normals, try_estimate_radii, Orientation,
+};
+use pc_import::ImportError;
+use rand::{Rng, SeedableRng};
+
+fn rng() -> rand_pcg::Pcg64 {
+    rand_pcg::Pcg64::seed_from_u64(7)
+}
+
+/// `n` points on the sphere of `radius` around `center` (Fibonacci spiral).
+fn fibonacci_sphere(n: usize, center: Vec3, radius: f32) -> Vec<Vec3> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - y * y).sqrt();
+            let phi = golden * i as f64;
+            center + radius * Vec3::new((r * phi.cos()) as f32, y as f32, (r * phi.sin()) as f32)
+        })
+        .collect()
+}
+
+/// `n` uniformly random points on a sphere.
+fn random_sphere(n: usize, center: Vec3, radius: f32) -> Vec<Vec3> {
+    let mut rng = rng();
+    (0..n)
+        .map(|_| loop {
+            let v = Vec3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let l = v.length();
+            if l > 0.1 && l <= 1.0 {
+                break center + radius * v / l;
+            }
+        })
+        .collect()
+}
+
+/// Largest angle (degrees) between each normal and `sign` × the outward sphere normal.
+fn max_angle(pts: &[Vec3], normals: &[Vec3], center: Vec3, sign: f32) -> f32 {
+    pts.iter()
+        .zip(normals)
+        .map(|(p, n)| {
+            let want = sign * (*p - center).normalize();
+            n.dot(want).clamp(-1.0, 1.0).acos().to_degrees()
+        })
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn sphere_normals_propagate_outward() {
+    for (name, c, pts) in [
+        (
+            "fibonacci",
+            Vec3::ZERO,
+            fibonacci_sphere(4000, Vec3::ZERO, 1.0),
+        ),
+        (
+            "random",
+            Vec3::new(5.0, -3.0, 100.0),
+            random_sphere(6000, Vec3::new(5.0, -3.0, 100.0), 2.0),
+        ),
+    ] {
+        let n = estimate_normals(&pts, 16, Orientation::Propagate);
+        assert!(n.iter().all(|v| (v.length() - 1.0).abs() < 1e-5));
+        let a = max_angle(&pts, &n, c, 1.0);
+        println!("{name} sphere, propagate: max angle to the outward normal {a:.3}°");
+        assert!(a < 5.0, "{name}: {a}°");
+    }
+}
+
+#[test]
+fn sphere_normals_face_sensor_at_center() {
+    let c = Vec3::new(0.5, 0.25, -1.0);
+    let pts = fibonacci_sphere(4000, c, 1.0);
+    let n = estimate_normals(&pts, 16, Orientation::Sensor(c));
+    let a = max_angle(&pts, &n, c, -1.0);
+    println!("fibonacci sphere, sensor at center: max angle to the inward normal {a:.3}°");
+    assert!(a < 5.0, "{a}°");
+    // A sensor outside, far along +x: the facing hemisphere points at it.
+    let s = Vec3::new(100.0, 0.0, 0.0);
+    let n = estimate_normals(&pts, 16, Orientation::Sensor(s));
+    assert!(pts.iter().zip(&n).all(|(p, v)| v.dot(s - *p) >= 0.0));
+}
+
+#[test]
+fn separate_components_are_each_outward() {
+    let a = Vec3::new(-3.0, 0.0, 0.0);
+    let b = Vec3::new(3.0, 1.0, 0.5);
+    let mut pts = fibonacci_sphere(3000, a, 1.0);
+    let pb = random_sphere(5000, b, 0.5);
+    pts.extend(&pb);
+    let n = estimate_normals(&pts, 16, Orientation::Propagate);
+    let aa = max_angle(&pts[..3000], &n[..3000], a, 1.0);
+    let ab = max_angle(&pts[3000..], &n[3000..], b, 1.0);
+    println!("two spheres: max angles {aa:.3}° and {ab:.3}°");
+    assert!(aa < 5.0 && ab < 5.0, "{aa}° {ab}°");
+}
+
+#[test]
+fn closed_box_propagates_across_edges() {
+    // The six faces of a cube, sampled on grids: orientation must cross the 90° creases.
+    let m = 30;
+    let mut pts = Vec::new();
+    let mut want = Vec::new();
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            for i in 0..m {
+                for j in 0..m {
+                    let u = (i as f32 + 0.5) / m as f32 * 2.0 - 1.0;
+                    let v = (j as f32 + 0.5) / m as f32 * 2.0 - 1.0;
+                    let mut p = Vec3::ZERO;
+                    p[axis] = sign;
+                    p[(axis + 1) % 3] = u;
+                    p[(axis + 2) % 3] = v;
+                    let mut n = Vec3::ZERO;
+                    n[axis] = sign;
+                    pts.push(p);
+                    want.push(n);
+                }
+            }
+        }
+    }
+    let n = estimate_normals(&pts, 10, Orientation::Propagate);
+    // Away from the creases (where PCA blends two faces) normals match the faces.
+    let mut checked = 0;
+    for ((p, n), w) in pts.iter().zip(&n).zip(&want) {
+        let interior = (0..3).filter(|&a| p[a].abs() < 0.85).count() == 2;
+        if interior {
+            checked += 1;
+            assert!(n.dot(*w) > 0.999, "{p} {n} {w}");
+        } else {
+            assert!(n.dot(*w) > 0.0, "{p} {n} {w}");
+        }
+    }
+    assert!(checked > 3000);
+}
+
+/// A jittered grid of spacing `h` on the z = 0 plane, `m × m` points.
+fn jittered_grid(m: usize, h: f32, jitter: f32) -> Vec<Vec3> {
+    let mut rng = rng();
+    let mut pts = Vec::with_capacity(m * m);
+    for i in 0..m {
+        for j in 0..m {
+            let dx = rng.random_range(-jitter..=jitter);
+            let dy = rng.random_range(-jitter..=jitter);
+            pts.push(Vec3::new((i as f32 + dx) * h, (j as f32 + dy) * h, 0.0));
+        }
+    }
+    pts
+}
+
+fn median(v: &[f32]) -> f32 {
+    let mut s = v.to_vec();
+    s.sort_by(f32::total_cmp);
+    s[s.len() / 2]
+}
+
+#[test]
+fn radii_close_a_jittered_grid() {
+    let (m, h) = (120, 0.02f32);
+    let pts = jittered_grid(m, h, 0.25);
+    for k in [6, 8, 12] {
+        let r = estimate_radii(&pts, k);
+        assert!(r.iter().all(|&r| r.is_finite() && r > 0.0));
+        let med = median(&r);
+        println!(
+            "jittered grid h = {h}, k = {k}: median radius {:.3} h",
+            med / h
+        );
+        assert!(
+            med >= 0.8 * h && med <= 1.6 * h,
+            "k = {k}: median {}",
+            med / h
+        );
+        // Every test point of the interior is covered by a disk.
+        let cell = 2.0 * h;
+        let bins = |p: Vec3| ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64);
+        let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+        for (i, p) in pts.iter().enumerate() {
+            grid.entry(bins(*p)).or_default().push(i);
+        }
+        let mut worst = f32::INFINITY; // min over test points of max over disks of (r - d)/h
+        let steps = 400;
+        for a in 0..steps {
+            for b in 0..steps {
+                let q = Vec3::new(
+                    2.0 * h + (m as f32 - 5.0) * h * a as f32 / steps as f32,
+                    2.0 * h + (m as f32 - 5.0) * h * b as f32 / steps as f32,
+                    0.0,
+                );
+                let (cx, cy) = bins(q);
+                let mut best = f32::NEG_INFINITY;
+                for x in cx - 1..=cx + 1 {
+                    for y in cy - 1..=cy + 1 {
+                        for &i in grid.get(&(x, y)).map(Vec::as_slice).unwrap_or(&[]) {
+                            best = best.max(r[i] - pts[i].distance(q));
+                        }
+                    }
+                }
+                worst = worst.min(best / h);
+            }
+        }
+        println!("  coverage margin (min over test points of max(r - d)) {worst:.3} h");
+        assert!(worst > 0.0, "k = {k}: a hole of {worst} h");
+    }
+}
+
+#[test]
+fn radii_on_an_exact_grid() {
+    // Coplanar, axis-aligned, many equal coordinates: kd-trees have failed on such input.
+    let (m, h) = (100, 0.5f32);
+    let pts = jittered_grid(m, h, 0.0);
+    let r = estimate_radii(&pts, 8);
+    let med = median(&r);
+    // sqrt(2π · 1.5 h² / 8) = 1.085 h in the interior.
+    assert!((med / h - 1.0854).abs() < 0.01, "{}", med / h);
+    let n = estimate_normals(&pts, 8, Orientation::Propagate);
+    assert!(n.iter().all(|v| v.z.abs() > 0.9999), "plane normals");
+    let up = n[0].z.signum();
+    assert!(n.iter().all(|v| v.z.signum() == up), "consistent");
+}
+
+#[test]
+fn duplicates_get_a_radius() {
+    let mut pts = jittered_grid(30, 1.0, 0.2);
+    for _ in 0..20 {
+        pts.push(pts[100]);
+    }
+    let r = estimate_radii(&pts, 8);
+    assert!(r.iter().all(|&r| r.is_finite() && r > 0.0));
+    let n = estimate_normals(&pts, 8, Orientation::Sensor(Vec3::new(0.0, 0.0, 5.0)));
+    assert!(n
+        .iter()
+        .all(|v| v.is_finite() && (v.length() - 1.0).abs() < 1e-4));
+}
+
+#[test]
+fn too_few_points_is_an_error() {
+    let path = Path::new("models/tiny.ply");
+    let pts = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let e = try_estimate_normals(path, &pts, 16, Orientation::Propagate).unwrap_err();
+    assert!(matches!(e, ImportError::Estimate { .. }), "{e}");
+    assert!(e.to_string().starts_with("models/tiny.ply: "), "{e}");
+    assert!(
+        e.to_string()
+            .contains("at least 17 points, the model has 3"),
+        "{e}"
+    );
+    let e = try_estimate_radii(path, &pts, 8).unwrap_err();
+    assert!(matches!(e, ImportError::Estimate { .. }), "{e}");
+    let e = try_estimate_radii(path, &[Vec3::ONE; 10], 8).unwrap_err();
+    assert!(e.to_string().contains("coincide"), "{e}");
+    let e = try_estimate_normals(
+        path,
+        &[Vec3::ZERO, Vec3::NAN, Vec3::X, Vec3::Y],
+        2,
+        Orientation::Propagate,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("point 1"), "{e}");
+    // Enough points: fine. The infallible versions clamp k.
+    assert_eq!(
+        try_estimate_normals(path, &pts, 2, Orientation::Propagate)
+            .unwrap()
+            .len(),
+        3
+    );
+    assert_eq!(estimate_normals(&pts, 16, Orientation::Propagate).len(), 3);
+    assert_eq!(estimate_radii(&pts, 16), estimate_radii(&pts, 2));
+    assert_eq!(estimate_radii(&[Vec3::ZERO], 8), vec![1.0]);
+}
+
+/// Estimation throughput; run with
+/// `cargo test --release -p pc-scene --test it -- --ignored --nocapture estimate_speed`.
+#[test]
+#[ignore]
+fn estimate_speed() {
+    let n = 1_000_000;
+    let pts = random_sphere(n, Vec3::ZERO, 1.0);
+    let time = |name: &str, f: &dyn Fn()| {
+        let t = std::time::Instant::now();
+        f();
+        let dt = t.elapsed().as_secs_f64();
+        println!(
+            "{name}: {dt:.2} s for {n} points ({:.2} M points/s)",
+            n as f64 / dt / 1e6
+        );
+    };
+    time("normals k=16 sensor", &|| {
+        estimate_normals(&pts, 16, Orientation::Sensor(Vec3::ZERO));
+    });
+    time("normals k=16 propagate", &|| {
+        let nrm = estimate_normals(&pts, 16, Orientation::Propagate);
+        let a = max_angle(&pts, &nrm, Vec3::ZERO, 1.0);
+        println!("  max angle {a:.2}°");
+    });
+    time("radii k=8", &|| {
+        estimate_radii(&pts, 8);
+    });
+}

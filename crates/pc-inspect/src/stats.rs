@@ -1,0 +1,380 @@
+//! What pc-inspect prints about each kind of artifact: counts, ranges, parameters, timings.
+
+use std::fmt::Write as _;
+
+use glam::Vec3;
+use pc_artifact::octree::{node, OctreeFile};
+use pc_artifact::photons::PhotonsFile;
+use pc_artifact::radiosity::RadiosityFile;
+use pc_artifact::vmap::VmapFile;
+
+fn timings_line(t: &[(String, f64)]) -> String {
+    // Derived entries ("per iteration") are not part of the total.
+    let total: f64 = t
+        .iter()
+        .filter(|t| !t.0.starts_with("per "))
+        .map(|t| t.1)
+        .sum();
+    format!(
+        "time        {:.3} s: {}\n",
+        total,
+        t.iter()
+            .map(|(n, t)| format!("{n} {t:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+fn rgb(c: [f64; 3]) -> String {
+    format!("({:.4}, {:.4}, {:.4})", c[0], c[1], c[2])
+}
+
+pub(crate) fn photons(f: &PhotonsFile) -> String {
+    let (meta, v) = (f.meta(), f.view());
+    let (photons, deposit, tree) = (v.photons, v.deposit, v.tree);
+    let mut s = String::new();
+    let mut stored = [0f64; 3];
+    let mut by_bounces = [0u64; 5];
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in photons {
+        for k in 0..3 {
+            stored[k] += p.power[k] as f64;
+        }
+        by_bounces[(p.bounces as usize).min(4)] += 1;
+        lo = lo.min(Vec3::from(p.position));
+        hi = hi.max(Vec3::from(p.position));
+    }
+    let _ = writeln!(
+        s,
+        "photons     {} stored of {} traced ({} hidden, {} lost); kd-tree of {}",
+        meta.stored,
+        meta.traced,
+        meta.occluded,
+        meta.lost,
+        tree.size()
+    );
+    let _ = writeln!(
+        s,
+        "bounces     1: {}, 2: {}, 3: {}, 4+: {}",
+        by_bounces[1], by_bounces[2], by_bounces[3], by_bounces[4]
+    );
+    if !photons.is_empty() {
+        let _ = writeln!(s, "extent      {:?} to {:?}", lo.to_array(), hi.to_array());
+    }
+    let _ = writeln!(
+        s,
+        "power       emitted {} W, aimed at specular leaves {} W, stored {} W",
+        rgb(meta.emitted_power),
+        rgb(meta.aimed_power),
+        rgb(stored)
+    );
+    let lit = deposit
+        .iter()
+        .filter(|d| d.iter().any(|&x| x > 0.0))
+        .count();
+    let _ = writeln!(
+        s,
+        "deposit     {} of {} splats receive photons",
+        lit,
+        deposit.len()
+    );
+    let _ = writeln!(
+        s,
+        "parameters  budget {}, max bounces {}, self-hit {}, seed {}; {} point lights",
+        meta.params.photons,
+        meta.params.max_bounces,
+        meta.params.self_hit,
+        meta.params.seed,
+        meta.lights.len()
+    );
+    let _ = writeln!(s, "device      {}", meta.device);
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    let _ = writeln!(s, "vmap        key {}", meta.vmap_key);
+    s.push_str(&timings_line(&meta.timings));
+    s
+}
+
+pub(crate) fn radiosity(f: &RadiosityFile) -> String {
+    let (meta, v) = (f.meta(), f.view());
+    let (radiance, source) = (v.radiance, v.source);
+    let mut s = String::new();
+    let stats = |v: &[[f32; 3]]| {
+        let mut mean = [0f64; 3];
+        let mut max = [0f64; 3];
+        for x in v {
+            for k in 0..3 {
+                mean[k] += x[k] as f64;
+                max[k] = max[k].max(x[k] as f64);
+            }
+        }
+        let n = v.len().max(1) as f64;
+        (mean.map(|m| m / n), max)
+    };
+    let _ = writeln!(
+        s,
+        "splats      {} ({} take part in the solve)",
+        radiance.len(),
+        meta.active_splats
+    );
+    let (m, x) = stats(radiance);
+    let _ = writeln!(s, "radiance    mean {}, max {}", rgb(m), rgb(x));
+    let (m, x) = stats(source);
+    let _ = writeln!(s, "source      mean {}, max {}", rgb(m), rgb(x));
+    let _ = writeln!(
+        s,
+        "solve       {} iterations, {}, last residual {:.3e} (tolerance {})",
+        meta.iterations,
+        if meta.converged {
+            "converged"
+        } else {
+            "NOT converged"
+        },
+        meta.residuals.last().copied().unwrap_or(f64::NAN),
+        meta.params.tolerance
+    );
+    let _ = writeln!(
+        s,
+        "residuals   {}",
+        meta.residuals
+            .iter()
+            .map(|r| format!("{r:.2e}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    if !meta.orders.is_empty() {
+        let _ = writeln!(
+            s,
+            "orders      {}{}",
+            meta.orders
+                .iter()
+                .map(|o| o.to_string())
+                .collect::<Vec<_>>()
+                .join(" "),
+            if meta.params.relax {
+                " (relaxed products)"
+            } else {
+                ""
+            }
+        );
+    }
+    let _ = writeln!(
+        s,
+        "operator    {} M2L, {} P2L, {} M2P, {} P2P ({} splat pairs)",
+        meta.m2l, meta.p2l, meta.m2p, meta.p2p, meta.p2p_pairs
+    );
+    let _ = writeln!(
+        s,
+        "parameters  order {}, theta {}, clamp tol {}, emitter samples {} ({} probes)",
+        meta.params.order,
+        meta.params.theta,
+        meta.params.clamp_tol,
+        meta.params.emitter_samples,
+        meta.params.emitter_probes
+    );
+    if meta.emitter_samples > 0 {
+        let _ = writeln!(
+            s,
+            "emitters    {} samples: {} settled by shaft culling ({:.1} %), {} shadow rays through the octree ({:.1} %), the probes' verdict for the rest",
+            meta.emitter_samples,
+            meta.emitter_settled,
+            100.0 * meta.emitter_settled as f64 / meta.emitter_samples as f64,
+            meta.emitter_rays,
+            100.0 * meta.emitter_rays as f64 / meta.emitter_samples as f64
+        );
+    }
+    let _ = writeln!(s, "device      {}", meta.device);
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    let _ = writeln!(s, "vmap        key {}", meta.vmap_key);
+    if let Some(k) = &meta.photons_key {
+        let _ = writeln!(s, "photons     key {k} (caustic energy in the sources)");
+    }
+    s.push_str(&timings_line(&meta.timings));
+    s
+}
+
+pub(crate) fn octree(file: &OctreeFile) -> String {
+    let (v, meta) = (file.view(), file.meta());
+    let mut s = String::new();
+    let f = &v.frame;
+    let _ = writeln!(s, "root cube   origin {:?}, size {}", f.origin, f.size);
+    let _ = writeln!(
+        s,
+        "splats      {} (k = {}, max depth {})",
+        v.splats.len(),
+        f.max_leaf_points,
+        f.max_depth
+    );
+    let (mut leaves, mut empty, mut internal, mut ref_only) = (0u64, 0u64, 0u64, 0u64);
+    let mut per_depth = vec![0u64; f.max_depth as usize + 1];
+    let mut own_hist = [0u64; 6];
+    let (mut refs_total, mut refs_max) = (0u64, 0usize);
+    // Walk with depth to histogram leaves.
+    let mut stack = vec![(0u32, 0u32)];
+    while let Some((slot, d)) = stack.pop() {
+        let w = v.nodes[slot as usize];
+        if node::is_empty(w) {
+            empty += 1;
+        } else if node::is_leaf(w) {
+            leaves += 1;
+            let last = per_depth.len() - 1;
+            per_depth[(d as usize).min(last)] += 1;
+            let (r, refs) = v.leaf(w);
+            let own = (r.end - r.start) as u64;
+            if own == 0 {
+                ref_only += 1;
+            }
+            let bucket = match own {
+                0 => 0,
+                1..=4 => 1,
+                5..=8 => 2,
+                9..=16 => 3,
+                17..=32 => 4,
+                _ => 5,
+            };
+            own_hist[bucket] += 1;
+            refs_total += refs.len() as u64;
+            refs_max = refs_max.max(refs.len());
+        } else {
+            internal += 1;
+            for k in 0..8 {
+                stack.push((node::ptr(w) + k, d + 1));
+            }
+        }
+    }
+    let _ = writeln!(
+        s,
+        "nodes       {} ({} internal, {} leaves of which {} reference-only, {} empty)",
+        v.nodes.len(),
+        internal,
+        leaves,
+        ref_only,
+        empty
+    );
+    let _ = writeln!(
+        s,
+        "depth       {} (leaves per depth: {})",
+        f.depth,
+        per_depth
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c > 0)
+            .map(|(d, c)| format!("{d}:{c}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let _ = writeln!(
+        s,
+        "own splats  per leaf: 0:{} 1-4:{} 5-8:{} 9-16:{} 17-32:{} >32:{}",
+        own_hist[0], own_hist[1], own_hist[2], own_hist[3], own_hist[4], own_hist[5]
+    );
+    let _ = writeln!(
+        s,
+        "references  {} extra (mean {:.2} per leaf, max {})",
+        refs_total,
+        refs_total as f64 / leaves.max(1) as f64,
+        refs_max
+    );
+    let area: f64 = v.splat_area.iter().map(|&x| x as f64).sum();
+    let disks: f64 = v
+        .splats
+        .iter()
+        .map(|x| std::f64::consts::PI * (x.radius as f64).powi(2))
+        .sum();
+    let _ = writeln!(
+        s,
+        "area        {area:.6} (sum of disk areas {disks:.6}, overlap {:.2}x)",
+        disks / area.max(1e-30)
+    );
+    let mut by_class = [0u64; 4];
+    let mats = file.materials();
+    for sp in v.splats {
+        if let Some(m) = mats.get(sp.material as usize) {
+            by_class[(m.class as usize).min(3)] += 1;
+        }
+    }
+    let _ = writeln!(
+        s,
+        "classes     diffuse {} emitter {} mirror {} dielectric {}",
+        by_class[0], by_class[1], by_class[2], by_class[3]
+    );
+    let _ = writeln!(s, "materials   {}", meta.material_names.join(", "));
+    for inp in &meta.inputs {
+        let _ = writeln!(
+            s,
+            "input       {} ({} bytes, hash {})",
+            inp.path, inp.bytes, inp.hash
+        );
+    }
+    let total: f64 = meta.stats.timings.iter().map(|t| t.1).sum();
+    let _ = writeln!(
+        s,
+        "build time  {:.3} s: {}",
+        total,
+        meta.stats
+            .timings
+            .iter()
+            .map(|(n, t)| format!("{n} {t:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    s
+}
+
+pub(crate) fn vmap(f: &VmapFile) -> String {
+    let (v, meta) = (f.view(), f.meta());
+    let mut s = String::new();
+    let near = v.links.iter().filter(|l| l.is_near()).count();
+    let partial = v.links.iter().filter(|l| l.fraction < 1.0).count();
+    let rows = v.link_offsets.windows(2).filter(|w| w[1] > w[0]).count();
+    let max_row = v
+        .link_offsets
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .unwrap_or(0);
+    let _ = writeln!(
+        s,
+        "links       {} stored ({} far, {} near; both directions), {} partially visible",
+        v.links.len(),
+        v.links.len() - near,
+        near,
+        partial
+    );
+    let _ = writeln!(
+        s,
+        "nodes       {} with links (mean {:.1}, max {} links per node)",
+        rows,
+        v.links.len() as f64 / rows.max(1) as f64,
+        max_row
+    );
+    let _ = writeln!(
+        s,
+        "lights      {} ({} nodes seen in all)",
+        v.light_offsets.len().saturating_sub(1),
+        v.light_links.len()
+    );
+    let _ = writeln!(
+        s,
+        "parameters  theta {}, rays {}, near rays {}, leaf splats {}, self-hit {}",
+        meta.params.theta,
+        meta.params.rays,
+        meta.params.near_rays,
+        meta.params.leaf_splats,
+        meta.params.self_hit
+    );
+    let _ = writeln!(
+        s,
+        "work        {} node pairs tested, {} rays on {}{}",
+        meta.pairs_tested,
+        meta.rays_cast,
+        meta.device,
+        if meta.links_reused {
+            " (links reused)"
+        } else {
+            ""
+        }
+    );
+    let _ = writeln!(s, "octree      key {}", meta.octree_key);
+    s.push_str(&timings_line(&meta.timings));
+    s
+}

@@ -1,0 +1,159 @@
+//! Walkthroughs: frames of the config's camera orbiting its target, rendered on the cached
+//! solution (the seed's interactive walkthrough, §10, as a fixed path).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use pc_config::{Backend, LoadedConfig};
+use pc_stage::Progress;
+
+use crate::camera::Camera;
+use crate::error::RenderError;
+use crate::image::write_png;
+use crate::renderer::{Device, Renderer};
+use crate::stage::{with_scene, Inputs};
+
+/// The camera of frame `i` of `frames` on the walkthrough path: the config's camera orbiting
+/// its target about its up axis, from −`orbit_deg`/2 to +`orbit_deg`/2, at the same distance
+/// and field of view (the seed's interactive walkthrough, §10, as a fixed path).
+pub fn walkthrough_camera(
+    base: &pc_config::CameraConfig,
+    i: usize,
+    frames: usize,
+    orbit_deg: f32,
+) -> pc_config::CameraConfig {
+    use glam::{Quat, Vec3};
+    let t = if frames > 1 {
+        i as f32 / (frames - 1) as f32
+    } else {
+        0.5
+    };
+    let angle = (t - 0.5) * orbit_deg.to_radians();
+    let target = Vec3::from(base.target);
+    let up = Vec3::from(base.up).normalize_or_zero();
+    let offset = Vec3::from(base.origin) - target;
+    let origin = target + Quat::from_axis_angle(up, angle) * offset;
+    pc_config::CameraConfig {
+        origin: origin.into(),
+        ..base.clone()
+    }
+}
+
+/// What a walkthrough made.
+pub struct Walkthrough {
+    pub frames: Vec<PathBuf>,
+    pub device: Device,
+    pub device_name: String,
+    /// Time spent rendering the frames (loading and GPU setup excluded).
+    pub render_seconds: f64,
+    /// Time spent writing the PNGs.
+    pub write_seconds: f64,
+    /// Loading the artifacts and setting up the renderer.
+    pub setup_seconds: f64,
+}
+
+/// Where and how a walkthrough goes.
+#[derive(Clone, Debug)]
+pub struct Orbit {
+    /// The folder of the frames (`frame_00000.png`, ...).
+    pub dir: PathBuf,
+    pub frames: usize,
+    /// The orbit's angle, in degrees, centred on the config's camera.
+    pub degrees: f32,
+}
+
+/// Render the frames of `orbit` along [`walkthrough_camera`]'s path on the cached solution (the
+/// artifacts are loaded once; the GPU keeps its buffers between frames), each PNG written
+/// atomically; `frame_done` hears of each frame.
+pub fn walkthrough(
+    cfg: &LoadedConfig,
+    inputs: &Inputs,
+    backend: Backend,
+    orbit: &Orbit,
+    frame_done: &mut dyn FnMut(usize),
+) -> Result<Walkthrough, RenderError> {
+    if orbit.frames == 0 {
+        return Err(RenderError::NoFrames);
+    }
+    let c = &cfg.config;
+    let started = Instant::now();
+    with_scene(cfg, inputs, backend, |sc, _, _| {
+        let mut renderer = Renderer::new(sc, backend)?;
+        let setup_seconds = started.elapsed().as_secs_f64();
+        let (mut render_seconds, mut write_seconds) = (0.0, 0.0);
+        let mut paths = Vec::with_capacity(orbit.frames);
+        for i in 0..orbit.frames {
+            let cam = walkthrough_camera(&c.camera, i, orbit.frames, orbit.degrees);
+            sc.set_camera(&Camera::new(&cam));
+            let t = Instant::now();
+            let (image, _) = renderer.render(sc, false, &|| {})?;
+            render_seconds += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let path = orbit.dir.join(format!("frame_{i:05}.png"));
+            write_png(&path, &image, c.raytrace.exposure)?;
+            write_seconds += t.elapsed().as_secs_f64();
+            paths.push(path);
+            frame_done(i);
+        }
+        Ok(Walkthrough {
+            frames: paths,
+            device: renderer.device(),
+            device_name: renderer.device_name(),
+            render_seconds,
+            write_seconds,
+            setup_seconds,
+        })
+    })
+}
+
+/// A walkthrough as the binary runs it: a progress bar (hidden when `quiet`), the frames, the
+/// stats as JSON at `stats_json` when given; returns the summary line.
+pub fn run(
+    cfg: &LoadedConfig,
+    inputs: &Inputs,
+    backend: Backend,
+    orbit: &Orbit,
+    quiet: bool,
+    stats_json: Option<&Path>,
+) -> Result<String, RenderError> {
+    let bar = pc_stage::progress::Bar::new(crate::stage::STAGE, quiet);
+    bar.phase("walkthrough frames");
+    bar.total(orbit.frames as u64);
+    let w = walkthrough(cfg, inputs, backend, orbit, &mut |_| bar.advance(1));
+    bar.finish();
+    let w = w?;
+    let c = &cfg.config;
+    let fps = orbit.frames as f64 / w.render_seconds.max(1e-9);
+    if let Some(path) = stats_json {
+        let json = serde_json::json!({
+            "frames": orbit.frames,
+            "width": c.camera.width,
+            "height": c.camera.height,
+            "spp": c.raytrace.spp,
+            "device": w.device_name,
+            "gpu": w.device == Device::Gpu,
+            "render_seconds": w.render_seconds,
+            "write_seconds": w.write_seconds,
+            "setup_seconds": w.setup_seconds,
+            "frames_per_second": fps,
+        });
+        pc_artifact::write_file_atomically(path, format!("{json}\n").as_bytes()).map_err(
+            |source| RenderError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+        )?;
+    }
+    Ok(format!(
+        "pc-raytrace: wrote {} frames to {} ({}x{}, {} spp, {:.0}° orbit): {fps:.2} frames/s rendering on {} (setup {:.2} s, PNG writing {:.2} s)",
+        orbit.frames,
+        orbit.dir.display(),
+        c.camera.width,
+        c.camera.height,
+        c.raytrace.spp,
+        orbit.degrees,
+        w.device_name,
+        w.setup_seconds,
+        w.write_seconds
+    ))
+}

@@ -1,0 +1,20 @@
+//! What every stage binary shares around its algorithm, written once: the command line
+//! ([`StageArgs`]), the life of a run ([`Stage`], [`main`]: config, output lock, up-to-date
+//! gate, progress, summary, report, exit code), the device choice with its fallback
+//! ([`device`]) and the progress interface the stage libraries report to ([`Progress`]).
+//!
+//! Like a binary, this crate reports errors with anyhow; the stage libraries return their own
+//! typed errors, which [`main`] prints with their chain.
+
+pub mod args;
+pub mod device;
+pub mod input;
+pub mod lock;
+pub mod progress;
+pub mod stage;
+
+pub use args::StageArgs;
+pub use device::{gpu_for, gpu_or_cpu};
+pub use input::OptionalInput;
+pub use progress::{Progress, Silent};
+pub use stage::{artifact_key, exit, main, say, Stage};
