@@ -213,21 +213,13 @@ fn cos_bounds(
     (lo, hi)
 }
 
-/// Tighter bounds of `n · d̂` from the bounding boxes: `d = x_j − x_i` with `x_i` in `from`'s box
-/// and `x_j` in `to`'s, `n` within `half`-angle (cosine `cone_cos`) of `axis`, and
-/// `dmin ≤ |d| ≤ dmax`. The box difference `[to.min − from.max, to.max − from.min]` bounds
-/// `axis · d` exactly; the cone adds at most `sin(half) |d|`.
+/// Tighter bounds of `n · d̂` from the bounding boxes: `d = x_j − x_i` with `x_i` in the box of
+/// `g` and `x_j` in `to`, `n` within `g`'s normal cone (half-angle cosine `cone_cos` about
+/// `axis`), and `dmin ≤ |d| ≤ dmax`. The box difference `[to.min − from.max, to.max −
+/// from.min]` bounds `axis · d` exactly; the cone adds at most `sin(half) |d|`.
 #[inline]
-#[allow(clippy::too_many_arguments)]
-fn box_cos_bounds(
-    axis: Vec3,
-    cone_cos: f32,
-    cone_sin: f32,
-    from: (Vec3, Vec3),
-    to: (Vec3, Vec3),
-    dmin: f32,
-    dmax: f32,
-) -> (f32, f32) {
+fn box_cos_bounds(g: &Geo, to: (Vec3, Vec3), (dmin, dmax): (f32, f32)) -> (f32, f32) {
+    let (axis, cone_cos, cone_sin, from) = (g.axis, g.cone_cos, g.cone_sin, (g.bmin, g.bmax));
     // A cone wider than a hemisphere (c < 0) gives no bound this way.
     if cone_cos <= 0.0 || axis == Vec3::ZERO || dmin <= 0.0 {
         return (-1.0, 1.0);
@@ -533,8 +525,7 @@ impl Refiner<'_> {
                 spread_sin,
                 spread_cos,
             );
-            let (lo_a2, hi_a2) =
-                box_cos_bounds(ga.axis, ga.cone_cos, ga.cone_sin, ba, bb, dmin, dmax);
+            let (lo_a2, hi_a2) = box_cos_bounds(&ga, bb, (dmin, dmax));
             let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
             if hi_a <= 0.0 {
                 // The receivers face away whatever the source: no need for its side.
@@ -549,8 +540,7 @@ impl Refiner<'_> {
                 spread_sin,
                 spread_cos,
             );
-            let (lo_b2, hi_b2) =
-                box_cos_bounds(gb.axis, gb.cone_cos, gb.cone_sin, bb, ba, dmin, dmax);
+            let (lo_b2, hi_b2) = box_cos_bounds(&gb, ba, (dmin, dmax));
             let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
             if hi_b <= 0.0 {
                 out.dropped += 1;

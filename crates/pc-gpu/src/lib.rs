@@ -231,9 +231,12 @@ impl GpuContext {
         entry: &str,
         bindings: &[Binding],
     ) -> Result<Kernel, GpuError> {
-        validate_wgsl(source).map_err(|msg| GpuError::Shader {
-            label: label.to_string(),
-            msg,
+        validate_wgsl(source).map_err(|e| match e {
+            GpuError::Shader { msg, .. } => GpuError::Shader {
+                label: label.to_string(),
+                msg,
+            },
+            e => e,
         })?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self
@@ -426,14 +429,18 @@ pub fn grid(n: u32, group_size: u32) -> (u32, u32, u32) {
 }
 
 /// Parse and validate WGSL with naga; the error is naga's report.
-pub fn validate_wgsl(source: &str) -> Result<naga::Module, String> {
-    let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
+pub fn validate_wgsl(source: &str) -> Result<naga::Module, GpuError> {
+    let err = |msg: String| GpuError::Shader {
+        label: "(naga)".into(),
+        msg,
+    };
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| err(e.emit_to_string(source)))?;
     naga::valid::Validator::new(
         naga::valid::ValidationFlags::all(),
         naga::valid::Capabilities::all(),
     )
     .validate(&module)
-    .map_err(|e| e.emit_to_string(source))?;
+    .map_err(|e| err(e.emit_to_string(source)))?;
     Ok(module)
 }
 

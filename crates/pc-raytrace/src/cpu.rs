@@ -163,27 +163,34 @@ pub fn trace_sample(
             out.rgb += throughput * albedo / PI * c.irradiance(x, n);
         }
         if p.mode == 1 {
-            out.rgb += throughput * albedo / PI * direct(sc, x, n, delta, pixel, k, bounce, counts);
+            out.rgb += throughput * albedo / PI
+                * direct(sc, (x, n, delta), SampleAt { pixel, k, bounce }, counts);
         }
         break;
     }
     out
 }
 
-/// Irradiance at `x` (normal `n`) from the point lights and the emitting splats, with shadow
-/// rays. Emitters are sampled in proportion to power; a point uniform on the chosen disk stands
-/// for the splat's area (`splat_area`), so the estimator is unbiased for the union of the disks.
-#[allow(clippy::too_many_arguments)]
+/// Which of the sample pattern's random numbers a shading point draws: its pixel, the sample
+/// within the pixel and the bounce it is at.
+#[derive(Clone, Copy, Debug)]
+pub struct SampleAt {
+    pub pixel: u32,
+    pub k: u32,
+    pub bounce: u32,
+}
+
+/// Irradiance at `x` (normal `n`; shadow rays start `delta` from it) from the point lights and
+/// the emitting splats, with shadow rays. Emitters are sampled in proportion to power; a point
+/// uniform on the chosen disk stands for the splat's area (`splat_area`), so the estimator is
+/// unbiased for the union of the disks.
 pub fn direct(
     sc: &RenderScene,
-    x: Vec3,
-    n: Vec3,
-    delta: f32,
-    pixel: u32,
-    k: u32,
-    bounce: u32,
+    (x, n, delta): (Vec3, Vec3, f32),
+    at: SampleAt,
     counts: &mut RayCounts,
 ) -> Vec3 {
+    let SampleAt { pixel, k, bounce } = at;
     let p = &sc.params;
     let view = &sc.view;
     let mut e = Vec3::ZERO;

@@ -125,7 +125,7 @@ impl Image {
     }
 
     /// Checks that all buffers have `width * height` entries.
-    fn check_sizes(&self) -> Result<(), String> {
+    fn check_sizes(&self) -> Result<(), SizeMismatch> {
         let n = self.pixel_count();
         let mut lens = vec![("rgb", self.rgb.len())];
         if let Some(a) = &self.aovs {
@@ -138,10 +138,10 @@ impl Image {
         }
         for (name, len) in lens {
             if len != n {
-                return Err(format!(
+                return Err(SizeMismatch(format!(
                     "{name} buffer has {len} pixels, but the image is {}x{} = {n}",
                     self.width, self.height
-                ));
+                )));
             }
         }
         Ok(())
@@ -240,7 +240,8 @@ pub fn write_exr_keyed(
     img: &Image,
     key: Option<&pc_artifact::Key>,
 ) -> Result<(), ImageError> {
-    img.check_sizes().map_err(|m| ImageError::format(path, m))?;
+    img.check_sizes()
+        .map_err(|m| ImageError::format(path, m.0))?;
     if img.width == 0 || img.height == 0 {
         return Err(ImageError::format(
             path,
@@ -495,7 +496,8 @@ pub fn write_png_keyed(
     exposure: f32,
     key: Option<&pc_artifact::Key>,
 ) -> Result<(), ImageError> {
-    img.check_sizes().map_err(|m| ImageError::format(path, m))?;
+    img.check_sizes()
+        .map_err(|m| ImageError::format(path, m.0))?;
     let pixels: Vec<u8> = img
         .rgb
         .iter()
@@ -561,13 +563,18 @@ impl std::fmt::Display for Comparison {
     }
 }
 
+/// Two images of different sizes, or an image whose buffers do not match its size.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SizeMismatch(String);
+
 /// Compares `a` against the reference `b` (see [`Comparison`]); an error if the sizes differ.
-pub fn compare(a: &Image, b: &Image) -> Result<Comparison, String> {
+pub fn compare(a: &Image, b: &Image) -> Result<Comparison, SizeMismatch> {
     if (a.width, a.height) != (b.width, b.height) {
-        return Err(format!(
+        return Err(SizeMismatch(format!(
             "image sizes differ: {}x{} vs {}x{}",
             a.width, a.height, b.width, b.height
-        ));
+        )));
     }
     a.check_sizes()?;
     b.check_sizes()?;
@@ -625,8 +632,8 @@ pub fn write_diff_png(path: &Path, a: &Image, b: &Image, scale: f32) -> Result<(
             ),
         ));
     }
-    a.check_sizes().map_err(|m| ImageError::format(path, m))?;
-    b.check_sizes().map_err(|m| ImageError::format(path, m))?;
+    a.check_sizes().map_err(|m| ImageError::format(path, m.0))?;
+    b.check_sizes().map_err(|m| ImageError::format(path, m.0))?;
     let pixels: Vec<u8> = a
         .rgb
         .iter()

@@ -8,11 +8,12 @@
 //! 3 % target is about: tiny channels, such as the red wall's green, cannot blow it up).
 //! Whole image: `rel_rmse = sqrt(Σ (o − r)² / Σ r²)` over every pixel and channel.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context};
+use pc_config::{Albedo, CameraConfig, FovAxis, MaterialConfig, ModelConfig};
 
-use crate::image::{read_exr, Image};
+use crate::image::{read_exr, Image, ImageError};
 
 /// One region of the reference's stats.
 #[derive(Clone, Debug)]
@@ -103,42 +104,74 @@ impl Report {
     }
 }
 
-/// Find the stats file (`*.stats.json`) of a reference folder.
-pub fn stats_file(dir: &Path) -> anyhow::Result<PathBuf> {
+/// What can be wrong with a reference folder or a regions file; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    #[error("{}: cannot read", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not what a reference folder holds (not JSON, a key missing or malformed).
+    #[error("{}: {msg}", path.display())]
+    Bad { path: PathBuf, msg: String },
+    #[error(transparent)]
+    Image(#[from] ImageError),
+}
+
+fn bad(path: &Path, msg: impl Into<String>) -> ReferenceError {
+    ReferenceError::Bad {
+        path: path.to_path_buf(),
+        msg: msg.into(),
+    }
+}
+
+/// The one file of `dir` whose name ends with `suffix` (`.stats.json`).
+fn file_ending(dir: &Path, suffix: &str) -> Result<PathBuf, ReferenceError> {
+    let io = |source| ReferenceError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
     let mut found = Vec::new();
-    for e in std::fs::read_dir(dir).with_context(|| format!("{}: cannot read", dir.display()))? {
-        let p = e?.path();
-        if p.to_string_lossy().ends_with(".stats.json") {
+    for e in std::fs::read_dir(dir).map_err(io)? {
+        let p = e.map_err(io)?.path();
+        if p.to_string_lossy().ends_with(suffix) {
             found.push(p);
         }
     }
     match found.len() {
-        1 => Ok(found.pop().unwrap()),
-        0 => bail!("{}: no *.stats.json reference stats", dir.display()),
-        _ => bail!("{}: several *.stats.json files: {found:?}", dir.display()),
+        1 => Ok(found.remove(0)),
+        0 => Err(bad(dir, format!("no *{suffix} file"))),
+        _ => Err(bad(dir, format!("several *{suffix} files: {found:?}"))),
     }
+}
+
+/// Find the stats file (`*.stats.json`) of a reference folder.
+pub fn stats_file(dir: &Path) -> Result<PathBuf, ReferenceError> {
+    file_ending(dir, ".stats.json")
 }
 
 /// Compare `ours` with the reference in `dir` (its stats JSON, and the EXR it names, over the
 /// stats' regions).
-pub fn compare(ours: &Image, dir: &Path) -> anyhow::Result<(Report, Image)> {
+pub fn compare(ours: &Image, dir: &Path) -> Result<(Report, Image), ReferenceError> {
     let stats_path = stats_file(dir)?;
     let stats = read_json(&stats_path)?;
     let exr_name = stats["image"]
         .as_str()
-        .with_context(|| format!("{}: no `image`", stats_path.display()))?;
+        .ok_or_else(|| bad(&stats_path, "no `image`"))?;
     let exr = dir.join(exr_name);
     let reference = read_exr(&exr)?;
     let report = compare_images(ours, &reference, &exr, Some(&stats_path))?;
     Ok((report, reference))
 }
 
-fn read_json(path: &Path) -> anyhow::Result<serde_json::Value> {
-    serde_json::from_str(
-        &std::fs::read_to_string(path)
-            .with_context(|| format!("{}: cannot read", path.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", path.display()))
+fn read_json(path: &Path) -> Result<serde_json::Value, ReferenceError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReferenceError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|e| bad(path, format!("not JSON: {e}")))
 }
 
 /// The regions of a regions file: a JSON object whose `regions` maps each name to
@@ -148,11 +181,11 @@ pub fn read_regions(
     path: &Path,
     width: u32,
     height: u32,
-) -> anyhow::Result<Vec<(String, String, [u32; 4])>> {
+) -> Result<Vec<(String, String, [u32; 4])>, ReferenceError> {
     let json = read_json(path)?;
     let regions = json["regions"]
         .as_object()
-        .with_context(|| format!("{}: no `regions` object", path.display()))?;
+        .ok_or_else(|| bad(path, "no `regions` object"))?;
     let mut out = Vec::new();
     for (name, r) in regions {
         let rect: Vec<u32> = r["rect"]
@@ -164,16 +197,16 @@ pub fn read_regions(
             })
             .unwrap_or_default();
         if rect.len() != 4 || rect[0] >= rect[2] || rect[1] >= rect[3] {
-            bail!(
-                "{}: region `{name}` needs a rect [x0, y0, x1, y1] with x0 < x1 and y0 < y1",
-                path.display()
-            );
+            return Err(bad(
+                path,
+                format!("region `{name}` needs a rect [x0, y0, x1, y1] with x0 < x1 and y0 < y1"),
+            ));
         }
         if rect[2] > width || rect[3] > height {
-            bail!(
-                "{}: region `{name}` ({rect:?}) reaches outside the {width}x{height} image",
-                path.display()
-            );
+            return Err(bad(
+                path,
+                format!("region `{name}` ({rect:?}) reaches outside the {width}x{height} image"),
+            ));
         }
         let description = r["description"].as_str().unwrap_or("").to_string();
         out.push((
@@ -184,7 +217,6 @@ pub fn read_regions(
     }
     Ok(out)
 }
-
 /// The mean RGB of `img` over `rect` ([x0, y0, x1, y1)).
 fn region_mean(img: &Image, rect: [u32; 4]) -> [f64; 3] {
     let mut sum = [0.0f64; 3];
@@ -208,16 +240,15 @@ pub fn compare_images(
     reference: &Image,
     reference_path: &Path,
     regions: Option<&Path>,
-) -> anyhow::Result<Report> {
+) -> Result<Report, ReferenceError> {
     if (reference.width, reference.height) != (ours.width, ours.height) {
-        bail!(
-            "{}: the reference is {}x{}, the render {}x{}: render at the reference's size",
-            reference_path.display(),
-            reference.width,
-            reference.height,
-            ours.width,
-            ours.height
-        );
+        return Err(bad(
+            reference_path,
+            format!(
+                "the reference is {}x{}, the render {}x{}: render at the reference's size",
+                reference.width, reference.height, ours.width, ours.height
+            ),
+        ));
     }
     let regions = match regions {
         Some(path) => read_regions(path, ours.width, ours.height)?
@@ -248,70 +279,155 @@ pub fn compare_images(
     })
 }
 
-/// A pipeline config that renders the reference scene in `dir` (`../shared/reference/cornell`)
-/// from its sampled points: one material per shape (reflectance, emitted radiance) from
-/// `points-100k/cornell.materials.json`, the camera from `cornell.scene.json`.
-pub fn config_toml(dir: &Path) -> anyhow::Result<String> {
-    let dir = dir
-        .canonicalize()
-        .with_context(|| format!("{}: the reference data is missing", dir.display()))?;
-    let mpath = dir.join("points-100k/cornell.materials.json");
-    let spath = dir.join("cornell.scene.json");
-    let m: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&mpath).with_context(|| mpath.display().to_string())?,
-    )?;
-    let s: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&spath).with_context(|| spath.display().to_string())?,
-    )?;
-    let mut materials = String::new();
-    let mut models = String::new();
+/// What `--write-config` writes: the scene's tables of pipeline.toml.
+#[derive(serde::Serialize)]
+struct ReferenceConfig {
+    output: pc_config::OutputConfig,
+    materials: BTreeMap<String, MaterialConfig>,
+    models: Vec<ModelConfig>,
+    camera: CameraConfig,
+}
+
+/// A pipeline config that renders the reference scene in `dir` (a folder of
+/// `../shared/reference/`) from its sampled points: one material per shape from
+/// `points-100k/*.materials.json` (Mitsuba's `diffuse` with or without an area emitter, its
+/// `conductor` as a mirror, its `dielectric` with the ratio of its indices of refraction), the
+/// camera from `*.scene.json`. Nothing is copied into code: every number is read from the
+/// reference's own files.
+pub fn config_toml(dir: &Path) -> Result<String, ReferenceError> {
+    let dir = dir.canonicalize().map_err(|source| ReferenceError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let points = dir.join("points-100k");
+    let mpath = file_ending(&points, ".materials.json")?;
+    let spath = file_ending(&dir, ".scene.json")?;
+    let (m, s) = (read_json(&mpath)?, read_json(&spath)?);
     let files = m["files"]
         .as_object()
-        .context("materials.json has no `files`")?;
+        .ok_or_else(|| bad(&mpath, "no `files` object"))?;
+    let mut materials = BTreeMap::new();
+    let mut models = Vec::new();
     for (file, desc) in files {
         let name = desc["shape"]
             .as_str()
-            .context("shape name")?
+            .ok_or_else(|| bad(&mpath, format!("`files.{file}` has no `shape`")))?
             .replace('-', "_");
-        let refl = toml_vec(&desc["bsdf"]["reflectance"])?;
-        if desc["emitter"].is_object() {
-            let rad = toml_vec(&desc["emitter"]["radiance"])?;
-            materials.push_str(&format!(
-                "[materials.{name}]\ntype = \"emitter\"\nradiance = {rad}\nalbedo = {refl}\n\n"
-            ));
-        } else {
-            materials.push_str(&format!(
-                "[materials.{name}]\ntype = \"diffuse\"\nalbedo = {refl}\n\n"
-            ));
-        }
-        models.push_str(&format!(
-            "[[models]]\nfile = \"{}\"\nmaterial = \"{name}\"\n\n",
-            dir.join("points-100k").join(file).display()
-        ));
+        let key = |k: &str| format!("files.{file}.{k}");
+        materials.insert(name.clone(), material(desc, &mpath, &key)?);
+        models.push(ModelConfig {
+            file: points.join(file),
+            material: name,
+            translate: None,
+            rotate: None,
+            scale: None,
+        });
     }
     let sensor = &s["sensor"];
-    let camera = format!(
-        "[camera]\norigin = {}\ntarget = {}\nup = {}\nfov = {}\nfov_axis = \"{}\"\nwidth = {}\nheight = {}\n",
-        toml_vec(&sensor["origin"])?,
-        toml_vec(&sensor["target"])?,
-        toml_vec(&sensor["up"])?,
-        sensor["fov_deg"].as_f64().context("fov_deg")?,
-        sensor["fov_axis"].as_str().context("fov_axis")?,
-        sensor["film"]["width"],
-        sensor["film"]["height"],
-    );
+    let fov_axis = match sensor["fov_axis"].as_str() {
+        Some("x") => FovAxis::X,
+        Some("y") => FovAxis::Y,
+        Some("smaller") => FovAxis::Smaller,
+        Some("larger") => FovAxis::Larger,
+        other => return Err(bad(&spath, format!("`sensor.fov_axis` is {other:?}"))),
+    };
+    let size = |k: &str| {
+        sensor["film"][k]
+            .as_u64()
+            .and_then(|x| u32::try_from(x).ok())
+            .ok_or_else(|| bad(&spath, format!("`sensor.film.{k}` is not a size")))
+    };
+    let camera = CameraConfig {
+        origin: rgb(&sensor["origin"], &spath, "sensor.origin")?,
+        target: rgb(&sensor["target"], &spath, "sensor.target")?,
+        up: rgb(&sensor["up"], &spath, "sensor.up")?,
+        fov: sensor["fov_deg"]
+            .as_f64()
+            .ok_or_else(|| bad(&spath, "`sensor.fov_deg` is not a number"))? as f32,
+        fov_axis,
+        width: size("width")?,
+        height: size("height")?,
+    };
+    let config = ReferenceConfig {
+        output: pc_config::OutputConfig {
+            dir: PathBuf::from("."),
+        },
+        materials,
+        models,
+        camera,
+    };
+    let body = pc_config::to_toml(&config).map_err(|e| bad(&dir, e.to_string()))?;
     Ok(format!(
-        "# Generated by `pc-compare --write-config` (`cargo xtask reference-config`) from {}\n# (the reference Cornell box of Mitsuba 3; materials and camera read from its JSON).\n\n[output]\ndir = \".\"\n\n{materials}{models}{camera}",
+        "# Generated by `pc-compare --write-config` (`cargo xtask reference-config`) from {}\n# (a Mitsuba 3 reference; materials and camera read from its JSON).\n\n{body}",
         dir.display()
     ))
 }
 
-fn toml_vec(v: &serde_json::Value) -> anyhow::Result<String> {
-    let a = v.as_array().context("expected an array of numbers")?;
-    let parts: Vec<String> = a
-        .iter()
-        .map(|x| x.as_f64().map(|f| format!("{f}")))
-        .collect::<Option<_>>()
-        .context("expected numbers")?;
-    Ok(format!("[{}]", parts.join(", ")))
+/// The material of one shape of a reference's materials file.
+fn material(
+    desc: &serde_json::Value,
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+) -> Result<MaterialConfig, ReferenceError> {
+    let bsdf = &desc["bsdf"];
+    let unit = |v: &serde_json::Value| v.as_f64().map(|x| [x as f32; 3]);
+    Ok(match bsdf["type"].as_str() {
+        Some("diffuse") => {
+            let albedo = rgb(&bsdf["reflectance"], path, &key("bsdf.reflectance"))?;
+            if desc["emitter"].is_object() {
+                MaterialConfig::Emitter {
+                    radiance: rgb(&desc["emitter"]["radiance"], path, &key("emitter.radiance"))?,
+                    albedo: Some(albedo),
+                }
+            } else {
+                MaterialConfig::Diffuse {
+                    albedo: Albedo::Rgb(albedo),
+                }
+            }
+        }
+        Some("conductor") => MaterialConfig::Mirror {
+            reflectance: match &bsdf["reflectance"] {
+                serde_json::Value::Null => [1.0; 3],
+                v => rgb(v, path, &key("bsdf.reflectance"))?,
+            },
+            phong: None,
+        },
+        Some("dielectric") => {
+            let ior = |k: &str| {
+                bsdf[k].as_f64().ok_or_else(|| {
+                    bad(
+                        path,
+                        format!("`{}` is not a number", key(&format!("bsdf.{k}"))),
+                    )
+                })
+            };
+            MaterialConfig::Dielectric {
+                ior: (ior("int_ior")? / ior("ext_ior")?) as f32,
+                tint: unit(&bsdf["specular_transmittance"]).filter(|t| *t != [1.0; 3]),
+                phong: None,
+            }
+        }
+        other => {
+            return Err(bad(
+                path,
+                format!(
+                    "`{}` is {other:?}, not diffuse, conductor or dielectric",
+                    key("bsdf.type")
+                ),
+            ))
+        }
+    })
+}
+
+/// Three numbers of a JSON array.
+fn rgb(v: &serde_json::Value, path: &Path, key: &str) -> Result<[f32; 3], ReferenceError> {
+    let a: Vec<f32> = v
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|x| x.as_f64().map(|f| f as f32))
+                .collect()
+        })
+        .unwrap_or_default();
+    <[f32; 3]>::try_from(a).map_err(|_| bad(path, format!("`{key}` is not three numbers")))
 }

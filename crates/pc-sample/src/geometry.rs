@@ -213,18 +213,14 @@ impl Patch {
         }
     }
 
-    /// Fills row `j` (of `nv`) of an `nu × nv` grid.
-    #[allow(clippy::too_many_arguments)]
+    /// Fills row `j` (of `nv`) of an `nu × nv` grid: `(nu, nv, j)`, the row's positions, normals
+    /// and radii in `out`.
     pub(crate) fn sample_row(
         &self,
-        nu: usize,
-        nv: usize,
-        j: usize,
+        (nu, nv, j): (usize, usize, usize),
         rng: &mut Pcg64Mcg,
         params: &SampleParams,
-        pos: &mut [Vec3],
-        nrm: &mut [Vec3],
-        rad: &mut [f32],
+        (pos, nrm, rad): (&mut [Vec3], &mut [Vec3], &mut [f32]),
     ) {
         let jit = params.jitter.clamp(0.0, 1.0);
         let frac = |rng: &mut Pcg64Mcg| 0.5 + jit * (rng.random::<f32>() - 0.5);

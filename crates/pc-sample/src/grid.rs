@@ -236,7 +236,7 @@ pub fn sample_shape(
                         idx as u64,
                         j as u64,
                     ));
-                    patch.sample_row(nu, nv, j, &mut rng, params, p, n, r);
+                    patch.sample_row((nu, nv, j), &mut rng, params, (p, n, r));
                 });
         });
 
