@@ -16,6 +16,7 @@ pub mod octree;
 pub mod params;
 pub mod photons;
 pub mod radiosity;
+pub mod reader;
 pub mod vmap;
 
 pub use atomic::write_file_atomically;

@@ -21,6 +21,7 @@ use std::path::Path;
 
 use bytemuck::{Pod, Zeroable};
 
+use crate::reader::Checked;
 use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 /// Section names of an octree artifact.
@@ -461,13 +462,9 @@ pub struct OctreeId<'a> {
 
 /// An opened octree artifact, checked once: the kind, every section's size and structure
 /// ([`OctreeView::check`]), the metadata and the material table.
-#[derive(Debug)]
-pub struct OctreeFile {
-    art: Artifact,
-    meta: OctreeMeta,
-}
+pub type OctreeFile = Checked<OctreeMeta>;
 
-impl OctreeFile {
+impl Checked<OctreeMeta> {
     /// Open and check the octree artifact at `path`. A missing file is
     /// [`ArtifactError::MissingInput`] (run pc-octree).
     pub fn open(path: impl AsRef<Path>) -> Result<OctreeFile, ArtifactError> {
@@ -497,28 +494,11 @@ impl OctreeFile {
         OctreeView::sections(&self.art).expect("the sections were checked when the file was opened")
     }
 
-    pub fn meta(&self) -> &OctreeMeta {
-        &self.meta
-    }
-
     /// The material table the octree was built with (one record per `meta().material_names`).
     pub fn materials(&self) -> &[MaterialRecord] {
         self.art
             .section(sections::MATERIALS)
             .expect("the materials were checked when the file was opened")
-    }
-
-    pub fn key(&self) -> Key {
-        self.art.key()
-    }
-
-    pub fn path(&self) -> &Path {
-        self.art.path()
-    }
-
-    /// The container underneath, for tools that print headers and sections.
-    pub fn artifact(&self) -> &Artifact {
-        &self.art
     }
 
     /// What downstream artifacts must have been made from.

@@ -18,7 +18,8 @@ use std::path::Path;
 use crate::light::PointLight;
 use crate::octree::OctreeId;
 use crate::params::CausticsParams;
-use crate::{Artifact, ArtifactError, ArtifactKind, Key};
+use crate::reader::Checked;
+use crate::{Artifact, ArtifactError, ArtifactKind};
 
 pub mod sections {
     pub const PHOTONS: &str = "photons";
@@ -160,22 +161,14 @@ impl<'a> PhotonsView<'a> {
 
 /// An opened photon map, checked once: its kind, its structure and (with
 /// [`PhotonsFile::open`]) that it was traced on the octree it is used with.
-pub struct PhotonsFile {
-    art: Artifact,
-    meta: PhotonsMeta,
-}
+pub type PhotonsFile = Checked<PhotonsMeta>;
 
-impl PhotonsFile {
+impl Checked<PhotonsMeta> {
     /// Open the photon map at `path` for the octree `octree`: traced on another octree, or a
     /// deposit of another size, is [`ArtifactError::Stale`] (rerun pc-caustics).
     pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<PhotonsFile, ArtifactError> {
         let f = PhotonsFile::from_artifact(Artifact::open_input(path, ArtifactKind::Photons)?)?;
-        let stale = |why: String| ArtifactError::Stale {
-            path: f.path().to_path_buf(),
-            what: "photon map",
-            why,
-            rerun: "pc-caustics".into(),
-        };
+        let stale = |why: String| f.art.stale(why, "pc-caustics");
         if f.meta.octree_key != octree.key.to_string() {
             return Err(stale(format!(
                 "it was traced on another octree than {}",
@@ -213,23 +206,6 @@ impl PhotonsFile {
     pub fn view(&self) -> PhotonsView<'_> {
         PhotonsView::sections(&self.art)
             .expect("the sections were checked when the file was opened")
-    }
-
-    pub fn meta(&self) -> &PhotonsMeta {
-        &self.meta
-    }
-
-    pub fn key(&self) -> Key {
-        self.art.key()
-    }
-
-    pub fn path(&self) -> &Path {
-        self.art.path()
-    }
-
-    /// The container underneath, for tools that print headers and sections.
-    pub fn artifact(&self) -> &Artifact {
-        &self.art
     }
 }
 

@@ -16,7 +16,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::octree::OctreeId;
 use crate::params::FmmParams;
-use crate::{Artifact, ArtifactError, ArtifactKind, Key};
+use crate::reader::Checked;
+use crate::{Artifact, ArtifactError, ArtifactKind};
 
 pub mod sections {
     pub const RADIANCE: &str = "radiance";
@@ -109,23 +110,14 @@ impl<'a> RadiosityView<'a> {
 
 /// An opened radiosity artifact, checked once: its kind, its structure and (with
 /// [`RadiosityFile::open`]) that it was solved on the octree it is used with.
-#[derive(Debug)]
-pub struct RadiosityFile {
-    art: Artifact,
-    meta: RadiosityMeta,
-}
+pub type RadiosityFile = Checked<RadiosityMeta>;
 
-impl RadiosityFile {
+impl Checked<RadiosityMeta> {
     /// Open the radiosity at `path` for the octree `octree`: solved on another octree, or of
     /// another size, is [`ArtifactError::Stale`] (rerun pc-vmap and pc-fmm).
     pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<RadiosityFile, ArtifactError> {
         let f = RadiosityFile::from_artifact(Artifact::open_input(path, ArtifactKind::Radiosity)?)?;
-        let stale = |why: String, rerun: &str| ArtifactError::Stale {
-            path: f.path().to_path_buf(),
-            what: "radiosity",
-            why,
-            rerun: rerun.into(),
-        };
+        let stale = |why: String, rerun: &str| f.art.stale(why, rerun);
         if f.meta.octree_key != octree.key.to_string() {
             return Err(stale(
                 format!(
@@ -169,22 +161,5 @@ impl RadiosityFile {
     pub fn view(&self) -> RadiosityView<'_> {
         RadiosityView::sections(&self.art)
             .expect("the sections were checked when the file was opened")
-    }
-
-    pub fn meta(&self) -> &RadiosityMeta {
-        &self.meta
-    }
-
-    pub fn key(&self) -> Key {
-        self.art.key()
-    }
-
-    pub fn path(&self) -> &Path {
-        self.art.path()
-    }
-
-    /// The container underneath, for tools that print headers and sections.
-    pub fn artifact(&self) -> &Artifact {
-        &self.art
     }
 }

@@ -21,7 +21,8 @@ use bytemuck::{Pod, Zeroable};
 use crate::light::PointLight;
 use crate::octree::OctreeId;
 use crate::params::VmapParams;
-use crate::{Artifact, ArtifactError, ArtifactKind, Key};
+use crate::reader::Checked;
+use crate::{Artifact, ArtifactError, ArtifactKind};
 
 /// Section names of a vmap artifact.
 pub mod sections {
@@ -189,13 +190,9 @@ impl<'a> VmapView<'a> {
 
 /// An opened V-map artifact, checked once: its kind, its structure, and (with
 /// [`VmapFile::open`]) that it was made for the octree and the point lights it is used with.
-#[derive(Debug)]
-pub struct VmapFile {
-    art: Artifact,
-    meta: VmapMeta,
-}
+pub type VmapFile = Checked<VmapMeta>;
 
-impl VmapFile {
+impl Checked<VmapMeta> {
     /// Open the V-map at `path` for the octree `octree` and the point lights `lights`. A V-map
     /// of another octree or other lights, or tables that do not fit the octree, are
     /// [`ArtifactError::Stale`] (rerun pc-vmap); a missing file is
@@ -207,12 +204,7 @@ impl VmapFile {
     ) -> Result<VmapFile, ArtifactError> {
         let art = Artifact::open_input(path, ArtifactKind::Vmap)?;
         let meta: VmapMeta = art.metadata()?;
-        let stale = |why: String, rerun: &str| ArtifactError::Stale {
-            path: art.path().to_path_buf(),
-            what: "V-map",
-            why,
-            rerun: rerun.to_string(),
-        };
+        let stale = |why: String, rerun: &str| art.stale(why, rerun);
         if meta.octree_key != octree.key.to_string() {
             return Err(stale(
                 format!(
@@ -265,22 +257,5 @@ impl VmapFile {
     /// The checked sections.
     pub fn view(&self) -> VmapView<'_> {
         VmapView::sections(&self.art).expect("the sections were checked when the file was opened")
-    }
-
-    pub fn meta(&self) -> &VmapMeta {
-        &self.meta
-    }
-
-    pub fn key(&self) -> Key {
-        self.art.key()
-    }
-
-    pub fn path(&self) -> &Path {
-        self.art.path()
-    }
-
-    /// The container underneath, for tools that print headers and sections.
-    pub fn artifact(&self) -> &Artifact {
-        &self.art
     }
 }

@@ -261,6 +261,7 @@ pub struct CausticsStage {
 impl Stage for CausticsStage {
     const NAME: &'static str = STAGE;
     const DOING: &'static str = "tracing the photons";
+    const KIND: Option<ArtifactKind> = Some(ArtifactKind::Photons);
     type Made = Summary;
     type Error = CausticsError;
 
@@ -270,10 +271,6 @@ impl Stage for CausticsStage {
 
     fn key(&self) -> Result<Key, CausticsError> {
         key(&self.cfg, &self.octree, &self.vmap)
-    }
-
-    fn existing_key(&self) -> Option<Key> {
-        pc_stage::artifact_key(&self.output, ArtifactKind::Photons)
     }
 
     fn run(&self, progress: &dyn Progress) -> Result<Summary, CausticsError> {

@@ -342,6 +342,7 @@ pub struct FmmStage {
 impl Stage for FmmStage {
     const NAME: &'static str = STAGE;
     const DOING: &'static str = "solving the radiosity";
+    const KIND: Option<ArtifactKind> = Some(ArtifactKind::Radiosity);
     type Made = Summary;
     type Error = FmmError;
 
@@ -351,10 +352,6 @@ impl Stage for FmmStage {
 
     fn key(&self) -> Result<Key, FmmError> {
         key(&self.cfg, &self.inputs)
-    }
-
-    fn existing_key(&self) -> Option<Key> {
-        pc_stage::artifact_key(&self.output, ArtifactKind::Radiosity)
     }
 
     fn run(&self, progress: &dyn Progress) -> Result<Summary, FmmError> {

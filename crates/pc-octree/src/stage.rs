@@ -173,6 +173,7 @@ pub struct OctreeStage {
 impl Stage for OctreeStage {
     const NAME: &'static str = STAGE;
     const DOING: &'static str = "building the octree";
+    const KIND: Option<ArtifactKind> = Some(ArtifactKind::Octree);
     type Made = Summary;
     type Error = OctreeError;
 
@@ -182,10 +183,6 @@ impl Stage for OctreeStage {
 
     fn key(&self) -> Result<Key, OctreeError> {
         octree_key(&self.cfg)
-    }
-
-    fn existing_key(&self) -> Option<Key> {
-        pc_stage::artifact_key(&self.output, ArtifactKind::Octree)
     }
 
     fn run(&self, progress: &dyn Progress) -> Result<Summary, OctreeError> {

@@ -244,6 +244,7 @@ pub struct RaytraceStage {
 impl Stage for RaytraceStage {
     const NAME: &'static str = STAGE;
     const DOING: &'static str = "rendering";
+    const KIND: Option<pc_artifact::ArtifactKind> = None;
     type Made = Summary;
     type Error = RenderError;
 

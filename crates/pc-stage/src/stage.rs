@@ -22,6 +22,9 @@ pub trait Stage {
     const NAME: &'static str;
     /// What a run does, for the context of an error ("computing the V-map").
     const DOING: &'static str;
+    /// The kind of artifact a run writes; `None` for other outputs (the render's images), whose
+    /// stage says how to read the key of the output there ([`Stage::existing_key`]).
+    const KIND: Option<ArtifactKind>;
     /// What a run returns for its summary (counts, timings).
     type Made;
     type Error: std::error::Error + Send + Sync + 'static;
@@ -32,7 +35,9 @@ pub trait Stage {
     /// else. The same function stamps the output, so this is what decides "up to date".
     fn key(&self) -> Result<Key, Self::Error>;
     /// The key of the output already there, `None` when it is missing or damaged.
-    fn existing_key(&self) -> Option<Key>;
+    fn existing_key(&self) -> Option<Key> {
+        Self::KIND.and_then(|kind| artifact_key(self.output(), kind))
+    }
     /// Do the work and publish the output.
     fn run(&self, progress: &dyn Progress) -> Result<Self::Made, Self::Error>;
     /// The line printed after a run: what was written, with the figures that matter.

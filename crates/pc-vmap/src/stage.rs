@@ -199,6 +199,7 @@ pub struct VmapStage {
 impl Stage for VmapStage {
     const NAME: &'static str = STAGE;
     const DOING: &'static str = "computing the V-map";
+    const KIND: Option<ArtifactKind> = Some(ArtifactKind::Vmap);
     type Made = Summary;
     type Error = VmapError;
 
@@ -208,10 +209,6 @@ impl Stage for VmapStage {
 
     fn key(&self) -> Result<Key, VmapError> {
         key(&self.cfg, &self.octree)
-    }
-
-    fn existing_key(&self) -> Option<Key> {
-        pc_stage::artifact_key(&self.output, ArtifactKind::Vmap)
     }
 
     fn run(&self, progress: &dyn Progress) -> Result<Summary, VmapError> {
