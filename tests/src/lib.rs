@@ -5,7 +5,7 @@
 //! The binaries belong to other packages of the workspace, so cargo's `CARGO_BIN_EXE_<name>`
 //! does not name them. They are found next to the test executable
 //! (`target/<profile>/deps/e2e-<hash>` → `target/<profile>/<bin>`), and built first by one
-//! `cargo build --bins -p pc-octree -p pc-inspect -p pc-scene -p pc-raytrace` with the test's own profile and
+//! `cargo build --bins -p pc-octree -p pc-inspect -p pc-sample -p pc-raytrace` with the test's own profile and
 //! target folder: `cargo test -p pcgi-tests` does not build binaries of other packages, and
 //! `cargo test --workspace` builds a package's binaries only when it has integration tests.
 //! Set `PCGI_E2E_NO_BUILD=1` to skip that build and use the binaries as they are.

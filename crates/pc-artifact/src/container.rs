@@ -616,9 +616,9 @@ impl Artifact {
             });
         }
         // SAFETY: mapping a file is sound only while nobody modifies or truncates it. pcgi's
-        // writers never modify an artifact in place: `ArtifactWriter` writes `NAME.tmp` and
-        // renames the finished file over `NAME`, which replaces the directory entry and leaves
-        // the inode mapped here unchanged. Every byte is validated below before any cast, and
+        // writers never modify an artifact in place: `ArtifactWriter` writes a temporary file
+        // (`NAME.<pid>.<unique>.tmp`) and renames the finished file over `NAME`, which replaces
+        // the directory entry and leaves the inode mapped here unchanged. Every byte is validated below before any cast, and
         // the mapping is read-only. Another program truncating the file while it is mapped
         // would make reads raise SIGBUS; we accept and document that (see `Artifact`).
         let map = unsafe { Mmap::map(&file) }.map_err(io_err)?;

@@ -184,8 +184,16 @@ impl KeyHasher {
 
     /// Hashes the contents of a file, streamed (length-prefixed).
     ///
-    /// Fails if the file cannot be read, or if its length changes while it is being read.
+    /// Fails if the file cannot be read, is not a regular file, or if its length changes while
+    /// it is being read.
     pub fn update_file(&mut self, path: impl AsRef<Path>) -> io::Result<&mut Self> {
+        // A FIFO or a device never ends (and opening a FIFO blocks): refuse it before opening.
+        if !std::fs::metadata(path.as_ref())?.is_file() {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "not a regular file (a folder, FIFO, socket or device): only files are hashed",
+            ));
+        }
         let mut file = File::open(path.as_ref())?;
         let len = file.metadata()?.len();
         // Hash into a copy, so that a failure leaves `self` as it was.

@@ -115,7 +115,7 @@ pub mod class {
 }
 
 /// One splat of the data pool: 64 bytes, four `vec4`s (seed §8.5.12 packs 44 bytes in 3 texels;
-/// the fourth is the border clip, a departure described in ARCHITECTURE.md).
+/// the fourth is the border clip, a departure described in docs/octree.md).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Splat {

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 pub use error::ConfigError;
 pub use load::{apply_override, load_config, parse_config, to_toml, OverrideError};
 pub use materials::material_table;
-pub use validate::validate;
+pub use validate::{validate, MAX_COORDINATE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_RADIANCE};
 
 /// The whole pipeline description.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

@@ -22,12 +22,14 @@ pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, Co
     config.include.clear();
     validate(&config, path)?;
     let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    Ok(LoadedConfig {
+    let cfg = LoadedConfig {
         config,
         path: path.to_path_buf(),
         base_dir,
         text,
-    })
+    };
+    crate::validate::check_paths(&cfg)?;
+    Ok(cfg)
 }
 
 /// Parse a config from text (relative paths resolve against `base_dir`), for tests and tools.

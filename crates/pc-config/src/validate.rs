@@ -16,8 +16,11 @@ use crate::{Albedo, ConfigError, MaterialConfig, PipelineConfig, UnknownKeys};
 
 use End::{Excl, Incl};
 
-/// The largest coordinate (scene units) a config may place anything at: far enough for any scan
-/// shifted to a local origin, near enough that f32 positions keep sub-millimetre steps.
+/// The largest coordinate (scene units) a config or a model may place anything at: beyond any
+/// scene shifted to a local origin, and small enough that every product the stages form (a
+/// squared distance across the scene, an inverse area) stays finite in f32. It bounds the
+/// extent, not the precision: an f32 coordinate keeps about 7 significant digits, so a
+/// georeferenced scan is shifted to a local origin on import.
 pub const MAX_COORDINATE: f32 = 1e7;
 /// The largest image side, in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
@@ -37,6 +40,7 @@ pub fn validate(c: &PipelineConfig, path: &Path) -> Result<(), ConfigError> {
     c.caustics.params.validate().map_err(param)?;
     c.fmm.params.validate().map_err(param)?;
     raytrace(c).map_err(param)?;
+    file_names(c).map_err(param)?;
     for (i, m) in c.models.iter().enumerate() {
         if !c.materials.contains_key(&m.material) {
             let known: Vec<&str> = c.materials.keys().map(String::as_str).collect();
@@ -211,6 +215,54 @@ fn raytrace(c: &PipelineConfig) -> Result<(), ParamError> {
         Incl(MAX_COORDINATE),
     )?;
     int("raytrace.caustic_k", r.caustic_k, 0..=4096)
+}
+
+/// Every artifact and image key names a file (inside `output.dir`): not empty, not `.` or a
+/// folder path.
+fn file_names(c: &PipelineConfig) -> Result<(), ParamError> {
+    for (key, path) in [
+        ("octree.file", &c.octree.file),
+        ("vmap.file", &c.vmap.file),
+        ("caustics.file", &c.caustics.file),
+        ("fmm.file", &c.fmm.file),
+        ("raytrace.image", &c.raytrace.image),
+    ] {
+        let text = path.to_string_lossy();
+        require(
+            key,
+            path.file_name().is_some() && !text.ends_with('/') && !text.ends_with('\\'),
+            "name a file inside output.dir",
+            format!("{text:?}"),
+        )?;
+    }
+    Ok(())
+}
+
+/// What the config names on disk and must be of the right kind: `output.dir`, where it exists,
+/// is a folder; an artifact's or the image's path, where it exists, is not a folder.
+pub fn check_paths(cfg: &crate::LoadedConfig) -> Result<(), ConfigError> {
+    let out = cfg.out_dir();
+    if out.exists() && !out.is_dir() {
+        return Err(ConfigError::invalid(
+            &cfg.path,
+            format!("output.dir: {} is a file, not a folder", out.display()),
+        ));
+    }
+    for (key, path) in [
+        ("octree.file", cfg.octree_path()),
+        ("vmap.file", cfg.vmap_path()),
+        ("caustics.file", cfg.photons_path()),
+        ("fmm.file", cfg.radiosity_path()),
+        ("raytrace.image", cfg.image_path()),
+    ] {
+        if path.is_dir() {
+            return Err(ConfigError::invalid(
+                &cfg.path,
+                format!("{key}: {} is a folder, not a file", path.display()),
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl PipelineConfig {

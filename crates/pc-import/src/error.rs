@@ -57,6 +57,20 @@ pub enum ImportError {
         value: f64,
     },
 
+    /// A point (after its model's transform) or a radius beyond the extent pcgi keeps in f32.
+    #[error(
+        "{}: vertex {index}: {what} {value} lies beyond ±{limit} (the extent pcgi works in): \
+         shift the model with `translate` or scale it, or set import.drop_invalid to drop such points",
+        path.display()
+    )]
+    OutOfRange {
+        path: PathBuf,
+        index: usize,
+        what: &'static str,
+        value: f64,
+        limit: f64,
+    },
+
     /// No points (zero vertices, or all of them dropped as invalid).
     #[error("{}: the model has no points", path.display())]
     Empty { path: PathBuf },
@@ -137,6 +151,7 @@ impl ImportError {
             | Self::BadRadius { path, .. }
             | Self::Empty { path }
             | Self::Truncated { path, .. }
+            | Self::OutOfRange { path, .. }
             | Self::Scene { path, .. }
             | Self::UnknownMaterial { path, .. }
             | Self::Estimate { path, .. } => path,
@@ -147,6 +162,7 @@ impl ImportError {
     pub fn vertex_index(&self) -> Option<usize> {
         match self {
             Self::NonFinite { index, .. }
+            | Self::OutOfRange { index, .. }
             | Self::ZeroNormal { index, .. }
             | Self::BadRadius { index, .. } => Some(*index),
             _ => None,

@@ -9,3 +9,21 @@ pub mod ply;
 pub mod ply_write;
 
 pub use error::ImportError;
+
+/// A model file must be a regular file: a FIFO, a socket or a device (`/dev/zero`) never ends,
+/// and opening a FIFO alone blocks. Checked before the file is opened.
+pub fn check_regular_file(path: &std::path::Path) -> Result<(), ImportError> {
+    let meta = std::fs::metadata(path).map_err(|e| ImportError::io(path, e))?;
+    if meta.is_file() {
+        return Ok(());
+    }
+    let what = if meta.is_dir() {
+        "a folder"
+    } else {
+        "not a regular file (a FIFO, socket or device)"
+    };
+    Err(ImportError::ply(
+        path,
+        format!("{what}: a model must be a file, read whole"),
+    ))
+}

@@ -78,6 +78,18 @@ pub fn model_transform(m: &ModelConfig) -> (f32, Mat3, Vec3) {
     (s, rot, Vec3::from(m.translate.unwrap_or([0.0; 3])))
 }
 
+/// What of a transformed point lies beyond ±[`pc_config::MAX_COORDINATE`], the extent pcgi
+/// works in (near 3e38 the root cube's size overflows to infinity): a coordinate, or the radius.
+fn out_of_range(x: Vec3, r: f32) -> Option<(&'static str, f32)> {
+    let limit = pc_config::MAX_COORDINATE;
+    for (c, what) in x.to_array().into_iter().zip(["x", "y", "z"]) {
+        if !(c.abs() <= limit) {
+            return Some((what, c));
+        }
+    }
+    (!(r <= limit)).then_some(("the radius", r))
+}
+
 /// Load every model of the config. `progress(done, total)` is called after each model.
 pub fn load_scene(
     cfg: &LoadedConfig,
@@ -144,10 +156,26 @@ pub fn load_scene(
         };
         let (s, rot, t) = model_transform(m);
         out.positions.reserve(n);
+        let mut beyond = 0usize;
         for i in 0..n {
-            out.positions.push(rot * (pts.positions[i] * s) + t);
+            let x = rot * (pts.positions[i] * s) + t;
+            let r = radii[i] * s;
+            if let Some((what, value)) = out_of_range(x, r) {
+                if c.import.drop_invalid {
+                    beyond += 1;
+                    continue;
+                }
+                return Err(ImportError::OutOfRange {
+                    path,
+                    index: i,
+                    what,
+                    value: value as f64,
+                    limit: pc_config::MAX_COORDINATE as f64,
+                });
+            }
+            out.positions.push(x);
             out.normals.push((rot * normals[i]).normalize());
-            out.radii.push(radii[i] * s);
+            out.radii.push(r);
             out.albedo.push(
                 colors
                     .as_ref()
@@ -155,11 +183,15 @@ pub fn load_scene(
             );
             out.material.push(mat_index as u32);
         }
+        let mut drop_reasons = pts.drop_reasons;
+        if beyond > 0 {
+            drop_reasons.push(("beyond the extent".to_string(), beyond));
+        }
         reports.push(ModelReport {
             path,
-            points: n,
-            dropped: pts.dropped,
-            drop_reasons: pts.drop_reasons,
+            points: n - beyond,
+            dropped: pts.dropped + beyond,
+            drop_reasons,
             estimated_normals,
             estimated_radii,
         });

@@ -65,14 +65,48 @@ impl PointSet {
     }
 }
 
-/// Read a PLY point cloud from `path`.
+/// The header's `comment` and `obj_info` lines may hold any bytes (scanner software writes
+/// Latin-1 names and degree signs there); the header parser reads UTF-8. Their bytes outside
+/// ASCII become `?`, one for one, so the body stays where it was; `None` when there are none.
+fn sanitize_comments(bytes: &[u8]) -> Option<Vec<u8>> {
+    let end = bytes
+        .windows(10)
+        .take(1 << 20)
+        .position(|w| w == b"end_header")?;
+    let mut out: Option<Vec<u8>> = None;
+    let mut start = 0;
+    while start < end {
+        let stop = bytes[start..end]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(end, |k| start + k);
+        let line = &bytes[start..stop];
+        let free = line.starts_with(b"comment") || line.starts_with(b"obj_info");
+        if free && line.iter().any(|&b| b >= 0x80) {
+            let v = out.get_or_insert_with(|| bytes.to_vec());
+            for b in &mut v[start..stop] {
+                if *b >= 0x80 {
+                    *b = b'?';
+                }
+            }
+        }
+        start = stop + 1;
+    }
+    out
+}
+
+/// Read a PLY point cloud from `path`, which must be a regular file: a FIFO or a device
+/// (`/dev/zero`) would never end and is refused before it is opened.
 pub fn read_ply(path: &Path, opts: &PlyOptions) -> Result<PointSet, ImportError> {
+    crate::check_regular_file(path)?;
     let bytes = std::fs::read(path).map_err(|e| ImportError::io(path, e))?;
     parse_ply(&bytes, path, opts)
 }
 
 /// Parse a PLY file already in memory; `path` is only used in errors.
 pub fn parse_ply(bytes: &[u8], path: &Path, opts: &PlyOptions) -> Result<PointSet, ImportError> {
+    let sanitized = sanitize_comments(bytes);
+    let bytes: &[u8] = sanitized.as_deref().unwrap_or(bytes);
     let mut reader = Reader::new(bytes);
     let header = Parser::<DefaultElement>::new()
         .read_header(&mut reader)

@@ -29,6 +29,11 @@ pub enum BuildError {
     },
     #[error("invalid parameter: {0}")]
     Param(String),
+    /// The splats' bounding box does not fit f32 arithmetic (its size or centre overflows).
+    #[error(
+        "the splats span {lo:?} to {hi:?}, beyond what f32 arithmetic holds: shift or scale the models"
+    )]
+    Extent { lo: [f32; 3], hi: [f32; 3] },
 }
 
 /// The splats to build over (structure of arrays, as the importer makes them).
@@ -184,6 +189,12 @@ pub fn build(
         .max(f32::MIN_POSITIVE * 1e6);
     let origin = center - Vec3::splat(size * 0.5);
     let inv_size = 1.0 / size;
+    if !(size.is_finite() && inv_size.is_finite() && origin.is_finite()) {
+        return Err(BuildError::Extent {
+            lo: lo.to_array(),
+            hi: hi.to_array(),
+        });
+    }
     let mut frame = Frame {
         origin: origin.into(),
         size,
@@ -637,6 +648,12 @@ enum Border {
 /// owner cell, so for the samples that fall inside that cell it is enough to test the few disks
 /// that overlap disk i at all (filtered once per splat); samples outside the cell locate their
 /// own leaf and test its list.
+///
+/// Identical splats (the same position, normal, radius and material: duplicate points, as scans
+/// of overlapping stations hold thousands of) share a disk exactly, so each gets the same
+/// share; the pass computes one representative per group ([`Duplicates`]) and counts it as
+/// many times as the group has members wherever it covers a point. Without this, m coincident
+/// splats cost O(m²) (they cannot be split, and every list that holds one holds them all).
 pub fn splat_areas(
     frame: &Frame,
     nodes: &[u32],
@@ -646,12 +663,14 @@ pub fn splat_areas(
     leaf_depth: &[u8],
     samples: u32,
 ) -> (Vec<f32>, Vec<[f32; 4]>) {
+    let dups = Duplicates::new(splats, splat_leaf);
     let ctx = AreaPass {
         frame,
         nodes,
         begin_end,
         splats,
         splat_leaf,
+        dups: &dups,
         pattern: disk_pattern(samples.max(1)).collect(),
         leaf_depth,
         dirs: std::array::from_fn(|k| {
@@ -659,14 +678,14 @@ pub fn splat_areas(
             (a.cos(), a.sin())
         }),
     };
-    let unclipped = ctx.run(None);
-    let gap = ctx.spacing(&unclipped, |near, a| {
+    let unclipped = dups.spread(ctx.run(None));
+    let gap = dups.spread(ctx.spacing(&unclipped, |near, a| {
         near.iter()
             .map(|&j| a[j as usize])
             .fold(f32::INFINITY, f32::min)
-    });
-    let borders = ctx.borders(&gap);
-    let areas = ctx.run(Some(&borders));
+    }));
+    let borders = dups.spread(ctx.borders(&gap));
+    let areas = dups.spread(ctx.run(Some(&borders)));
     let clips = borders
         .par_iter()
         .zip(splats)
@@ -687,6 +706,99 @@ pub fn splat_areas(
     (areas, clips)
 }
 
+/// Groups of identical splats: each splat's representative (the group's first splat) and, for
+/// a representative, how many splats its group holds. Identical splats have the same Morton
+/// code, so a group lies in one leaf's own range.
+struct Duplicates {
+    rep: Vec<u32>,
+    count: Vec<u32>,
+}
+
+impl Duplicates {
+    fn new(splats: &[Splat], splat_leaf: &[u32]) -> Duplicates {
+        let n = splats.len();
+        let key = |s: &Splat| -> [u32; 8] {
+            let b = |x: f32| x.to_bits();
+            [
+                b(s.position[0]),
+                b(s.position[1]),
+                b(s.position[2]),
+                b(s.normal[0]),
+                b(s.normal[1]),
+                b(s.normal[2]),
+                b(s.radius),
+                s.material,
+            ]
+        };
+        // The leaves' own ranges: runs of the same owner (the data pool is in leaf order).
+        let mut runs = Vec::new();
+        let mut start = 0;
+        for i in 1..=n {
+            if i == n || splat_leaf[i] != splat_leaf[start] {
+                runs.push(start..i);
+                start = i;
+            }
+        }
+        let groups: Vec<Vec<(u32, u32)>> = runs
+            .into_par_iter()
+            .filter(|r| r.len() > 1)
+            .map(|r| {
+                let mut idx: Vec<u32> = (r.start as u32..r.end as u32).collect();
+                idx.sort_by_key(|&i| (key(&splats[i as usize]), i));
+                let mut out = Vec::new();
+                let mut g = 0;
+                while g < idx.len() {
+                    let k = key(&splats[idx[g] as usize]);
+                    let mut e = g + 1;
+                    while e < idx.len() && key(&splats[idx[e] as usize]) == k {
+                        e += 1;
+                    }
+                    for &i in &idx[g + 1..e] {
+                        out.push((i, idx[g]));
+                    }
+                    g = e;
+                }
+                out
+            })
+            .collect();
+        let mut rep: Vec<u32> = (0..n as u32).collect();
+        let mut count = vec![1u32; n];
+        for (i, r) in groups.into_iter().flatten() {
+            rep[i as usize] = r;
+            count[r as usize] += 1;
+        }
+        Duplicates { rep, count }
+    }
+
+    /// Whether splat `i` is its group's representative (computed, not copied).
+    #[inline]
+    fn is_rep(&self, i: u32) -> bool {
+        self.rep[i as usize] == i
+    }
+
+    /// How many splats splat `j`'s group counts where it covers a point (0 for a member that is
+    /// not its group's representative, so that a list counts each group once).
+    #[inline]
+    fn weight(&self, j: u32) -> u32 {
+        if self.is_rep(j) {
+            self.count[j as usize]
+        } else {
+            0
+        }
+    }
+
+    /// `per_splat` (computed for the representatives) with every member given its
+    /// representative's value.
+    fn spread<T: Copy>(&self, mut per_splat: Vec<T>) -> Vec<T> {
+        for (i, &r) in self.rep.iter().enumerate() {
+            if r as usize != i {
+                per_splat[i] = per_splat[r as usize];
+            }
+        }
+        per_splat
+    }
+}
+
 /// What one partition-of-unity pass over the disks needs.
 struct AreaPass<'a> {
     frame: &'a Frame,
@@ -694,6 +806,7 @@ struct AreaPass<'a> {
     begin_end: &'a [u32],
     splats: &'a [Splat],
     splat_leaf: &'a [u32],
+    dups: &'a Duplicates,
     leaf_depth: &'a [u8],
     pattern: Vec<(f32, f32)>,
     dirs: [(f32, f32); BORDER_DIRS],
@@ -715,6 +828,9 @@ impl AreaPass<'_> {
         let (own, refs) = self.leaf_list(self.nodes[self.splat_leaf[i] as usize]);
         near.clear();
         for j in own.chain(refs.iter().copied()) {
+            if !self.dups.is_rep(j) {
+                continue;
+            }
             let o = &self.splats[j as usize];
             let reach = s.radius + o.radius;
             if o.material == s.material
@@ -749,7 +865,7 @@ impl AreaPass<'_> {
             }
             if w & node::LEAF != 0 {
                 let (own, _) = self.leaf_list(w);
-                for j in own {
+                for j in own.filter(|&j| self.dups.is_rep(j)) {
                     let o = &self.splats[j as usize];
                     let d = Vec3::from(o.position) - c;
                     if o.material == s.material
@@ -771,6 +887,9 @@ impl AreaPass<'_> {
         (0..self.splats.len())
             .into_par_iter()
             .map_init(Vec::new, |near: &mut Vec<u32>, i| {
+                if !self.dups.is_rep(i as u32) {
+                    return 0.0; // the representative's, spread afterwards
+                }
                 self.neighbourhood(i, near);
                 0.5 * estimate(near, areas).max(0.0).sqrt()
             })
@@ -785,6 +904,9 @@ impl AreaPass<'_> {
         (0..self.splats.len())
             .into_par_iter()
             .map_init(Vec::new, |near: &mut Vec<u32>, i| {
+                if !self.dups.is_rep(i as u32) {
+                    return Border::Interior; // the representative's, spread afterwards
+                }
                 self.neighbourhood(i, near);
                 let s = &self.splats[i];
                 let (u, v) = tangent_frame(s.normal);
@@ -827,6 +949,9 @@ impl AreaPass<'_> {
         (0..self.splats.len())
             .into_par_iter()
             .map_init(Vec::new, |near: &mut Vec<u32>, i| {
+                if !self.dups.is_rep(i as u32) {
+                    return 0.0; // the representative's, spread afterwards
+                }
                 let s = &self.splats[i];
                 let c = Vec3::from(s.position);
                 let n = Vec3::from(s.normal);
@@ -846,17 +971,20 @@ impl AreaPass<'_> {
                         continue;
                     }
                     let q = (x - origin) * inv_size;
-                    let cover = if (q * scale).floor() == cell {
-                        near.iter()
-                            .filter(|&&j| covers(&self.splats[j as usize], x, n, s.material))
-                            .count() as u32
+                    let weight = |j: u32| {
+                        if covers(&self.splats[j as usize], x, n, s.material) {
+                            self.dups.weight(j)
+                        } else {
+                            0
+                        }
+                    };
+                    let cover: u32 = if (q * scale).floor() == cell {
+                        near.iter().map(|&j| weight(j)).sum()
                     } else if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                         let loc = locate_normalized(self.nodes, q);
                         if node::is_leaf(loc.node) {
                             let (own, refs) = self.leaf_list(loc.node);
-                            own.chain(refs.iter().copied())
-                                .filter(|&j| covers(&self.splats[j as usize], x, n, s.material))
-                                .count() as u32
+                            own.chain(refs.iter().copied()).map(weight).sum()
                         } else {
                             0
                         }

@@ -151,7 +151,7 @@ impl Image {
 /// Errors of image input and output. The message starts with the path of the file concerned.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
-    #[error("{}: {source}", path.display())]
+    #[error("{}: I/O error", path.display())]
     Io {
         path: PathBuf,
         #[source]

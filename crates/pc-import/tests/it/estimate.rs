@@ -280,7 +280,7 @@ fn too_few_points_is_an_error() {
 }
 
 /// Estimation throughput; run with
-/// `cargo test --release -p pc-scene --test it -- --ignored --nocapture estimate_speed`.
+/// `cargo test --release -p pc-import --test it -- --ignored --nocapture estimate_speed`.
 #[test]
 #[ignore]
 fn estimate_speed() {

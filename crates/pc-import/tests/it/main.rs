@@ -1,4 +1,4 @@
-//! Integration tests of pc-scene, one binary; each module tests one part of the crate.
+//! Integration tests of pc-import, one binary; each module tests one part of the crate.
 
 mod estimate;
 mod ply;

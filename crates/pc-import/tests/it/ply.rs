@@ -970,7 +970,7 @@ fn malformed_ascii() {
 }
 
 /// Decode throughput; run with
-/// `cargo test --release -p pc-scene --test it -- --ignored --nocapture decode_speed`.
+/// `cargo test --release -p pc-import --test it -- --ignored --nocapture decode_speed`.
 #[test]
 #[ignore]
 fn decode_speed() {

@@ -13,7 +13,7 @@ use pc_raytrace::image::{read_exr, write_diff_png};
 /// --reference DIR` for a reference folder (an EXR and its *.stats.json, as in
 /// ../shared/reference/cornell).
 #[derive(Parser)]
-#[command(name = "pc-compare", version, about)]
+#[command(name = "pc-compare", version)]
 struct Args {
     /// Our render (linear EXR).
     #[arg(required_unless_present = "write_config")]

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 /// Measure traversal speed on an octree artifact.
 #[derive(Parser)]
-#[command(name = "pc-raybench", version, about)]
+#[command(name = "pc-raybench", version)]
 struct Args {
     /// The pipeline description (camera, output folder).
     #[arg(long, default_value = "pipeline.toml")]
