@@ -71,12 +71,7 @@ fn traces_inspects_renders_and_rejects_bad_inputs() {
         );
     }
     let out = pc_inspect(args![&photons, "--verify"]).success();
-    for needle in [
-        "stored of",
-        "bounces",
-        "kd-tree of",
-        "ok (checksums, kd-tree",
-    ] {
+    for needle in ["stored of", "bounces", "in the map", "ok (checksums,"] {
         assert!(out.stdout.contains(needle), "{needle}: {out:?}");
     }
     // pc-fmm takes the caustic energy into its sources; pc-raytrace reads both.
@@ -101,21 +96,21 @@ fn traces_inspects_renders_and_rejects_bad_inputs() {
     )
     .success();
 
-    // A corrupt kd-tree: the renderer names the file and the section.
+    // A corrupt photon: the renderer names the file and the section.
     let good = std::fs::read(&photons).unwrap();
-    let tree = Artifact::open(&photons)
+    let section = Artifact::open(&photons)
         .unwrap()
-        .section_info(sections::KDTREE)
-        .expect("a kdtree section")
+        .section_info(sections::PHOTONS)
+        .expect("a photons section")
         .clone();
     let mut bad = good.clone();
-    bad[(tree.offset + tree.len / 2) as usize] ^= 0x08;
+    bad[(section.offset + section.len / 2) as usize] ^= 0x08;
     std::fs::write(&photons, &bad).unwrap();
     run(
         "pc-raytrace",
         args!["--quiet", "--backend", "cpu", "--config", &cfg],
     )
-    .error(&["photons.pcgi", "section `kdtree` is corrupt"]);
+    .error(&["photons.pcgi", "section `photons` is corrupt"]);
     // A truncated one: the same, naming the truncation.
     std::fs::write(&photons, &good[..good.len() / 2]).unwrap();
     run(

@@ -6,10 +6,12 @@ mod bad_input;
 mod caustics_cli;
 mod fmm_cli;
 mod inspect;
+mod kill;
 mod makefile;
 mod octree_cli;
 mod raytrace_cli;
 mod reference;
+mod robustness;
 mod run_cli;
 mod vmap_cli;
 

@@ -1,4 +1,5 @@
-//! The artifact container: its byte layout, the atomic writer, and the validating memory-mapped reader.
+//! The artifact container: its byte layout and the validating memory-mapped reader (the atomic
+//! writer, [`crate::ArtifactWriter`], is in `writer.rs`).
 //!
 //! # File layout, format version 1
 //!
@@ -58,16 +59,15 @@
 
 use std::fmt;
 use std::fs::File;
-use std::io::{self, BufWriter, Seek, SeekFrom, Write};
+use std::io;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use bytemuck::{Pod, Zeroable};
 use memmap2::Mmap;
-use serde::{Deserialize, Serialize};
-use xxhash_rust::xxh3::{xxh3_64, Xxh3};
+use serde::Deserialize;
+use xxhash_rust::xxh3::xxh3_64;
 
-use crate::atomic::AtomicFile;
 use crate::error::{ArtifactError, METADATA_REGION, TABLE_REGION};
 use crate::key::Key;
 use crate::kind::ArtifactKind;
@@ -96,38 +96,38 @@ pub const MAX_STAGE_VERSION: usize = 16;
 /// length has been checked.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct RawHeader {
-    magic: [u8; 8],
-    format_version: u32,
-    kind: u32,
-    section_count: u32,
-    flags: u32,
-    stage: [u8; 32],
-    stage_version: [u8; 16],
-    key: [u8; 16],
-    created_unix: u64,
-    file_len: u64,
-    table_offset: u64,
-    table_len: u64,
-    table_checksum: u64,
-    metadata_offset: u64,
-    metadata_len: u64,
-    metadata_checksum: u64,
-    reserved: [u64; 12],
-    header_checksum: u64,
+pub(crate) struct RawHeader {
+    pub(crate) magic: [u8; 8],
+    pub(crate) format_version: u32,
+    pub(crate) kind: u32,
+    pub(crate) section_count: u32,
+    pub(crate) flags: u32,
+    pub(crate) stage: [u8; 32],
+    pub(crate) stage_version: [u8; 16],
+    pub(crate) key: [u8; 16],
+    pub(crate) created_unix: u64,
+    pub(crate) file_len: u64,
+    pub(crate) table_offset: u64,
+    pub(crate) table_len: u64,
+    pub(crate) table_checksum: u64,
+    pub(crate) metadata_offset: u64,
+    pub(crate) metadata_len: u64,
+    pub(crate) metadata_checksum: u64,
+    pub(crate) reserved: [u64; 12],
+    pub(crate) header_checksum: u64,
 }
 
 /// One section table entry as it lies on disk.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct RawEntry {
-    name: [u8; 24],
-    offset: u64,
-    len: u64,
-    elem_size: u32,
-    align: u32,
-    checksum: u64,
-    reserved: u64,
+pub(crate) struct RawEntry {
+    pub(crate) name: [u8; 24],
+    pub(crate) offset: u64,
+    pub(crate) len: u64,
+    pub(crate) elem_size: u32,
+    pub(crate) align: u32,
+    pub(crate) checksum: u64,
+    pub(crate) reserved: u64,
 }
 
 const _: () = assert!(std::mem::size_of::<RawHeader>() == HEADER_SIZE as usize);
@@ -141,14 +141,14 @@ const _: () = assert!(std::mem::offset_of!(RawEntry, checksum) == 48);
 
 impl RawHeader {
     /// xxh3-64 of the header with the checksum field zeroed.
-    fn checksum(&self) -> u64 {
+    pub(crate) fn checksum(&self) -> u64 {
         let mut copy = *self;
         copy.header_checksum = 0;
         xxh3_64(bytemuck::bytes_of(&copy))
     }
 }
 
-fn align_up(pos: u64) -> u64 {
+pub(crate) fn align_up(pos: u64) -> u64 {
     pos.div_ceil(SECTION_ALIGN) * SECTION_ALIGN
 }
 
@@ -157,32 +157,11 @@ pub fn is_valid_section_name(name: &str) -> bool {
     valid_name_bytes(name.as_bytes())
 }
 
-fn valid_name_bytes(name: &[u8]) -> bool {
+pub(crate) fn valid_name_bytes(name: &[u8]) -> bool {
     (1..=MAX_SECTION_NAME).contains(&name.len())
         && name
             .iter()
             .all(|&b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
-}
-
-/// Encodes a stage name or version into its zero-padded header field.
-fn encode_label<const N: usize>(
-    path: &Path,
-    field: &'static str,
-    value: &str,
-    min: usize,
-) -> Result<[u8; N], ArtifactError> {
-    if value.len() < min || value.len() > N || value.contains('\0') {
-        return Err(ArtifactError::BadLabel {
-            path: path.to_owned(),
-            field,
-            value: value.to_owned(),
-            min,
-            max: N,
-        });
-    }
-    let mut out = [0u8; N];
-    out[..value.len()].copy_from_slice(value.as_bytes());
-    Ok(out)
 }
 
 /// Decodes a zero-padded header field; the padding must be all zero.
@@ -206,271 +185,8 @@ fn decode_label(
     }
 }
 
-fn now_unix() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0)
-}
-
 // ---------------------------------------------------------------------------------------------
-// Writer
-// ---------------------------------------------------------------------------------------------
-
-/// Writes one artifact atomically ([`crate::atomic::AtomicFile`]): everything goes to a
-/// temporary file `NAME.<pid>.<unique>.tmp` in the same folder, and
-/// [`finish`](ArtifactWriter::finish) fsyncs it and renames it over `NAME`.
-///
-/// A reader never sees a half-written artifact, and a crash (or an error, or dropping the
-/// writer without calling `finish`) leaves any older artifact at `NAME` as it was; dropping an
-/// unfinished writer deletes its temporary file. Two writers of the same path each write their
-/// own temporary file; the last to finish wins, and either result is complete.
-///
-/// ```no_run
-/// # use pc_artifact::{ArtifactWriter, ArtifactKind, KeyHasher};
-/// # fn main() -> Result<(), pc_artifact::ArtifactError> {
-/// let key = KeyHasher::new().update_str("params").finish();
-/// let mut w = ArtifactWriter::create("out/scene.photons", ArtifactKind::Photons, "pc-photons", "0.1.0", key)?;
-/// w.section("positions", &[[0.0f32; 4]; 8])?;
-/// w.metadata(&("any serde value", 42))?;
-/// let path = w.finish()?;
-/// # Ok(()) }
-/// ```
-pub struct ArtifactWriter {
-    path: PathBuf,
-    tmp_path: PathBuf,
-    /// A second handle to `out`'s temporary file, buffered (the header is written last, through
-    /// `out`'s own handle).
-    file: Option<BufWriter<File>>,
-    out: Option<AtomicFile>,
-    header: RawHeader,
-    pos: u64,
-    entries: Vec<RawEntry>,
-    names: Vec<String>,
-    metadata: Vec<u8>,
-    finished: bool,
-}
-
-impl fmt::Debug for ArtifactWriter {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("ArtifactWriter")
-            .field("path", &self.path)
-            .field("sections", &self.names)
-            .field("pos", &self.pos)
-            .finish_non_exhaustive()
-    }
-}
-
-impl ArtifactWriter {
-    /// Starts writing an artifact that [`finish`](ArtifactWriter::finish) will place at `path`.
-    ///
-    /// Creates the parent folders and a fresh temporary file beside `path`. `stage` is the
-    /// producing stage's name (1 to 32 bytes), `stage_version` its version (0 to 16 bytes),
-    /// `key` the hash of the inputs and parameters the artifact is made from.
-    pub fn create(
-        path: impl AsRef<Path>,
-        kind: ArtifactKind,
-        stage: &str,
-        stage_version: &str,
-        key: Key,
-    ) -> Result<ArtifactWriter, ArtifactError> {
-        let path = path.as_ref().to_path_buf();
-        let stage = encode_label::<MAX_STAGE_NAME>(&path, "stage name", stage, 1)?;
-        let stage_version =
-            encode_label::<MAX_STAGE_VERSION>(&path, "stage version", stage_version, 0)?;
-        let mut out = AtomicFile::create(&path).map_err(|e| ArtifactError::io(&path, e))?;
-        let tmp_path = out.tmp_path().to_path_buf();
-        let file = out
-            .file()
-            .try_clone()
-            .map_err(|e| ArtifactError::io(&tmp_path, e))?;
-        let header = RawHeader {
-            magic: MAGIC,
-            format_version: FORMAT_VERSION,
-            kind: kind.as_u32(),
-            stage,
-            stage_version,
-            key: key.0,
-            ..RawHeader::zeroed()
-        };
-        let mut writer = ArtifactWriter {
-            path,
-            tmp_path,
-            file: Some(BufWriter::with_capacity(1 << 20, file)),
-            out: Some(out),
-            header,
-            pos: 0,
-            entries: Vec::new(),
-            names: Vec::new(),
-            metadata: Vec::new(),
-            finished: false,
-        };
-        // Placeholder; `finish` writes the real header once it knows the table and metadata.
-        writer.write_raw(&[0u8; HEADER_SIZE as usize])?;
-        Ok(writer)
-    }
-
-    /// The path the artifact will have once finished.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// Appends a section holding `data`, an array of plain-old-data elements.
-    ///
-    /// `name` is 1 to 24 characters of `a-z`, `0-9` and `_`, unique within the artifact.
-    /// `T` must not be zero-sized.
-    pub fn section<T: Pod>(&mut self, name: &str, data: &[T]) -> Result<(), ArtifactError> {
-        let elem_size = u32::try_from(std::mem::size_of::<T>()).unwrap_or(0);
-        self.section_bytes(name, elem_size, bytemuck::cast_slice(data))
-    }
-
-    /// Appends a section of raw bytes holding `bytes.len() / elem_size` elements of
-    /// `elem_size` bytes each (`elem_size` is not 0 and divides `bytes.len()`).
-    pub fn section_bytes(
-        &mut self,
-        name: &str,
-        elem_size: u32,
-        bytes: &[u8],
-    ) -> Result<(), ArtifactError> {
-        if !is_valid_section_name(name) {
-            return Err(ArtifactError::BadName {
-                path: self.path.clone(),
-                name: name.to_owned(),
-            });
-        }
-        if self.names.iter().any(|n| n == name) {
-            return Err(ArtifactError::DuplicateSection {
-                path: self.path.clone(),
-                section: name.to_owned(),
-            });
-        }
-        if elem_size == 0 || bytes.len() % elem_size as usize != 0 {
-            return Err(ArtifactError::Ragged {
-                path: self.path.clone(),
-                section: name.to_owned(),
-                len: bytes.len() as u64,
-                elem_size,
-            });
-        }
-        self.pad()?;
-        let offset = self.pos;
-        let mut hasher = Xxh3::new();
-        for chunk in bytes.chunks(1 << 20) {
-            hasher.update(chunk);
-            self.write_raw(chunk)?;
-        }
-        let mut entry = RawEntry {
-            offset,
-            len: bytes.len() as u64,
-            elem_size,
-            align: SECTION_ALIGN as u32,
-            checksum: hasher.digest(),
-            ..RawEntry::zeroed()
-        };
-        entry.name[..name.len()].copy_from_slice(name.as_bytes());
-        self.entries.push(entry);
-        self.names.push(name.to_owned());
-        Ok(())
-    }
-
-    /// Appends a byte section whose payload must start on a multiple of `align` bytes (a power
-    /// of two above [`SECTION_ALIGN`], e.g. an rkyv archive of cache-line-aligned arenas): the
-    /// section starts with zero bytes up to the first such offset, and
-    /// [`Artifact::section_aligned`] skips them. Files are mapped at page boundaries, so file
-    /// offsets and addresses agree modulo `align` (up to the page size).
-    pub fn section_aligned(
-        &mut self,
-        name: &str,
-        align: u64,
-        bytes: &[u8],
-    ) -> Result<(), ArtifactError> {
-        debug_assert!(align.is_power_of_two() && align <= 4096);
-        let start = align_up(self.pos);
-        let skip = (align - start % align) % align;
-        let mut data = vec![0u8; skip as usize];
-        data.extend_from_slice(bytes);
-        self.section_bytes(name, 1, &data)
-    }
-
-    /// Sets the artifact's metadata, stored as MessagePack (struct fields by name) when the
-    /// artifact is finished. A second call replaces the first.
-    pub fn metadata<M: Serialize + ?Sized>(&mut self, metadata: &M) -> Result<(), ArtifactError> {
-        self.metadata = rmp_serde::to_vec_named(metadata).map_err(|e| ArtifactError::Metadata {
-            path: self.path.clone(),
-            msg: e.to_string(),
-        })?;
-        Ok(())
-    }
-
-    /// Writes the metadata, the section table and the header, fsyncs the file, renames it
-    /// over the final path and fsyncs the folder (best effort). Returns the final path.
-    pub fn finish(mut self) -> Result<PathBuf, ArtifactError> {
-        self.pad()?;
-        let metadata = std::mem::take(&mut self.metadata);
-        self.header.metadata_offset = self.pos;
-        self.header.metadata_len = metadata.len() as u64;
-        self.header.metadata_checksum = xxh3_64(&metadata);
-        self.write_raw(&metadata)?;
-
-        self.pad()?;
-        let entries = std::mem::take(&mut self.entries);
-        let table: &[u8] = bytemuck::cast_slice(&entries);
-        self.header.section_count = entries.len() as u32;
-        self.header.table_offset = self.pos;
-        self.header.table_len = table.len() as u64;
-        self.header.table_checksum = xxh3_64(table);
-        self.write_raw(table)?;
-
-        self.header.file_len = self.pos;
-        self.header.created_unix = now_unix();
-        self.header.header_checksum = self.header.checksum();
-
-        let tmp = self.tmp_path.clone();
-        let io_err = |e| ArtifactError::io(&tmp, e);
-        let buffered = self.file.take().expect("file is present until finish");
-        let mut file = buffered.into_inner().map_err(|e| io_err(e.into_error()))?;
-        file.seek(SeekFrom::Start(0)).map_err(io_err)?;
-        file.write_all(bytemuck::bytes_of(&self.header))
-            .map_err(io_err)?;
-        drop(file);
-        // fsync, rename over the final path, fsync the folder.
-        let out = self.out.take().expect("present until finish");
-        out.commit().map_err(|e| ArtifactError::io(&self.path, e))?;
-        self.finished = true;
-        Ok(self.path.clone())
-    }
-
-    fn write_raw(&mut self, bytes: &[u8]) -> Result<(), ArtifactError> {
-        let file = self.file.as_mut().expect("file is present until finish");
-        file.write_all(bytes)
-            .map_err(|e| ArtifactError::io(&self.tmp_path, e))?;
-        self.pos += bytes.len() as u64;
-        Ok(())
-    }
-
-    /// Zero bytes up to the next multiple of [`SECTION_ALIGN`].
-    fn pad(&mut self) -> Result<(), ArtifactError> {
-        let padding = (align_up(self.pos) - self.pos) as usize;
-        self.write_raw(&[0u8; SECTION_ALIGN as usize][..padding])
-    }
-}
-
-impl Drop for ArtifactWriter {
-    fn drop(&mut self) {
-        if !self.finished {
-            if let Some(buffered) = self.file.take() {
-                // Discard the buffer instead of flushing it into a file about to be deleted.
-                let (file, _unflushed) = buffered.into_parts();
-                drop(file);
-            }
-            // Dropping the uncommitted `AtomicFile` deletes the temporary file.
-            self.out = None;
-        }
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Reader
+// Reader (the writer is in writer.rs)
 // ---------------------------------------------------------------------------------------------
 
 /// What the header of an artifact says.
@@ -713,18 +429,6 @@ impl Artifact {
         Ok(self.data(info))
     }
 
-    /// The payload of a section written by [`ArtifactWriter::section_aligned`] with `align`:
-    /// its bytes from the first address that is a multiple of `align`.
-    pub fn section_aligned(&self, name: &str, align: usize) -> Result<&[u8], ArtifactError> {
-        let bytes = self.section_bytes(name)?;
-        let skip = (align - bytes.as_ptr() as usize % align) % align;
-        bytes.get(skip..).ok_or_else(|| ArtifactError::Cast {
-            path: self.path.clone(),
-            section: name.to_owned(),
-            msg: format!("shorter than its {skip}-byte alignment padding"),
-        })
-    }
-
     /// Decodes the MessagePack metadata.
     pub fn metadata<'a, M: Deserialize<'a>>(&'a self) -> Result<M, ArtifactError> {
         let bytes = self.metadata_bytes();
@@ -771,246 +475,23 @@ fn validate(
     bytes: &[u8],
     expected_kind: Option<ArtifactKind>,
 ) -> Result<Validated, ArtifactError> {
-    let file_len = bytes.len() as u64;
-    let err_path = || path.to_owned();
-
-    // Header: length, magic, version, checksum, kind, file length.
-    if file_len < HEADER_SIZE {
-        return Err(ArtifactError::Truncated {
-            path: err_path(),
-            what: "header",
-            need: HEADER_SIZE,
-            have: file_len,
-        });
-    }
-    let raw: RawHeader = bytemuck::pod_read_unaligned(&bytes[..HEADER_SIZE as usize]);
-    if raw.magic != MAGIC {
-        return Err(ArtifactError::BadMagic {
-            path: err_path(),
-            found: raw.magic,
-        });
-    }
-    // Before the checksum: another version may lay its header out differently, and "rerun
-    // the stage" is the useful message then.
-    if raw.format_version != FORMAT_VERSION {
-        return Err(ArtifactError::Version {
-            path: err_path(),
-            expected: FORMAT_VERSION,
-            got: raw.format_version,
-        });
-    }
-    let header_checksum = raw.checksum();
-    if header_checksum != raw.header_checksum {
-        return Err(ArtifactError::HeaderChecksum {
-            path: err_path(),
-            expected: raw.header_checksum,
-            got: header_checksum,
-        });
-    }
-    let kind = ArtifactKind::from_u32(raw.kind);
-    match (expected_kind, kind) {
-        (Some(want), Some(got)) if want == got => {}
-        (Some(want), got) => {
-            return Err(ArtifactError::WrongKind {
-                path: err_path(),
-                expected: want,
-                got: match got {
-                    Some(k) => k.name().to_owned(),
-                    None => format!("unknown kind {}", raw.kind),
-                },
-            })
-        }
-        (None, Some(_)) => {}
-        (None, None) => {
-            return Err(ArtifactError::UnknownKind {
-                path: err_path(),
-                kind: raw.kind,
-            })
-        }
-    }
-    let kind = kind.expect("checked above");
-    if file_len < raw.file_len {
-        return Err(ArtifactError::Truncated {
-            path: err_path(),
-            what: "artifact",
-            need: raw.file_len,
-            have: file_len,
-        });
-    }
-    if file_len > raw.file_len {
-        return Err(ArtifactError::FileLength {
-            path: err_path(),
-            expected: raw.file_len,
-            have: file_len,
-        });
-    }
+    let v = Checker { path, bytes };
+    let (raw, kind) = v.header(expected_kind)?;
     let stage = decode_label(path, "stage name", &raw.stage, 1)?;
     let stage_version = decode_label(path, "stage version", &raw.stage_version, 0)?;
-
-    // Byte range of a region, once it is known to lie inside the file.
-    let region = |name: &str, offset: u64, len: u64| -> Result<Range<usize>, ArtifactError> {
-        match offset.checked_add(len) {
-            Some(end) if offset >= HEADER_SIZE && end <= file_len => {
-                Ok(offset as usize..end as usize)
-            }
-            _ => Err(ArtifactError::SectionBounds {
-                path: err_path(),
-                section: name.to_owned(),
-                offset,
-                len,
-                file_len,
-            }),
-        }
-    };
-    let checksum = |name: &str, data: &[u8], expected: u64| -> Result<(), ArtifactError> {
-        let got = xxh3_64(data);
-        if got == expected {
-            Ok(())
-        } else {
-            Err(ArtifactError::Checksum {
-                path: err_path(),
-                section: name.to_owned(),
-                expected,
-                got,
-            })
-        }
-    };
-
-    // Section table.
-    if raw.table_len != raw.section_count as u64 * TABLE_ENTRY_SIZE {
-        return Err(ArtifactError::Layout {
-            path: err_path(),
-            msg: format!(
-                "the section table is {} bytes, {} sections need {}",
-                raw.table_len,
-                raw.section_count,
-                raw.section_count as u64 * TABLE_ENTRY_SIZE
-            ),
-        });
-    }
-    let table_range = region(TABLE_REGION, raw.table_offset, raw.table_len)?;
-    let table = &bytes[table_range.clone()];
-    checksum(TABLE_REGION, table, raw.table_checksum)?;
-
-    // Metadata.
-    let metadata = region(METADATA_REGION, raw.metadata_offset, raw.metadata_len)?;
-    checksum(
+    let table = v.table(&raw)?;
+    let metadata = v.region(METADATA_REGION, raw.metadata_offset, raw.metadata_len)?;
+    v.checksum(
         METADATA_REGION,
         &bytes[metadata.clone()],
         raw.metadata_checksum,
     )?;
-
-    // Sections.
     let mut sections: Vec<SectionInfo> = Vec::with_capacity(raw.section_count as usize);
-    for entry_bytes in table.chunks_exact(TABLE_ENTRY_SIZE as usize) {
-        let entry: RawEntry = bytemuck::pod_read_unaligned(entry_bytes);
-        let end = entry
-            .name
-            .iter()
-            .position(|&b| b == 0)
-            .unwrap_or(entry.name.len());
-        let (name, padding) = entry.name.split_at(end);
-        if !valid_name_bytes(name) || padding.iter().any(|&b| b != 0) {
-            return Err(ArtifactError::BadName {
-                path: err_path(),
-                name: String::from_utf8_lossy(&entry.name).into_owned(),
-            });
-        }
-        let name = std::str::from_utf8(name).expect("checked ASCII").to_owned();
-        if sections.iter().any(|s| s.name == name) {
-            return Err(ArtifactError::DuplicateSection {
-                path: err_path(),
-                section: name,
-            });
-        }
-        let range = region(&name, entry.offset, entry.len)?;
-        if entry.offset % SECTION_ALIGN != 0 || entry.align as u64 != SECTION_ALIGN {
-            return Err(ArtifactError::Misaligned {
-                path: err_path(),
-                section: name,
-                offset: entry.offset,
-                align: entry.align,
-            });
-        }
-        if entry.elem_size == 0 || entry.len % entry.elem_size as u64 != 0 {
-            return Err(ArtifactError::Ragged {
-                path: err_path(),
-                section: name,
-                len: entry.len,
-                elem_size: entry.elem_size,
-            });
-        }
-        if entry.reserved != 0 {
-            return Err(ArtifactError::Layout {
-                path: err_path(),
-                msg: format!("section `{name}` has a nonzero reserved field"),
-            });
-        }
-        checksum(&name, &bytes[range], entry.checksum)?;
-        sections.push(SectionInfo {
-            name,
-            offset: entry.offset,
-            len: entry.len,
-            elem_size: entry.elem_size,
-            align: entry.align,
-            checksum: entry.checksum,
-        });
+    for entry in table.chunks_exact(TABLE_ENTRY_SIZE as usize) {
+        let info = v.section(bytemuck::pod_read_unaligned(entry), &sections)?;
+        sections.push(info);
     }
-
-    // Layout: the regions follow the header in order, each on the next 64-byte boundary, with
-    // zero padding between them and nothing after the table. Together with the checksums
-    // this leaves no byte of the file unchecked.
-    let mut pos = HEADER_SIZE;
-    let regions = sections
-        .iter()
-        .map(|s| (format!("section `{}`", s.name), s.offset, s.len))
-        .chain([
-            (
-                "the metadata".to_owned(),
-                raw.metadata_offset,
-                raw.metadata_len,
-            ),
-            (
-                "the section table".to_owned(),
-                raw.table_offset,
-                raw.table_len,
-            ),
-        ]);
-    for (what, offset, len) in regions {
-        let start = align_up(pos);
-        if offset != start {
-            return Err(ArtifactError::Layout {
-                path: err_path(),
-                msg: format!(
-                    "{what} starts at offset {offset}, expected {start} \
-                     (each region starts on the 64-byte boundary after the previous one)"
-                ),
-            });
-        }
-        if let Some(i) = bytes[pos as usize..start as usize]
-            .iter()
-            .position(|&b| b != 0)
-        {
-            return Err(ArtifactError::Layout {
-                path: err_path(),
-                msg: format!(
-                    "nonzero padding byte at offset {} before {what}",
-                    pos + i as u64
-                ),
-            });
-        }
-        pos = offset + len;
-    }
-    if pos != file_len {
-        return Err(ArtifactError::Layout {
-            path: err_path(),
-            msg: format!(
-                "{} bytes after the section table",
-                file_len.saturating_sub(pos)
-            ),
-        });
-    }
-
+    v.layout(&sections, &raw)?;
     Ok(Validated {
         header: HeaderInfo {
             kind,
@@ -1019,16 +500,280 @@ fn validate(
             stage_version,
             key: Key(raw.key),
             created_unix: raw.created_unix,
-            file_len,
+            file_len: bytes.len() as u64,
         },
         sections,
         metadata,
     })
 }
 
+/// The checks of [`validate`], one per part of the file, each naming the file in its error.
+struct Checker<'a> {
+    path: &'a Path,
+    bytes: &'a [u8],
+}
+
+impl Checker<'_> {
+    fn file_len(&self) -> u64 {
+        self.bytes.len() as u64
+    }
+
+    fn err_path(&self) -> PathBuf {
+        self.path.to_owned()
+    }
+
+    /// The header: length, magic, version, checksum, kind (`expected` when given), file length.
+    fn header(
+        &self,
+        expected: Option<ArtifactKind>,
+    ) -> Result<(RawHeader, ArtifactKind), ArtifactError> {
+        let file_len = self.file_len();
+        if file_len < HEADER_SIZE {
+            return Err(ArtifactError::Truncated {
+                path: self.err_path(),
+                what: "header",
+                need: HEADER_SIZE,
+                have: file_len,
+            });
+        }
+        let raw: RawHeader = bytemuck::pod_read_unaligned(&self.bytes[..HEADER_SIZE as usize]);
+        if raw.magic != MAGIC {
+            return Err(ArtifactError::BadMagic {
+                path: self.err_path(),
+                found: raw.magic,
+            });
+        }
+        // Before the checksum: another version may lay its header out differently, and "rerun
+        // the stage" is the useful message then.
+        if raw.format_version != FORMAT_VERSION {
+            return Err(ArtifactError::Version {
+                path: self.err_path(),
+                expected: FORMAT_VERSION,
+                got: raw.format_version,
+            });
+        }
+        let header_checksum = raw.checksum();
+        if header_checksum != raw.header_checksum {
+            return Err(ArtifactError::HeaderChecksum {
+                path: self.err_path(),
+                expected: raw.header_checksum,
+                got: header_checksum,
+            });
+        }
+        let kind = self.kind(&raw, expected)?;
+        if file_len < raw.file_len {
+            return Err(ArtifactError::Truncated {
+                path: self.err_path(),
+                what: "artifact",
+                need: raw.file_len,
+                have: file_len,
+            });
+        }
+        if file_len > raw.file_len {
+            return Err(ArtifactError::FileLength {
+                path: self.err_path(),
+                expected: raw.file_len,
+                have: file_len,
+            });
+        }
+        Ok((raw, kind))
+    }
+
+    /// The header's kind: known, and `expected` when given.
+    fn kind(
+        &self,
+        raw: &RawHeader,
+        expected: Option<ArtifactKind>,
+    ) -> Result<ArtifactKind, ArtifactError> {
+        match (expected, ArtifactKind::from_u32(raw.kind)) {
+            (Some(want), Some(got)) if want == got => Ok(got),
+            (Some(want), got) => Err(ArtifactError::WrongKind {
+                path: self.err_path(),
+                expected: want,
+                got: match got {
+                    Some(k) => k.name().to_owned(),
+                    None => format!("unknown kind {}", raw.kind),
+                },
+            }),
+            (None, Some(got)) => Ok(got),
+            (None, None) => Err(ArtifactError::UnknownKind {
+                path: self.err_path(),
+                kind: raw.kind,
+            }),
+        }
+    }
+
+    /// Byte range of a region, once it is known to lie inside the file after the header.
+    fn region(&self, name: &str, offset: u64, len: u64) -> Result<Range<usize>, ArtifactError> {
+        let file_len = self.file_len();
+        match offset.checked_add(len) {
+            Some(end) if offset >= HEADER_SIZE && end <= file_len => {
+                Ok(offset as usize..end as usize)
+            }
+            _ => Err(ArtifactError::SectionBounds {
+                path: self.err_path(),
+                section: name.to_owned(),
+                offset,
+                len,
+                file_len,
+            }),
+        }
+    }
+
+    fn checksum(&self, name: &str, data: &[u8], expected: u64) -> Result<(), ArtifactError> {
+        let got = xxh3_64(data);
+        if got == expected {
+            return Ok(());
+        }
+        Err(ArtifactError::Checksum {
+            path: self.err_path(),
+            section: name.to_owned(),
+            expected,
+            got,
+        })
+    }
+
+    /// The section table: its size for the section count, its bounds, its checksum.
+    fn table(&self, raw: &RawHeader) -> Result<&[u8], ArtifactError> {
+        if raw.table_len != raw.section_count as u64 * TABLE_ENTRY_SIZE {
+            return Err(ArtifactError::Layout {
+                path: self.err_path(),
+                msg: format!(
+                    "the section table is {} bytes, {} sections need {}",
+                    raw.table_len,
+                    raw.section_count,
+                    raw.section_count as u64 * TABLE_ENTRY_SIZE
+                ),
+            });
+        }
+        let table = &self.bytes[self.region(TABLE_REGION, raw.table_offset, raw.table_len)?];
+        self.checksum(TABLE_REGION, table, raw.table_checksum)?;
+        Ok(table)
+    }
+
+    /// One table entry: a valid name not seen `before`, in bounds, aligned, whole elements,
+    /// reserved field zero, and its checksum.
+    fn section(
+        &self,
+        entry: RawEntry,
+        before: &[SectionInfo],
+    ) -> Result<SectionInfo, ArtifactError> {
+        let end = entry
+            .name
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(entry.name.len());
+        let (name, padding) = entry.name.split_at(end);
+        if !valid_name_bytes(name) || padding.iter().any(|&b| b != 0) {
+            return Err(ArtifactError::BadName {
+                path: self.err_path(),
+                name: String::from_utf8_lossy(&entry.name).into_owned(),
+            });
+        }
+        let name = std::str::from_utf8(name).expect("checked ASCII").to_owned();
+        if before.iter().any(|s| s.name == name) {
+            return Err(ArtifactError::DuplicateSection {
+                path: self.err_path(),
+                section: name,
+            });
+        }
+        let range = self.region(&name, entry.offset, entry.len)?;
+        if !entry.offset.is_multiple_of(SECTION_ALIGN) || entry.align as u64 != SECTION_ALIGN {
+            return Err(ArtifactError::Misaligned {
+                path: self.err_path(),
+                section: name,
+                offset: entry.offset,
+                align: entry.align,
+            });
+        }
+        if entry.elem_size == 0 || !entry.len.is_multiple_of(entry.elem_size as u64) {
+            return Err(ArtifactError::Ragged {
+                path: self.err_path(),
+                section: name,
+                len: entry.len,
+                elem_size: entry.elem_size,
+            });
+        }
+        if entry.reserved != 0 {
+            return Err(ArtifactError::Layout {
+                path: self.err_path(),
+                msg: format!("section `{name}` has a nonzero reserved field"),
+            });
+        }
+        self.checksum(&name, &self.bytes[range], entry.checksum)?;
+        Ok(SectionInfo {
+            name,
+            offset: entry.offset,
+            len: entry.len,
+            elem_size: entry.elem_size,
+            align: entry.align,
+            checksum: entry.checksum,
+        })
+    }
+
+    /// The regions follow the header in order, each on the next 64-byte boundary, with zero
+    /// padding between them and nothing after the table. Together with the checksums this
+    /// leaves no byte of the file unchecked.
+    fn layout(&self, sections: &[SectionInfo], raw: &RawHeader) -> Result<(), ArtifactError> {
+        let mut pos = HEADER_SIZE;
+        let regions = sections
+            .iter()
+            .map(|s| (format!("section `{}`", s.name), s.offset, s.len))
+            .chain([
+                (
+                    "the metadata".to_owned(),
+                    raw.metadata_offset,
+                    raw.metadata_len,
+                ),
+                (
+                    "the section table".to_owned(),
+                    raw.table_offset,
+                    raw.table_len,
+                ),
+            ]);
+        for (what, offset, len) in regions {
+            let start = align_up(pos);
+            if offset != start {
+                return Err(ArtifactError::Layout {
+                    path: self.err_path(),
+                    msg: format!(
+                        "{what} starts at offset {offset}, expected {start} \
+                         (each region starts on the 64-byte boundary after the previous one)"
+                    ),
+                });
+            }
+            if let Some(i) = self.bytes[pos as usize..start as usize]
+                .iter()
+                .position(|&b| b != 0)
+            {
+                return Err(ArtifactError::Layout {
+                    path: self.err_path(),
+                    msg: format!(
+                        "nonzero padding byte at offset {} before {what}",
+                        pos + i as u64
+                    ),
+                });
+            }
+            pos = offset + len;
+        }
+        if pos != self.file_len() {
+            return Err(ArtifactError::Layout {
+                path: self.err_path(),
+                msg: format!(
+                    "{} bytes after the section table",
+                    self.file_len().saturating_sub(pos)
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::writer::encode_label;
+    use crate::ArtifactWriter;
 
     #[test]
     fn section_names() {

@@ -18,14 +18,15 @@ pub mod photons;
 pub mod radiosity;
 pub mod reader;
 pub mod vmap;
+pub mod writer;
 
 pub use atomic::write_file_atomically;
 pub use container::{
-    is_valid_section_name, Artifact, ArtifactWriter, HeaderInfo, SectionInfo, FORMAT_VERSION,
-    HEADER_SIZE, MAGIC, MAX_SECTION_NAME, MAX_STAGE_NAME, MAX_STAGE_VERSION, SECTION_ALIGN,
-    TABLE_ENTRY_SIZE,
+    is_valid_section_name, Artifact, HeaderInfo, SectionInfo, FORMAT_VERSION, HEADER_SIZE, MAGIC,
+    MAX_SECTION_NAME, MAX_STAGE_NAME, MAX_STAGE_VERSION, SECTION_ALIGN, TABLE_ENTRY_SIZE,
 };
 pub use error::{ArtifactError, METADATA_REGION, TABLE_REGION};
 pub use key::{build_id, Key, KeyHasher};
 pub use kind::ArtifactKind;
 pub use light::PointLight;
+pub use writer::ArtifactWriter;

@@ -360,8 +360,10 @@ impl<'a> OctreeView<'a> {
             return Err("splat_area / splat_leaf lengths differ from the data pool".into());
         }
         let f = &self.frame;
-        if !(f.size > 0.0 && f.size.is_finite() && f.inv_size.is_finite())
-            || !f.origin.iter().all(|x| x.is_finite())
+        if !(f.size > 0.0
+            && f.size.is_finite()
+            && f.inv_size.is_finite()
+            && f.origin.iter().all(|x| x.is_finite()))
             || f.splat_count as u64 != n_splats
         {
             return Err("frame record disagrees with the sections".into());
@@ -369,15 +371,49 @@ impl<'a> OctreeView<'a> {
         if f.max_depth > 21 {
             return Err(format!("max depth {} exceeds 21", f.max_depth));
         }
+        let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        if let Some(i) = self.splats.iter().position(|s| {
+            !(finite(&s.position)
+                && finite(&s.normal)
+                && finite(&s.albedo)
+                && finite(&s.clip)
+                && s.radius.is_finite()
+                && s.radius > 0.0)
+        }) {
+            return Err(format!(
+                "splat {i} has a non-finite value or a radius that is not positive"
+            ));
+        }
+        if let Some(i) = self.node_info.iter().position(|n| {
+            !(finite(&n.centroid)
+                && finite(&n.normal)
+                && finite(&n.tilt)
+                && n.disk_radius.is_finite()
+                && n.area.is_finite())
+        }) {
+            return Err(format!("node {i}'s statistics are not finite"));
+        }
+        if let Some(i) = self
+            .splat_area
+            .iter()
+            .position(|a| !(a.is_finite() && *a >= 0.0))
+        {
+            return Err(format!("splat {i}'s area is negative or not finite"));
+        }
+        let starts = self.leaf_table_starts()?;
         for (i, &w) in self.nodes.iter().enumerate() {
             if node::is_empty(w) {
+                // An empty node is exactly the empty word: no pointer, not also a leaf.
+                if w != node::EMPTY_NODE {
+                    return Err(format!("node {i} is not a valid node word ({w:#010x})"));
+                }
                 continue;
             }
             if node::is_leaf(w) {
-                let (b, e, refs) = BeginEnd::leaf(self.begin_end, node::ptr(w))
-                    .ok_or_else(|| format!("leaf {i} points outside the begin/end table"))?;
-                if b > e || e as u64 > n_splats || refs.iter().any(|&r| r as u64 >= n_splats) {
-                    return Err(format!("leaf {i} has an invalid splat range or reference"));
+                if !starts.get(node::ptr(w) as usize).is_some_and(|&s| s) {
+                    return Err(format!(
+                        "leaf {i} does not point at a leaf of the begin/end table"
+                    ));
                 }
             } else {
                 let c = node::ptr(w) as usize;
@@ -388,14 +424,52 @@ impl<'a> OctreeView<'a> {
                 }
             }
         }
-        if self
-            .splat_leaf
-            .iter()
-            .any(|&s| s as usize >= n_nodes || !node::is_leaf(self.nodes[s as usize]))
-        {
-            return Err("splat_leaf names a node that is not a leaf".into());
+        for (s, &l) in self.splat_leaf.iter().enumerate() {
+            let owns = self
+                .nodes
+                .get(l as usize)
+                .is_some_and(|&w| node::is_leaf(w) && self.leaf(w).0.contains(&(s as u32)));
+            if !owns {
+                return Err(format!(
+                    "splat_leaf names node {l} for splat {s}, not the leaf that owns it"
+                ));
+            }
         }
         Ok(())
+    }
+
+    /// The begin/end table is a chain of leaves, `begin, extra, refs…` each, closed by the
+    /// last leaf's end: each leaf's end is the next one's begin, so the own ranges partition
+    /// the data pool in order (the first begins at 0, the last ends at the splat count) and
+    /// references name splats. Returns which table offsets start a leaf (the packed lists of
+    /// pc-tree's `Accel` are indexed by them).
+    fn leaf_table_starts(&self) -> Result<Vec<bool>, String> {
+        let t = self.begin_end;
+        let n_splats = self.splats.len() as u64;
+        let bad = |o: usize, what: &str| Err(format!("begin/end table at {o}: {what}"));
+        let mut starts = vec![false; t.len()];
+        if t.first() != Some(&0) {
+            return bad(0, "the first leaf does not begin at splat 0");
+        }
+        let mut o = 0usize;
+        while o + 2 < t.len() {
+            let next = o + 2 + t[o + 1] as usize;
+            if next >= t.len() {
+                return bad(o, "the references run past the table");
+            }
+            if t[o] > t[next] {
+                return bad(o, "the leaf ends before it begins");
+            }
+            if t[o + 2..next].iter().any(|&r| r as u64 >= n_splats) {
+                return bad(o, "a reference names no splat");
+            }
+            starts[o] = true;
+            o = next;
+        }
+        if o + 1 != t.len() || t[o] as u64 != n_splats {
+            return bad(o, "the table does not close with the splat count");
+        }
+        Ok(starts)
     }
 
     /// Normalised coordinate of `p` in the root cube, `None` outside `[0, 1)³`.
@@ -484,6 +558,28 @@ impl Checked<OctreeMeta> {
                 "{} material records for {} material names",
                 materials.len(),
                 meta.material_names.len()
+            )));
+        }
+        if let Some(i) = materials.iter().position(|m| {
+            let finite = m.color.iter().chain(&m.radiance).all(|x| x.is_finite());
+            let known = matches!(
+                m.class,
+                class::DIFFUSE | class::EMITTER | class::MIRROR | class::DIELECTRIC
+            );
+            !(finite && m.ior.is_finite() && m.ior > 0.0 && m.phong.is_finite() && known)
+        }) {
+            return Err(art.invalid(format!("material {i} is not a valid material record")));
+        }
+        let view = OctreeView::sections(&art)?;
+        if let Some(i) = view
+            .splats
+            .iter()
+            .position(|s| s.material as usize >= materials.len())
+        {
+            return Err(art.invalid(format!(
+                "splat {i} names material {} of {}",
+                view.splats[i].material,
+                materials.len()
             )));
         }
         Ok(OctreeFile { art, meta })

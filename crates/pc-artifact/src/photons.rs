@@ -4,11 +4,14 @@
 //! | section    | element       | what                                                          |
 //! |------------|---------------|---------------------------------------------------------------|
 //! | `photons`  | [`Photon`]    | every stored photon (LS⁺D: first diffuse hit after ≥ 1 specular bounce) |
-//! | `kdtree`   | `u8`          | a kiddo [`PhotonTree`] over the photon positions, item = index into `photons`, archived with rkyv 0.8 so pc-raytrace queries it in place ([`archived_tree`]) |
 //! | `deposit`  | `[f32; 3]`    | per data-pool splat: the caustic power (W, RGB) its photons carry, which pc-fmm adds to its sources |
 //!
-//! The kd-tree is validated by rkyv's bytecheck before it is used ([`archived_tree`]): a
-//! corrupt or foreign section is an error, never undefined behaviour.
+//! No search structure is stored: the renderer builds its kd-tree over the positions when it
+//! opens the map (pc-raytrace `caustic.rs`, 50 ms for 750k photons on two cores). An archived
+//! kiddo tree, queried in place, was stored up to November 2026; kiddo's queries trust the
+//! archive's internal offsets, so a section that passed rkyv's bytecheck but was edited read
+//! outside the mapping (found by pc-fuzz). Files that still carry a `kdtree` section are read
+//! as before; the section is ignored.
 
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
@@ -23,7 +26,6 @@ use crate::{Artifact, ArtifactError, ArtifactKind};
 
 pub mod sections {
     pub const PHOTONS: &str = "photons";
-    pub const KDTREE: &str = "kdtree";
     pub const DEPOSIT: &str = "deposit";
 }
 
@@ -42,40 +44,6 @@ pub struct Photon {
     /// Power it carries (W, linear RGB).
     pub power: [f32; 3],
     pub _pad: u32,
-}
-
-/// The photon kd-tree: kiddo's immutable tree over `f32` positions, items are photon indices.
-pub type PhotonTree = kiddo::ImmutableKdTree<f32, 3>;
-
-/// The archived (zero-copy) form of [`PhotonTree`], as it lies in the `kdtree` section.
-pub type ArchivedPhotonTree = kiddo::kd_tree::ArchivedKdTree<
-    f32,
-    u32,
-    kiddo::Eytzinger,
-    kiddo::VecOfArenas<f32, u32, 3, 32>,
-    3,
-    32,
->;
-
-/// Alignment the archived tree needs (kiddo's leaf arenas are aligned to 128 bytes); the
-/// section is written with [`crate::ArtifactWriter::section_aligned`].
-pub const TREE_ALIGN: u64 = 128;
-
-/// Serializes a photon tree for the `kdtree` section.
-pub fn tree_bytes(tree: &PhotonTree) -> Result<Vec<u8>, rkyv::rancor::Error> {
-    rkyv::to_bytes::<rkyv::rancor::Error>(tree).map(|b| b.to_vec())
-}
-
-/// The `kdtree` section of `a`, validated (bytecheck) and borrowed in place from the mapping.
-pub fn archived_tree(a: &Artifact) -> Result<&ArchivedPhotonTree, ArtifactError> {
-    let bytes = a.section_aligned(sections::KDTREE, TREE_ALIGN as usize)?;
-    rkyv::access::<ArchivedPhotonTree, rkyv::rancor::Error>(bytes).map_err(|e| {
-        ArtifactError::Cast {
-            path: a.path().to_path_buf(),
-            section: sections::KDTREE.to_owned(),
-            msg: format!("not a valid archived photon kd-tree: {e}"),
-        }
-    })
 }
 
 /// Metadata of a photons artifact.
@@ -109,7 +77,6 @@ pub struct PhotonsView<'a> {
     pub photons: &'a [Photon],
     /// Per data-pool splat: the caustic power its photons carry (W, RGB).
     pub deposit: &'a [[f32; 3]],
-    pub tree: &'a ArchivedPhotonTree,
 }
 
 impl<'a> PhotonsView<'a> {
@@ -117,20 +84,16 @@ impl<'a> PhotonsView<'a> {
         Ok(PhotonsView {
             photons: a.section(sections::PHOTONS)?,
             deposit: a.section(sections::DEPOSIT)?,
-            tree: archived_tree(a)?,
         })
     }
 
-    /// Photons on splats of the deposit's data pool with finite values, a kd-tree over exactly
-    /// those photons, a finite deposit that is the photons' power summed per splat.
+    /// At most `u32::MAX` photons (the renderer's kd-tree names them by `u32`), on splats of
+    /// the deposit's data pool, with finite values; a finite deposit that is the photons' power
+    /// summed per splat.
     fn check(&self) -> Result<(), String> {
         let splats = self.deposit.len();
-        if self.tree.size() as usize != self.photons.len() {
-            return Err(format!(
-                "the kd-tree holds {} photons but the map {}",
-                self.tree.size(),
-                self.photons.len()
-            ));
+        if u32::try_from(self.photons.len()).is_err() {
+            return Err(format!("{} photons, more than 2³² − 1", self.photons.len()));
         }
         let mut sum = vec![[0f64; 3]; splats];
         for (i, p) in self.photons.iter().enumerate() {
@@ -140,8 +103,8 @@ impl<'a> PhotonsView<'a> {
                     "photon {i}: splat out of range or values not finite"
                 ));
             }
-            for k in 0..3 {
-                sum[p.splat as usize][k] += p.power[k] as f64;
+            for (s, &w) in sum[p.splat as usize].iter_mut().zip(&p.power) {
+                *s += w as f64;
             }
         }
         if let Some(j) = (0..splats).find(|&j| {
@@ -218,37 +181,5 @@ mod tests {
         assert_eq!(std::mem::size_of::<Photon>(), 48);
         assert_eq!(std::mem::offset_of!(Photon, dir), 16);
         assert_eq!(std::mem::offset_of!(Photon, power), 32);
-    }
-
-    #[test]
-    fn the_tree_round_trips_through_its_archive() {
-        let pts: Vec<[f32; 3]> = (0..200_000)
-            .map(|i| {
-                let t = i as f32 * 0.37;
-                [t.sin(), t.cos(), (t * 0.1).fract()]
-            })
-            .collect();
-        let tree = PhotonTree::new_from_slice(&pts).unwrap();
-        let bytes = tree_bytes(&tree).unwrap();
-        // rkyv needs the archive aligned as the section payload is.
-        let mut aligned = rkyv::util::AlignedVec::<{ TREE_ALIGN as usize }>::new();
-        aligned.extend_from_slice(&bytes);
-        let arch = rkyv::access::<ArchivedPhotonTree, rkyv::rancor::Error>(&aligned).unwrap();
-        let q = [0.2f32, 0.5, 0.3];
-        let a = tree
-            .query(&q)
-            .nearest_one::<kiddo::SquaredEuclidean<f32>>()
-            .execute();
-        let b = arch
-            .query(&q)
-            .nearest_one::<kiddo::SquaredEuclidean<f32>>()
-            .execute();
-        assert_eq!(a.item, b.item);
-        // A corrupt archive is an error, not undefined behaviour.
-        let n = aligned.len();
-        for b in &mut aligned[n - 64..] {
-            *b = 0xFF;
-        }
-        assert!(rkyv::access::<ArchivedPhotonTree, rkyv::rancor::Error>(&aligned).is_err());
     }
 }

@@ -13,7 +13,4 @@ pub enum CausticsError {
     Config(#[from] ConfigError),
     #[error(transparent)]
     Gpu(#[from] GpuError),
-    /// The photons' kd-tree could not be built or archived.
-    #[error("the photon kd-tree: {0}")]
-    Tree(String),
 }

@@ -8,8 +8,8 @@
 //!    specular bounces (`pc_tree::optics`), and stored where it first lands on a diffuse splat
 //!    after at least one specular bounce (LS⁺D).
 //!    [`gpu`] is the same tracer as a WGSL kernel (`shaders/caustics/photons.wgsl`).
-//! 3. [`stage`]: the photons, a kiddo kd-tree over their positions and the power deposited per
-//!    splat go into the `photons` artifact.
+//! 3. [`stage`]: the photons and the power deposited per splat go into the `photons` artifact
+//!    (the renderer builds its kd-tree over them).
 
 pub mod emit;
 pub mod error;

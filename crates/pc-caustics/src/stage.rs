@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::Vec3;
 use pc_artifact::octree::OctreeFile;
 use pc_artifact::params::CausticsParams;
-use pc_artifact::photons::{sections, tree_bytes, Photon, PhotonTree, PhotonsMeta};
+use pc_artifact::photons::{sections, Photon, PhotonsMeta};
 use pc_artifact::vmap::VmapFile;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{Backend, LoadedConfig};
@@ -85,9 +85,8 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
 pub fn deposit(splats: usize, photons: &[Photon]) -> Vec<[f32; 3]> {
     let mut d = vec![[0.0f32; 3]; splats];
     for p in photons {
-        let e = &mut d[p.splat as usize];
-        for k in 0..3 {
-            e[k] += p.power[k];
+        for (e, &w) in d[p.splat as usize].iter_mut().zip(&p.power) {
+            *e += w;
         }
     }
     d
@@ -165,14 +164,7 @@ pub fn run(
     )?;
     timings.push(("trace".to_string(), t.elapsed().as_secs_f64()));
 
-    progress.phase("kd-tree");
-    let t = Instant::now();
-    let positions: Vec<[f32; 3]> = traced.photons.iter().map(|p| p.position).collect();
-    let tree = PhotonTree::new_from_slice(&positions)
-        .map_err(|e| CausticsError::Tree(format!("{e:?}")))?;
-    let tree_bytes = tree_bytes(&tree).map_err(|e| CausticsError::Tree(e.to_string()))?;
     let deposit = deposit(view.splats.len(), &traced.photons);
-    timings.push(("kd-tree".to_string(), t.elapsed().as_secs_f64()));
 
     let key = photons_key(&octree.key(), &vmap.key(), &p, &materials);
     let meta = PhotonsMeta {
@@ -191,11 +183,6 @@ pub fn run(
     };
     let mut w = ArtifactWriter::create(out, ArtifactKind::Photons, STAGE, STAGE_VERSION, key)?;
     w.section(sections::PHOTONS, &traced.photons)?;
-    w.section_aligned(
-        sections::KDTREE,
-        pc_artifact::photons::TREE_ALIGN,
-        &tree_bytes,
-    )?;
     w.section(sections::DEPOSIT, &deposit)?;
     w.metadata(&meta)?;
     w.finish()?;

@@ -371,7 +371,8 @@ pub fn direct(tree: &Tree, pts: &Points, plan: &Plan, radiance: &[[f32; 3]]) -> 
         }
     };
     // (receivers, sources, fraction, near) of every task.
-    let mut tasks: Vec<((u32, u32), (u32, u32), f32, bool)> = Vec::new();
+    type Span = (u32, u32);
+    let mut tasks: Vec<(Span, Span, f32, bool)> = Vec::new();
     for (ci, win) in plan.node_offsets.windows(2).enumerate() {
         let a = tree.nodes[ci];
         for t in &plan.node_tasks[win[0] as usize..win[1] as usize] {

@@ -347,8 +347,8 @@ impl Work {
         let mut node_items = Vec::with_capacity(nodes + nodes / 16);
         let mut node_gathers = Vec::new();
         let mut spares = 0u32;
-        for c in 0..nodes {
-            let (lo, hi, s) = (plan.node_offsets[c], plan.node_offsets[c + 1], split[c]);
+        for (c, &s) in split.iter().enumerate().take(nodes) {
+            let (lo, hi) = (plan.node_offsets[c], plan.node_offsets[c + 1]);
             let cost = |t: u32| if t < s { M2L_COST } else { P2L_COST };
             let first = node_items.len();
             cut(lo, hi, NODE_ITEM_BUDGET, true, cost, |lo, hi| {

@@ -13,6 +13,7 @@ pub mod emitter;
 pub mod error;
 pub mod expansion;
 pub mod gpu;
+pub mod gpu_wgsl;
 pub mod gpu_work;
 pub mod lanes;
 pub(crate) mod par;

@@ -102,6 +102,21 @@ pub struct TaskCounts {
     pub dropped_facing_away: u64,
 }
 
+/// What the refinement does with a pair ([`Refiner::verdict`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Verdict {
+    /// One side faces away from the other whatever their points: no transfer.
+    Drop,
+    /// A task: the expansion (or, below a leaf, point to point) carries it.
+    Accept,
+    /// Hand the pair to the receiver's children.
+    SplitReceiver,
+    /// Refine against the source's children.
+    SplitSource,
+    /// Sum splat to splat.
+    PointToPoint,
+}
+
 #[derive(Clone, Copy)]
 struct Geo {
     c: Vec3,
@@ -492,94 +507,15 @@ impl Refiner<'_> {
                 }
                 continue;
             }
-            let d = gb.c - ga.c;
-            let dist = d.length();
-            let sum_r = ga.r + gb.r;
-            // Separated for the expansion, and far enough from every source disk that the point
-            // kernel stands for the disk (the near field uses the disk form factor).
-            let far = sum_r < self.params.theta * dist
-                && dist - sum_r >= NEAR_DISKS * ga.disk.max(gb.disk);
-            if !far || dist <= 0.0 {
-                // Not separated: split the larger internal node, else point to point.
-                let split_a = ga.internal && (!gb.internal || ga.r >= gb.r);
-                if split_a {
-                    down.push(pd);
-                } else if gb.internal {
+            match self.verdict(&ga, &gb) {
+                Verdict::Drop => out.dropped += 1,
+                Verdict::Accept => self.accept(a, b, f, at_leaf, &mut down, out),
+                Verdict::SplitReceiver => down.push(pd),
+                Verdict::SplitSource => {
                     self.split(b, &mut kids);
                     stack.extend(kids.iter().map(|&y| Pending { src: y, ..pd }));
-                } else {
-                    self.p2p(a, b, f, out);
                 }
-                continue;
-            }
-            let dir = d / dist;
-            let spread_sin = (sum_r / dist).min(1.0);
-            let spread_cos = (1.0 - spread_sin * spread_sin).max(0.0).sqrt();
-            let (dmin, dmax) = (dist - sum_r, dist + sum_r);
-            let (ba, bb) = ((ga.bmin, ga.bmax), (gb.bmin, gb.bmax));
-            let (lo_a, hi_a) = cos_bounds(
-                ga.axis,
-                ga.cone_cos,
-                ga.cone_sin,
-                dir,
-                spread_sin,
-                spread_cos,
-            );
-            let (lo_a2, hi_a2) = box_cos_bounds(&ga, bb, (dmin, dmax));
-            let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
-            if hi_a <= 0.0 {
-                // The receivers face away whatever the source: no need for its side.
-                out.dropped += 1;
-                continue;
-            }
-            let (lo_b, hi_b) = cos_bounds(
-                gb.axis,
-                gb.cone_cos,
-                gb.cone_sin,
-                -dir,
-                spread_sin,
-                spread_cos,
-            );
-            let (lo_b2, hi_b2) = box_cos_bounds(&gb, ba, (dmin, dmax));
-            let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
-            if hi_b <= 0.0 {
-                out.dropped += 1;
-                continue;
-            }
-            if lo_a >= 0.0 && lo_b >= 0.0 {
-                self.accept(a, b, f, at_leaf, &mut down, out);
-                continue;
-            }
-            let gap = (dist - sum_r).max(1e-30);
-            let err = ((-lo_a).max(0.0) * hi_b + (-lo_b).max(0.0) * hi_a) * gb.area
-                / (std::f32::consts::PI * gap * gap);
-            if err <= self.params.clamp_tol {
-                self.accept(a, b, f, at_leaf, &mut down, out);
-                continue;
-            }
-            // What to split. A side straddles through its own normal spread (a corner leaf
-            // mixing two faces: splitting it separates the faces) or through the spread of
-            // directions between the two clusters (a flat face whose plane cuts the other
-            // cluster: splitting the flat side changes nothing, splitting the larger one
-            // narrows the directions). Split a side of the first kind, the more straddling one
-            // first; else the larger cluster.
-            // (A half-angle above the spread's: a cosine below its cosine.)
-            let a_mixed = lo_a < 0.0 && !ga.point && ga.cone_cos < spread_cos;
-            let b_mixed = lo_b < 0.0 && !gb.point && gb.cone_cos < spread_cos;
-            let split_a = if a_mixed && b_mixed {
-                -lo_a * hi_b >= -lo_b * hi_a
-            } else if a_mixed || b_mixed {
-                a_mixed
-            } else {
-                !ga.point && (gb.point || ga.r >= gb.r)
-            };
-            if split_a && !ga.point {
-                down.push(pd);
-            } else if !gb.point {
-                self.split(b, &mut kids);
-                stack.extend(kids.iter().map(|&y| Pending { src: y, ..pd }));
-            } else {
-                self.p2p(a, b, f, out);
+                Verdict::PointToPoint => self.p2p(a, b, f, out),
             }
         }
         if a & POINT == 0 {
@@ -590,6 +526,96 @@ impl Refiner<'_> {
             }
         }
         Some(down)
+    }
+
+    /// What to do with the pair (receiver `ga`, source `gb`), two distinct clusters of
+    /// positive area.
+    ///
+    /// Not separated for the expansion (or too near a source disk for the point kernel to
+    /// stand for it): split the larger internal side, else point to point. Separated: bound the
+    /// cosines on both sides (their normal cones and the directions between the clusters, and
+    /// their boxes); a side that faces away whatever the other drops the pair; both facing
+    /// each other, or a clamp error within tolerance, accepts it; else split the side that
+    /// straddles (below).
+    fn verdict(&self, ga: &Geo, gb: &Geo) -> Verdict {
+        let d = gb.c - ga.c;
+        let dist = d.length();
+        let sum_r = ga.r + gb.r;
+        let far =
+            sum_r < self.params.theta * dist && dist - sum_r >= NEAR_DISKS * ga.disk.max(gb.disk);
+        if !far || dist <= 0.0 {
+            return if ga.internal && (!gb.internal || ga.r >= gb.r) {
+                Verdict::SplitReceiver
+            } else if gb.internal {
+                Verdict::SplitSource
+            } else {
+                Verdict::PointToPoint
+            };
+        }
+        let dir = d / dist;
+        let spread_sin = (sum_r / dist).min(1.0);
+        let spread_cos = (1.0 - spread_sin * spread_sin).max(0.0).sqrt();
+        let (dmin, dmax) = (dist - sum_r, dist + sum_r);
+        let (ba, bb) = ((ga.bmin, ga.bmax), (gb.bmin, gb.bmax));
+        let (lo_a, hi_a) = cos_bounds(
+            ga.axis,
+            ga.cone_cos,
+            ga.cone_sin,
+            dir,
+            spread_sin,
+            spread_cos,
+        );
+        let (lo_a2, hi_a2) = box_cos_bounds(ga, bb, (dmin, dmax));
+        let (lo_a, hi_a) = (lo_a.max(lo_a2), hi_a.min(hi_a2));
+        if hi_a <= 0.0 {
+            // The receivers face away whatever the source: no need for its side.
+            return Verdict::Drop;
+        }
+        let (lo_b, hi_b) = cos_bounds(
+            gb.axis,
+            gb.cone_cos,
+            gb.cone_sin,
+            -dir,
+            spread_sin,
+            spread_cos,
+        );
+        let (lo_b2, hi_b2) = box_cos_bounds(gb, ba, (dmin, dmax));
+        let (lo_b, hi_b) = (lo_b.max(lo_b2), hi_b.min(hi_b2));
+        if hi_b <= 0.0 {
+            return Verdict::Drop;
+        }
+        if lo_a >= 0.0 && lo_b >= 0.0 {
+            return Verdict::Accept;
+        }
+        let gap = (dist - sum_r).max(1e-30);
+        let err = ((-lo_a).max(0.0) * hi_b + (-lo_b).max(0.0) * hi_a) * gb.area
+            / (std::f32::consts::PI * gap * gap);
+        if err <= self.params.clamp_tol {
+            return Verdict::Accept;
+        }
+        // What to split. A side straddles through its own normal spread (a corner leaf
+        // mixing two faces: splitting it separates the faces) or through the spread of
+        // directions between the two clusters (a flat face whose plane cuts the other
+        // cluster: splitting the flat side changes nothing, splitting the larger one
+        // narrows the directions). Split a side of the first kind, the more straddling one
+        // first; else the larger cluster.
+        // (A half-angle above the spread's: a cosine below its cosine.)
+        let a_mixed = lo_a < 0.0 && !ga.point && ga.cone_cos < spread_cos;
+        let b_mixed = lo_b < 0.0 && !gb.point && gb.cone_cos < spread_cos;
+        let split_a = if a_mixed && b_mixed {
+            -lo_a * hi_b >= -lo_b * hi_a
+        } else if a_mixed || b_mixed {
+            a_mixed
+        } else {
+            !ga.point && (gb.point || ga.r >= gb.r)
+        };
+        if split_a && !ga.point {
+            Verdict::SplitReceiver
+        } else if !gb.point {
+            Verdict::SplitSource
+        } else {
+            Verdict::PointToPoint
+        }
     }
 
     /// [`Refiner::visit`] with the subtrees of more than `grain` splats run in parallel: the

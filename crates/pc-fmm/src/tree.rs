@@ -91,6 +91,21 @@ pub fn is_active(materials: &[MaterialRecord], material: u32) -> bool {
 
 /// Build the FMM's view of an octree.
 pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) {
+    let pts = points(view, materials);
+    let mut t = Tree::empty(view.nodes.len());
+    let depth = t.link(view);
+    // Ranges and normal cones as every stage computes them.
+    let ranges = pc_tree::nodes::subtree_ranges(view);
+    let cones = pc_tree::nodes::normal_cones(view, &ranges);
+    t.sum_active(view, &ranges, &pts);
+    t.set_centres(view, &ranges, &cones);
+    t.bound(&pts);
+    t.index(&depth);
+    (t, pts)
+}
+
+/// The splats in the root cube's normalised frame (positions in [0, 1)³, areas over size²).
+fn points(view: &OctreeView, materials: &[MaterialRecord]) -> Points {
     let f = &view.frame;
     let origin = Vec3::from(f.origin);
     let inv = f.inv_size;
@@ -109,142 +124,163 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
         pts.area.push(a * inv * inv);
         pts.active.push(is_active(materials, s.material));
     }
-    let slots = view.nodes.len();
-    let mut t = Tree {
-        slots,
-        lo: vec![0; slots],
-        hi: vec![0; slots],
-        first_child: vec![NONE; slots],
-        parent: vec![NONE; slots],
-        center: vec![[0.0; 3]; slots],
-        radius: vec![0.0; slots],
-        disk: vec![0.0; slots],
-        bmin: vec![[0.0; 3]; slots],
-        bmax: vec![[0.0; 3]; slots],
-        axis: vec![[0.0; 3]; slots],
-        cone_cos: vec![-1.0; slots],
-        area: vec![0.0; slots],
-        active: vec![0; slots],
-        compact: vec![NONE; slots],
-        ..Default::default()
-    };
-    // Structure, top-down (children always follow their parent in the pool).
-    let mut depth = vec![0u32; slots];
-    for slot in 0..slots {
-        let w = view.nodes[slot];
-        if !node::is_leaf(w) && !node::is_empty(w) {
-            let c = node::ptr(w);
-            t.first_child[slot] = c;
-            for k in 0..8 {
-                t.parent[(c + k) as usize] = slot as u32;
-                depth[(c + k) as usize] = depth[slot] + 1;
-            }
+    pts
+}
+
+impl Tree {
+    /// A tree of `slots` slots with nothing filled in.
+    fn empty(slots: usize) -> Tree {
+        Tree {
+            slots,
+            lo: vec![0; slots],
+            hi: vec![0; slots],
+            first_child: vec![NONE; slots],
+            parent: vec![NONE; slots],
+            center: vec![[0.0; 3]; slots],
+            radius: vec![0.0; slots],
+            disk: vec![0.0; slots],
+            bmin: vec![[0.0; 3]; slots],
+            bmax: vec![[0.0; 3]; slots],
+            axis: vec![[0.0; 3]; slots],
+            cone_cos: vec![-1.0; slots],
+            area: vec![0.0; slots],
+            active: vec![0; slots],
+            compact: vec![NONE; slots],
+            ..Default::default()
         }
     }
-    // Ranges and normal cones as every stage computes them; area and active counts
-    // bottom-up.
-    let ranges = pc_tree::nodes::subtree_ranges(view);
-    let cones = pc_tree::nodes::normal_cones(view, &ranges);
-    for slot in (0..slots).rev() {
-        let [lo, hi] = ranges[slot];
-        t.lo[slot] = lo;
-        t.hi[slot] = hi;
-        let w = view.nodes[slot];
-        if node::is_empty(w) {
-            continue;
-        }
-        if node::is_leaf(w) {
-            for i in lo..hi {
-                if pts.active[i as usize] {
-                    t.area[slot] += pts.area[i as usize];
-                    t.active[slot] += 1;
-                }
-            }
-        } else {
-            let c = t.first_child[slot] as usize;
-            for k in c..c + 8 {
-                if t.hi[k] > t.lo[k] {
-                    t.area[slot] += t.area[k];
-                    t.active[slot] += t.active[k];
+
+    /// Children and parents from the node pool, top-down (children always follow their parent
+    /// in the pool). Returns each slot's depth.
+    fn link(&mut self, view: &OctreeView) -> Vec<u32> {
+        let mut depth = vec![0u32; self.slots];
+        for slot in 0..self.slots {
+            let w = view.nodes[slot];
+            if !node::is_leaf(w) && !node::is_empty(w) {
+                let c = node::ptr(w);
+                self.first_child[slot] = c;
+                for k in 0..8 {
+                    self.parent[(c + k) as usize] = slot as u32;
+                    depth[(c + k) as usize] = depth[slot] + 1;
                 }
             }
         }
+        depth
     }
-    // Centres in the normalised frame, and the cones' axes.
-    let geo: Vec<([f32; 3], [f32; 3], f32)> = (0..slots)
-        .into_par_iter()
-        .map(|slot| {
-            if ranges[slot][0] >= ranges[slot][1] {
-                return ([0.0; 3], [0.0; 3], -1.0);
+
+    /// Splat ranges, and active area and count, bottom-up.
+    fn sum_active(&mut self, view: &OctreeView, ranges: &[[u32; 2]], pts: &Points) {
+        for slot in (0..self.slots).rev() {
+            let [lo, hi] = ranges[slot];
+            self.lo[slot] = lo;
+            self.hi[slot] = hi;
+            let w = view.nodes[slot];
+            if node::is_empty(w) {
+                continue;
             }
-            let info = &view.node_info[slot];
-            let c = (Vec3::from(info.centroid) - origin) * inv;
-            (c.into(), info.normal, cones[slot])
-        })
-        .collect();
-    for (slot, (c, a, k)) in geo.into_iter().enumerate() {
-        t.center[slot] = c;
-        t.axis[slot] = a;
-        t.cone_cos[slot] = k;
-    }
-    // Radii: exact at leaves, bounded through the children above; boxes exact.
-    for slot in (0..slots).rev() {
-        let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
-        if lo >= hi {
-            continue;
-        }
-        let (mut bmin, mut bmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        let mut disk = 0.0f32;
-        if t.first_child[slot] == NONE {
-            for i in lo..hi {
-                bmin = bmin.min(Vec3::from(pts.pos[i]));
-                bmax = bmax.max(Vec3::from(pts.pos[i]));
-                if pts.active[i] {
-                    disk = disk.max((pts.area[i] * std::f32::consts::FRAC_1_PI).sqrt());
+            if node::is_leaf(w) {
+                for i in lo..hi {
+                    if pts.active[i as usize] {
+                        self.area[slot] += pts.area[i as usize];
+                        self.active[slot] += 1;
+                    }
+                }
+            } else {
+                let c = self.first_child[slot] as usize;
+                for k in c..c + 8 {
+                    if self.hi[k] > self.lo[k] {
+                        self.area[slot] += self.area[k];
+                        self.active[slot] += self.active[k];
+                    }
                 }
             }
-        } else {
-            let fc = t.first_child[slot] as usize;
-            for k in (fc..fc + 8).filter(|&k| t.hi[k] > t.lo[k]) {
-                bmin = bmin.min(Vec3::from(t.bmin[k]));
-                bmax = bmax.max(Vec3::from(t.bmax[k]));
-                disk = disk.max(t.disk[k]);
-            }
-        }
-        t.disk[slot] = disk;
-        t.bmin[slot] = bmin.into();
-        t.bmax[slot] = bmax.into();
-        let c = Vec3::from(t.center[slot]);
-        t.radius[slot] = if t.first_child[slot] == NONE {
-            pts.pos[lo..hi]
-                .iter()
-                .map(|&p| (Vec3::from(p) - c).length())
-                .fold(0.0f32, f32::max)
-        } else {
-            let fc = t.first_child[slot] as usize;
-            (fc..fc + 8)
-                .filter(|&k| t.hi[k] > t.lo[k])
-                .map(|k| (Vec3::from(t.center[k]) - c).length() + t.radius[k])
-                .fold(0.0f32, f32::max)
-        };
-    }
-    // Compact indices, levels and leaves.
-    let max_depth = depth.iter().copied().max().unwrap_or(0) as usize;
-    t.levels = vec![Vec::new(); max_depth + 1];
-    t.leaf_index = vec![NONE; slots];
-    for slot in 0..slots {
-        if t.hi[slot] > t.lo[slot] {
-            t.compact[slot] = t.nodes.len() as u32;
-            t.nodes.push(slot as u32);
-            t.levels[depth[slot] as usize].push(slot as u32);
-            if t.first_child[slot] == NONE {
-                t.leaf_index[slot] = t.leaves.len() as u32;
-                t.leaves.push(slot as u32);
-            }
         }
     }
-    while t.levels.last().is_some_and(|l| l.is_empty()) {
-        t.levels.pop();
+
+    /// Expansion centres (the nodes' centroids in the normalised frame) and the normal cones.
+    fn set_centres(&mut self, view: &OctreeView, ranges: &[[u32; 2]], cones: &[f32]) {
+        let origin = Vec3::from(view.frame.origin);
+        let inv = view.frame.inv_size;
+        let geo: Vec<([f32; 3], [f32; 3], f32)> = (0..self.slots)
+            .into_par_iter()
+            .map(|slot| {
+                if ranges[slot][0] >= ranges[slot][1] {
+                    return ([0.0; 3], [0.0; 3], -1.0);
+                }
+                let info = &view.node_info[slot];
+                let c = (Vec3::from(info.centroid) - origin) * inv;
+                (c.into(), info.normal, cones[slot])
+            })
+            .collect();
+        for (slot, (c, a, k)) in geo.into_iter().enumerate() {
+            self.center[slot] = c;
+            self.axis[slot] = a;
+            self.cone_cos[slot] = k;
+        }
     }
-    (t, pts)
+
+    /// Bounds, bottom-up: boxes exact; radii about the centres exact at leaves and bounded
+    /// through the children above; the largest active disk radius.
+    fn bound(&mut self, pts: &Points) {
+        for slot in (0..self.slots).rev() {
+            let (lo, hi) = (self.lo[slot] as usize, self.hi[slot] as usize);
+            if lo >= hi {
+                continue;
+            }
+            let (mut bmin, mut bmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+            let mut disk = 0.0f32;
+            let children: Vec<usize> = self.children(slot as u32).map(|k| k as usize).collect();
+            if self.first_child[slot] == NONE {
+                for i in lo..hi {
+                    bmin = bmin.min(Vec3::from(pts.pos[i]));
+                    bmax = bmax.max(Vec3::from(pts.pos[i]));
+                    if pts.active[i] {
+                        disk = disk.max((pts.area[i] * std::f32::consts::FRAC_1_PI).sqrt());
+                    }
+                }
+            } else {
+                for &k in &children {
+                    bmin = bmin.min(Vec3::from(self.bmin[k]));
+                    bmax = bmax.max(Vec3::from(self.bmax[k]));
+                    disk = disk.max(self.disk[k]);
+                }
+            }
+            self.disk[slot] = disk;
+            self.bmin[slot] = bmin.into();
+            self.bmax[slot] = bmax.into();
+            let c = Vec3::from(self.center[slot]);
+            self.radius[slot] = if self.first_child[slot] == NONE {
+                pts.pos[lo..hi]
+                    .iter()
+                    .map(|&p| (Vec3::from(p) - c).length())
+                    .fold(0.0f32, f32::max)
+            } else {
+                children
+                    .iter()
+                    .map(|&k| (Vec3::from(self.center[k]) - c).length() + self.radius[k])
+                    .fold(0.0f32, f32::max)
+            };
+        }
+    }
+
+    /// Compact indices of the non-empty slots, the levels and the leaves.
+    fn index(&mut self, depth: &[u32]) {
+        let max_depth = depth.iter().copied().max().unwrap_or(0) as usize;
+        self.levels = vec![Vec::new(); max_depth + 1];
+        self.leaf_index = vec![NONE; self.slots];
+        for (slot, &d) in depth.iter().enumerate().take(self.slots) {
+            if self.hi[slot] > self.lo[slot] {
+                self.compact[slot] = self.nodes.len() as u32;
+                self.nodes.push(slot as u32);
+                self.levels[d as usize].push(slot as u32);
+                if self.first_child[slot] == NONE {
+                    self.leaf_index[slot] = self.leaves.len() as u32;
+                    self.leaves.push(slot as u32);
+                }
+            }
+        }
+        while self.levels.last().is_some_and(|l| l.is_empty()) {
+            self.levels.pop();
+        }
+    }
 }

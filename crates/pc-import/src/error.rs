@@ -59,7 +59,7 @@ pub enum ImportError {
 
     /// A point (after its model's transform) or a radius beyond the extent pcgi keeps in f32.
     #[error(
-        "{}: vertex {index}: {what} {value} lies beyond ±{limit} (the extent pcgi works in): \
+        "{}: vertex {index}: {what} {value:e} lies beyond ±{limit:e} (the extent pcgi works in): \
          shift the model with `translate` or scale it, or set import.drop_invalid to drop such points",
         path.display()
     )]
@@ -67,8 +67,8 @@ pub enum ImportError {
         path: PathBuf,
         index: usize,
         what: &'static str,
-        value: f64,
-        limit: f64,
+        value: f32,
+        limit: f32,
     },
 
     /// No points (zero vertices, or all of them dropped as invalid).

@@ -58,7 +58,17 @@ const GRAPH_NEIGHBOURS: usize = 8;
 /// `k` is clamped to `positions.len() - 1`; for fewer than 3 points the result is degenerate
 /// (use [`try_estimate_normals`] to get an error instead). Costs one kd-tree build and one
 /// k-NN query per point (parallel), plus O(E) sequential work for `Propagate` (E ≈ 10 n).
+///
+/// Exact copies of a position are estimated once ([`Distinct`]) and share its normal.
 pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Vec<Vec3> {
+    match Distinct::of(positions) {
+        Some(d) => d.spread(&normals_of_distinct(&d.points, k, orient)),
+        None => normals_of_distinct(positions, k, orient),
+    }
+}
+
+/// [`estimate_normals`] on positions without exact copies.
+fn normals_of_distinct(positions: &[Vec3], k: usize, orient: Orientation) -> Vec<Vec3> {
     let n = positions.len();
     if n == 0 {
         return Vec::new();
@@ -151,10 +161,19 @@ pub fn try_estimate_normals(
 /// closed. At the border of a scan there are fewer neighbours on one side and `r` grows
 /// (up to ~1.4×), which closes borders rather than opening them.
 ///
-/// Points whose neighbours all coincide with them (duplicates) get the median radius of the
-/// others. `k` is clamped to `positions.len() - 1`; a single point, or all points coincident,
-/// gets radius 1 (use [`try_estimate_radii`] to get an error instead).
+/// Exact copies of a position are estimated once ([`Distinct`]) and share its radius (the
+/// octree's splat-area pass then shares one disk's area among them). `k` is clamped to the
+/// number of distinct positions − 1; a single point, or all points coincident, gets radius 1
+/// (use [`try_estimate_radii`] to get an error instead).
 pub fn estimate_radii(positions: &[Vec3], k: usize) -> Vec<f32> {
+    match Distinct::of(positions) {
+        Some(d) => d.spread(&radii_of_distinct(&d.points, k)),
+        None => radii_of_distinct(positions, k),
+    }
+}
+
+/// [`estimate_radii`] on positions without exact copies.
+fn radii_of_distinct(positions: &[Vec3], k: usize) -> Vec<f32> {
     let n = positions.len();
     if n < 2 {
         return vec![1.0; n];
@@ -203,15 +222,6 @@ pub fn try_estimate_radii(
         ));
     }
     check_input(path, positions, k, "radius")?;
-    if positions.iter().all(|&p| p == positions[0]) {
-        return Err(ImportError::estimate(
-            path,
-            format!(
-                "all {} points coincide: there is no spacing to estimate radii from",
-                positions.len()
-            ),
-        ));
-    }
     Ok(estimate_radii(positions, k))
 }
 
@@ -232,7 +242,52 @@ fn check_input(path: &Path, positions: &[Vec3], k: usize, what: &str) -> Result<
             format!("point {i} has a non-finite position {}", positions[i]),
         ));
     }
+    if positions.iter().all(|&p| p == positions[0]) {
+        return Err(ImportError::estimate(
+            path,
+            format!("all {n} points coincide: there is no surface to estimate a {what} from"),
+        ));
+    }
     Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Exact copies
+
+/// The distinct positions of a point set and, for each point, which one it is. Scans merged
+/// from overlapping stations hold many exact copies of a point. A kd-tree cannot split a
+/// bucket of equal points, so each query near them scans all the copies (40k copies of one
+/// point took 3.7 s, a million would take hours), and copies fill a point's `k` neighbours
+/// with zero distances, leaving no surface to fit. Estimating on the distinct positions
+/// avoids both; copies then get their position's normal and radius.
+struct Distinct {
+    points: Vec<Vec3>,
+    /// Index into `points` of each input point.
+    of: Vec<u32>,
+}
+
+impl Distinct {
+    /// `None` when every position is distinct (`-0.0` and `0.0` are the same position).
+    fn of(positions: &[Vec3]) -> Option<Distinct> {
+        let key = |p: &Vec3| (*p + Vec3::ZERO).to_array().map(f32::to_bits);
+        let mut index = std::collections::HashMap::with_capacity(positions.len());
+        let mut points = Vec::new();
+        let of: Vec<u32> = positions
+            .iter()
+            .map(|p| {
+                *index.entry(key(p)).or_insert_with(|| {
+                    points.push(*p);
+                    points.len() as u32 - 1
+                })
+            })
+            .collect();
+        (points.len() < positions.len()).then_some(Distinct { points, of })
+    }
+
+    /// Per-point values from per-distinct-position ones.
+    fn spread<T: Copy>(&self, values: &[T]) -> Vec<T> {
+        self.of.iter().map(|&j| values[j as usize]).collect()
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -83,11 +83,11 @@ pub fn model_transform(m: &ModelConfig) -> (f32, Mat3, Vec3) {
 fn out_of_range(x: Vec3, r: f32) -> Option<(&'static str, f32)> {
     let limit = pc_config::MAX_COORDINATE;
     for (c, what) in x.to_array().into_iter().zip(["x", "y", "z"]) {
-        if !(c.abs() <= limit) {
+        if c.is_nan() || c.abs() > limit {
             return Some((what, c));
         }
     }
-    (!(r <= limit)).then_some(("the radius", r))
+    (r.is_nan() || r > limit).then_some(("the radius", r))
 }
 
 /// Load every model of the config. `progress(done, total)` is called after each model.
@@ -169,8 +169,8 @@ pub fn load_scene(
                     path,
                     index: i,
                     what,
-                    value: value as f64,
-                    limit: pc_config::MAX_COORDINATE as f64,
+                    value,
+                    limit: pc_config::MAX_COORDINATE,
                 });
             }
             out.positions.push(x);

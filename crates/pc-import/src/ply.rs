@@ -95,6 +95,19 @@ fn sanitize_comments(bytes: &[u8]) -> Option<Vec<u8>> {
     out
 }
 
+/// The 1-based number of the first header line that is not UTF-8, if any.
+fn non_text_header_line(bytes: &[u8]) -> Option<usize> {
+    let end = bytes
+        .windows(10)
+        .take(1 << 20)
+        .position(|w| w == b"end_header")
+        .unwrap_or(bytes.len().min(1 << 20));
+    bytes[..end]
+        .split(|&b| b == b'\n')
+        .position(|line| std::str::from_utf8(line).is_err())
+        .map(|i| i + 1)
+}
+
 /// Read a PLY point cloud from `path`, which must be a regular file: a FIFO or a device
 /// (`/dev/zero`) would never end and is refused before it is opened.
 pub fn read_ply(path: &Path, opts: &PlyOptions) -> Result<PointSet, ImportError> {
@@ -110,7 +123,16 @@ pub fn parse_ply(bytes: &[u8], path: &Path, opts: &PlyOptions) -> Result<PointSe
     let mut reader = Reader::new(bytes);
     let header = Parser::<DefaultElement>::new()
         .read_header(&mut reader)
-        .map_err(|e| ImportError::ply(path, format!("header: {}", flatten(&e.to_string()))))?;
+        .map_err(|e| {
+            let why = match non_text_header_line(bytes) {
+                Some(n) => format!(
+                    "header line {n} is not UTF-8 text (bytes outside ASCII are allowed in \
+                     comment and obj_info lines only)"
+                ),
+                None => flatten(&e.to_string()),
+            };
+            ImportError::ply(path, format!("header: {why}"))
+        })?;
     let body_line = reader.line();
     let body: &[u8] = reader.into_inner();
     let header_len = bytes.len() - body.len();

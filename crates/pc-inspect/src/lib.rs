@@ -152,7 +152,7 @@ pub fn verify(o: &Opened) -> Result<String, ArtifactError> {
         Opened::Photons(f) => {
             let v = f.view();
             format!(
-                "{path}: ok (checksums, kd-tree of {} photons, deposit on {} splats)",
+                "{path}: ok (checksums, {} photons, deposit on {} splats)",
                 v.photons.len(),
                 v.deposit.len()
             )

@@ -31,14 +31,14 @@ fn rgb(c: [f64; 3]) -> String {
 
 pub(crate) fn photons(f: &PhotonsFile) -> String {
     let (meta, v) = (f.meta(), f.view());
-    let (photons, deposit, tree) = (v.photons, v.deposit, v.tree);
+    let (photons, deposit) = (v.photons, v.deposit);
     let mut s = String::new();
     let mut stored = [0f64; 3];
     let mut by_bounces = [0u64; 5];
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for p in photons {
-        for k in 0..3 {
-            stored[k] += p.power[k] as f64;
+        for (s, &w) in stored.iter_mut().zip(&p.power) {
+            *s += w as f64;
         }
         by_bounces[(p.bounces as usize).min(4)] += 1;
         lo = lo.min(Vec3::from(p.position));
@@ -46,12 +46,12 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
     }
     let _ = writeln!(
         s,
-        "photons     {} stored of {} traced ({} hidden, {} lost); kd-tree of {}",
+        "photons     {} stored of {} traced ({} hidden, {} lost); {} in the map",
         meta.stored,
         meta.traced,
         meta.occluded,
         meta.lost,
-        tree.size()
+        photons.len()
     );
     let _ = writeln!(
         s,

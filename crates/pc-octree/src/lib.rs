@@ -6,11 +6,14 @@
 //! referenced by every leaf they overlap). The binary `pc-octree` is a thin wrapper around
 //! [`stage::OctreeStage`]. See docs/octree.md.
 
+pub mod area;
 pub mod build;
 pub mod error;
 pub mod gpu;
 pub mod morton;
+pub mod refs;
 pub mod stage;
+pub mod stats;
 
 pub use build::{build, BuildError, BuildInput, Octree};
 pub use pc_artifact::octree::OctreeStats;

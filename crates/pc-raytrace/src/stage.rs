@@ -184,12 +184,11 @@ pub fn with_scene<R>(
         let v = p.view();
         // An empty map (a scene without specular surfaces) adds nothing.
         if !v.photons.is_empty() {
-            sc.caustics = Some(crate::caustic::Caustics {
-                photons: v.photons,
-                tree: v.tree,
+            sc.caustics = Some(crate::caustic::Caustics::new(
+                v.photons,
                 radius,
-                k: rt.caustic_k,
-            });
+                rt.caustic_k,
+            ));
         }
     }
     f(&mut sc, rt.mode, key)

@@ -27,6 +27,12 @@ impl OutputLock {
     /// another run holds it; `waiting` hears of the wait (with what is locked) before it.
     pub fn acquire(output: &Path, waiting: impl FnOnce(&Path)) -> io::Result<OutputLock> {
         let dir = pc_artifact::atomic::parent_dir(output);
+        if dir.exists() && !dir.is_dir() {
+            return Err(io::Error::new(
+                io::ErrorKind::AlreadyExists,
+                format!("{} is a file, not a folder", dir.display()),
+            ));
+        }
         std::fs::create_dir_all(dir)?;
         let (file, path) = match File::open(dir) {
             Ok(f) => (f, dir.to_path_buf()),

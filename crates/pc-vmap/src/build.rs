@@ -143,8 +143,7 @@ fn sample(
 fn pair_rays(
     view: &OctreeView,
     vn: &[VNode],
-    a: u32,
-    b: u32,
+    (a, b): (u32, u32),
     near: bool,
     far_rays: u32,
     p: &VmapParams,
@@ -247,7 +246,7 @@ fn decide(
         .par_iter()
         .map(|&(a, b, near)| {
             let mut r = Vec::with_capacity(p.rays as usize);
-            pair_rays(view, vn, a, b, near, p.rays, p, &mut r);
+            pair_rays(view, vn, (a, b), near, p.rays, p, &mut r);
             // A pair that all of a few rays find unoccluded is linked whole: a partial occluder
             // slips through with probability (1 − blocked share)^rays, and every miss brightens
             // the receiver. The pairs that carry the most light get more rays.
@@ -256,7 +255,7 @@ fn decide(
                 && form_factors(view, &vn[a as usize], &vn[b as usize], &r) >= p.heavy_form_factor
             {
                 r.clear();
-                pair_rays(view, vn, a, b, near, p.heavy_rays, p, &mut r);
+                pair_rays(view, vn, (a, b), near, p.heavy_rays, p, &mut r);
             }
             r
         })
@@ -342,7 +341,7 @@ fn exact_partial(
             .par_iter()
             .map(|&(a, b)| {
                 let mut r = Vec::new();
-                pair_rays(view, vn, a, b, true, p.rays, p, &mut r);
+                pair_rays(view, vn, (a, b), true, p.rays, p, &mut r);
                 r
             })
             .collect();

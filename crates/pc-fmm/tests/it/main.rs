@@ -361,12 +361,12 @@ fn relaxed_products_lower_the_order_and_keep_the_answer() {
         // Distance between the answers in the residual's norm (relative to the source), and
         // relative to the light the operator carried.
         let (mut d, mut ind, mut src) = (0.0f64, 0.0f64, 0.0f64);
-        for i in 0..soa.len() {
+        for (i, s) in source.iter().enumerate() {
             let a = if p.active[i] { p.area[i] as f64 } else { 0.0 };
-            for c in 0..3 {
+            for (c, &s) in s.iter().enumerate() {
                 d += a * ((relaxed.radiance[i][c] - full.radiance[i][c]) as f64).powi(2);
-                ind += a * ((full.radiance[i][c] - source[i][c]) as f64).powi(2);
-                src += a * (source[i][c] as f64).powi(2);
+                ind += a * ((full.radiance[i][c] - s) as f64).powi(2);
+                src += a * (s as f64).powi(2);
             }
         }
         let (dist, dist_carried) = ((d / src).sqrt(), (d / ind).sqrt());

@@ -307,3 +307,31 @@ fn estimate_speed() {
         estimate_radii(&pts, 8);
     });
 }
+
+#[test]
+fn exact_copies_share_the_estimate_of_their_position() {
+    // A grid on z = 0 with one of its points copied 5,000 times and another 3 times (scans
+    // merged from overlapping stations): each copy gets its position's normal and radius, as
+    // if it were there once. Before, a copy's k neighbours were other copies at distance 0:
+    // an arbitrary normal and a fallback radius.
+    let (m, h) = (40, 0.02f32);
+    let grid = jittered_grid(m, h, 0.0);
+    let mut pts = grid.clone();
+    pts.extend(std::iter::repeat_n(grid[820], 5000));
+    pts.extend(std::iter::repeat_n(grid[10], 3));
+    let n = estimate_normals(&pts, 12, Orientation::Sensor(Vec3::new(0.0, 0.0, 1.0)));
+    let r = estimate_radii(&pts, 8);
+    let (n0, r0) = (
+        estimate_normals(&grid, 12, Orientation::Sensor(Vec3::new(0.0, 0.0, 1.0))),
+        estimate_radii(&grid, 8),
+    );
+    for (i, p) in pts.iter().enumerate() {
+        let j = grid.iter().position(|q| q == p).unwrap();
+        assert_eq!(n[i], n0[j], "point {i} (copy of {j}): normal");
+        assert_eq!(r[i], r0[j], "point {i} (copy of {j}): radius");
+    }
+    assert!(
+        n.iter().all(|v| v.z > 0.999),
+        "normals face the sensor above the plane"
+    );
+}

@@ -35,7 +35,7 @@ struct Args {
     #[arg(long)]
     cpu_only: bool,
     /// Also time the caustic lookup (pc-caustics' photon map, `<output.dir>/<caustics.file>`) at
-    /// the diffuse hits of the primary rays: the kd-tree queried in place (fixed radius and
+    /// the diffuse hits of the primary rays: the CPU renderer's kd-tree (fixed radius and
     /// k-nearest) and the GPU renderer's hashed grid, on the CPU.
     #[arg(long)]
     caustics: bool,
@@ -201,12 +201,7 @@ fn caustic_lookups(
     let rt = &cfg.config.raytrace;
     let radius = pc_raytrace::stage::caustic_radius(rt, view);
     let pv = pa.view();
-    let mut c = pc_raytrace::caustic::Caustics {
-        photons: pv.photons,
-        tree: pv.tree,
-        radius,
-        k: 0,
-    };
+    let mut c = pc_raytrace::caustic::Caustics::new(pv.photons, radius, 0);
     let materials = cfg.materials_for(art)?;
     let hits: Vec<(Vec3, Vec3)> = primary
         .par_iter()

@@ -1,8 +1,8 @@
-//! The caustic lookup: the GPU renderer's hashed grid finds the same photons as the kd-tree the
-//! CPU queries in place, and CPU and GPU render the same image with a photon map.
+//! The caustic lookup: the GPU renderer's hashed grid finds the same photons as the CPU's
+//! kd-tree, and CPU and GPU render the same image with a photon map.
 
 use glam::Vec3;
-use pc_artifact::photons::{archived_tree, sections, tree_bytes, Photon, PhotonTree, TREE_ALIGN};
+use pc_artifact::photons::{sections, Photon};
 use pc_artifact::PointLight;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key};
 use pc_config::ShadingMode;
@@ -13,15 +13,11 @@ use rand_pcg::Pcg64;
 
 use super::{camera, mixed_room, params};
 
-/// A photons artifact holding `photons` and their kd-tree (the sections pc-caustics writes).
+/// A photons artifact holding `photons` (the sections pc-caustics writes).
 fn photon_file(path: &std::path::Path, photons: &[Photon]) -> Artifact {
-    let positions: Vec<[f32; 3]> = photons.iter().map(|p| p.position).collect();
-    let tree = PhotonTree::new_from_slice(&positions).unwrap();
     let mut w =
         ArtifactWriter::create(path, ArtifactKind::Photons, "test", "0", Key::default()).unwrap();
     w.section(sections::PHOTONS, photons).unwrap();
-    w.section_aligned(sections::KDTREE, TREE_ALIGN, &tree_bytes(&tree).unwrap())
-        .unwrap();
     w.section(sections::DEPOSIT, &[[0f32; 3]]).unwrap();
     w.metadata(&pc_artifact::photons::PhotonsMeta::default())
         .unwrap();
@@ -81,12 +77,7 @@ fn the_hashed_grid_finds_the_kd_trees_photons() {
     let dir = tempfile::tempdir().unwrap();
     let photons = room_photons(40_000);
     let a = photon_file(&dir.path().join("photons.pcgi"), &photons);
-    let c = Caustics {
-        photons: a.section(sections::PHOTONS).unwrap(),
-        tree: archived_tree(&a).unwrap(),
-        radius: 0.03,
-        k: 0,
-    };
+    let c = Caustics::new(a.section(sections::PHOTONS).unwrap(), 0.03, 0);
     let grid = PhotonGrid::new(&photons, c.radius);
     assert_eq!(grid.photons.len(), photons.len());
     let mut rng = Pcg64::seed_from_u64(8);
@@ -137,12 +128,11 @@ fn cpu_and_gpu_render_the_same_caustics() {
     let mut p = params(4, ShadingMode::Direct);
     p.max_bounces = 6;
     let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
-    sc.caustics = Some(Caustics {
-        photons: a.section(sections::PHOTONS).unwrap(),
-        tree: archived_tree(&a).unwrap(),
-        radius: 0.04,
-        k: 0,
-    });
+    sc.caustics = Some(Caustics::new(
+        a.section(sections::PHOTONS).unwrap(),
+        0.04,
+        0,
+    ));
     sc.prepare_cpu();
     let (cpu, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
     let gpu = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
@@ -161,12 +151,11 @@ fn cpu_and_gpu_render_the_same_caustics() {
         plain.mean()
     );
     // k-nearest stays on the CPU: the GPU renderer says so.
-    sc.caustics = Some(Caustics {
-        photons: a.section(sections::PHOTONS).unwrap(),
-        tree: archived_tree(&a).unwrap(),
-        radius: 0.04,
-        k: 16,
-    });
+    sc.caustics = Some(Caustics::new(
+        a.section(sections::PHOTONS).unwrap(),
+        0.04,
+        16,
+    ));
     let err = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
         .err()
         .expect("k-nearest on the GPU is refused");

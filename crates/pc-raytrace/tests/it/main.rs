@@ -101,7 +101,7 @@ fn point_light_over_a_plane_matches_the_inverse_square_law() {
     let sc = RenderScene::new(
         o.view(),
         mats,
-        &[light.clone()],
+        &[light],
         &cam,
         &params(1, ShadingMode::Direct),
     );
