@@ -197,20 +197,7 @@ where
     if let Some(dir) = cwd {
         cmd.current_dir(dir);
     }
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {}: {e}", bin.display()));
-    let line = std::iter::once(bin.as_os_str())
-        .chain(args.iter().map(|a| a.as_os_str()))
-        .map(|a| a.to_string_lossy().into_owned())
-        .collect::<Vec<_>>()
-        .join(" ");
-    Output {
-        cmd: line,
-        code: out.status.code(),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    capture(cmd, bin, &args)
 }
 
 /// Run `bin` with `args` as a process whose files may grow to `limit` bytes at most
@@ -240,6 +227,11 @@ where
             Ok(())
         });
     }
+    capture(cmd, bin, &args)
+}
+
+/// Run `cmd` (which is `bin` with `args`) to the end and keep everything it printed.
+fn capture(mut cmd: Command, bin: &Path, args: &[std::ffi::OsString]) -> Output {
     let out = cmd
         .output()
         .unwrap_or_else(|e| panic!("cannot run {}: {e}", bin.display()));
