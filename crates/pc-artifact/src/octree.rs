@@ -284,6 +284,10 @@ pub struct OctreeMeta {
     pub stats: OctreeStats,
     pub material_names: Vec<String>,
     pub dropped_points: u64,
+    /// The point of the models' own (georeferenced) frame at the scene's origin: a splat at
+    /// `p` is at `origin + p` in the input files' coordinates, in f64.
+    #[serde(default)]
+    pub origin: [f64; 3],
 }
 
 /// One input file of a stage, for provenance.

@@ -23,7 +23,10 @@ use serde::{Deserialize, Serialize};
 pub use error::ConfigError;
 pub use load::{apply_override, load_config, parse_config, to_toml, OverrideError};
 pub use materials::material_table;
-pub use validate::{validate, MAX_COORDINATE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_RADIANCE};
+pub use validate::{
+    validate, MAX_ALBEDO, MAX_COORDINATE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_RADIANCE,
+    MAX_WORLD_COORDINATE,
+};
 
 /// The whole pipeline description.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -78,12 +81,25 @@ impl Default for OutputConfig {
 }
 
 /// A model: one PLY file with a material and an optional similarity transform.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
-    /// PLY path; after loading it is resolved (relative paths against the declaring file).
+    /// The model's file (.ply, .las, .laz or .e57); after loading it is resolved (relative
+    /// paths against the declaring file).
     pub file: PathBuf,
     pub material: String,
+    /// Materials by LAS classification code (`{ "2" = "ground", "6" = "building" }`): a point
+    /// whose class is listed takes that material, every other point `material`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub classes: Option<BTreeMap<String, String>>,
+    /// Factor on the per-point colors (or intensities) that become the albedo of a `"vertex"`
+    /// material; the product is clamped to [`MAX_ALBEDO`] and the clamped points counted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub albedo_scale: Option<f32>,
+    /// Where the scanner stood, in the file's own coordinates: estimated normals face it.
+    /// Overrides the stations an E57 file gives and `import.sensor`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scanner: Option<[f64; 3]>,
     /// Translation applied last.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub translate: Option<[f32; 3]>,
@@ -211,6 +227,37 @@ pub struct ImportConfig {
     /// Drop invalid points (NaN, zero normal, bad radius) instead of failing, and report them.
     #[serde(default)]
     pub drop_invalid: bool,
+    /// The point of the models' own (georeferenced) frame that becomes the scene's origin;
+    /// default: the first model's bounds centre, rounded to whole units, when it is a scan
+    /// (LAS, LAZ, E57), else zero. Everything else in the config (camera, lights, `sensor`)
+    /// is given relative to it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<[f64; 3]>,
+    /// Merge each point closer than this (the model file's units) to an earlier point of the
+    /// same model into it: duplicates from overlapping scan stations. Default: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub merge_distance: Option<f32>,
+    /// Statistical outlier removal (stray points of a raw scan). Default: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outliers: Option<OutlierConfig>,
+}
+
+/// `[import.outliers]`: a point whose mean distance to its `neighbors` nearest points exceeds
+/// the mean over the model by more than `std_ratio` standard deviations is removed.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutlierConfig {
+    #[serde(default = "default_outlier_neighbors")]
+    pub neighbors: usize,
+    #[serde(default = "default_outlier_std_ratio")]
+    pub std_ratio: f32,
+}
+
+fn default_outlier_neighbors() -> usize {
+    16
+}
+fn default_outlier_std_ratio() -> f32 {
+    2.0
 }
 
 fn default_normal_neighbors() -> usize {
@@ -227,6 +274,9 @@ impl Default for ImportConfig {
             radius_neighbors: default_radius_neighbors(),
             sensor: None,
             drop_invalid: false,
+            origin: None,
+            merge_distance: None,
+            outliers: None,
         }
     }
 }

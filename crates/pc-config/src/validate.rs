@@ -22,6 +22,12 @@ use End::{Excl, Incl};
 /// extent, not the precision: an f32 coordinate keeps about 7 significant digits, so a
 /// georeferenced scan is shifted to a local origin on import.
 pub const MAX_COORDINATE: f32 = 1e7;
+/// The largest coordinate of a model's own frame (`import.origin`, a model's `scanner`):
+/// georeferenced coordinates (UTM, geocentric) stay far below it.
+pub const MAX_WORLD_COORDINATE: f64 = 1e9;
+/// The largest albedo a per-point color can give (energy must be lost at every bounce for the
+/// radiosity solve to converge).
+pub const MAX_ALBEDO: f32 = 0.95;
 /// The largest image side, in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// The most pixels of one image (8192²): the CPU renderer keeps about 60 bytes per pixel.
@@ -97,6 +103,22 @@ fn position(key: &str, v: [f32; 3]) -> Result<(), ParamError> {
     real3(key, v, Incl(-MAX_COORDINATE), Incl(MAX_COORDINATE))
 }
 
+/// A point of a model's own frame: every coordinate finite, within ±[`MAX_WORLD_COORDINATE`].
+fn world_position(key: &str, v: [f64; 3]) -> Result<(), ParamError> {
+    for (x, axis) in v.iter().zip(["[0]", "[1]", "[2]"]) {
+        if !x.is_finite() || x.abs() > MAX_WORLD_COORDINATE {
+            return Err(ParamError {
+                key: format!("{key}{axis}"),
+                expected: format!(
+                    "be finite and lie in [-{MAX_WORLD_COORDINATE:e}, {MAX_WORLD_COORDINATE:e}]"
+                ),
+                got: x.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Materials, models, lights and the camera.
 fn scene(c: &PipelineConfig) -> Result<(), ParamError> {
     for (name, m) in &c.materials {
@@ -143,6 +165,34 @@ fn scene(c: &PipelineConfig) -> Result<(), ParamError> {
         }
         if let Some(r) = m.rotate {
             real3(&format!("models[{i}].rotate"), r, Incl(-1e6), Incl(1e6))?;
+        }
+        if let Some(a) = m.albedo_scale {
+            real(
+                &format!("models[{i}].albedo_scale"),
+                a,
+                Excl(0.0),
+                Incl(1e3),
+            )?;
+        }
+        if let Some(p) = m.scanner {
+            world_position(&format!("models[{i}].scanner"), p)?;
+        }
+        for (code, material) in m.classes.iter().flatten() {
+            let key = format!("models[{i}].classes.{code}");
+            if code.parse::<u8>().is_err() {
+                return Err(ParamError {
+                    key,
+                    expected: "be a LAS classification code, 0 to 255".into(),
+                    got: format!("{code:?}"),
+                });
+            }
+            if !c.materials.contains_key(material) {
+                return Err(ParamError {
+                    key,
+                    expected: "name a material of [materials]".into(),
+                    got: format!("{material:?}"),
+                });
+            }
         }
     }
     for (i, l) in c.lights.iter().enumerate() {
@@ -281,6 +331,21 @@ impl PipelineConfig {
         )?;
         if let Some(s) = i.sensor {
             position("import.sensor", s)?;
+        }
+        if let Some(o) = i.origin {
+            world_position("import.origin", o)?;
+        }
+        if let Some(d) = i.merge_distance {
+            real("import.merge_distance", d, Excl(0.0), Incl(1e6))?;
+        }
+        if let Some(o) = i.outliers {
+            int("import.outliers.neighbors", o.neighbors as u64, 2..=256)?;
+            real(
+                "import.outliers.std_ratio",
+                o.std_ratio,
+                Excl(0.0),
+                Incl(100.0),
+            )?;
         }
         Ok(())
     }

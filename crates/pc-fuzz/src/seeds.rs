@@ -28,6 +28,39 @@ pub struct Seeds {
     pub lights: Vec<PointLight>,
 }
 
+/// Real scan files (pc-import's test data): LAS, LAZ and E57, good ones only.
+pub const SCANS: &[(&str, &[u8])] = &[
+    (
+        "autzen.las",
+        include_bytes!("../../pc-import/tests/data/scans/autzen.las"),
+    ),
+    (
+        "extrabytes.laz",
+        include_bytes!("../../pc-import/tests/data/scans/extrabytes.laz"),
+    ),
+    (
+        "32-1-472-150-76.laz",
+        include_bytes!("../../pc-import/tests/data/scans/32-1-472-150-76.laz"),
+    ),
+    (
+        "tinyCartesianFloatRgb.e57",
+        include_bytes!("../../pc-import/tests/data/scans/tinyCartesianFloatRgb.e57"),
+    ),
+    (
+        "tiny_spherical.e57",
+        include_bytes!("../../pc-import/tests/data/scans/tiny_spherical.e57"),
+    ),
+];
+
+/// The scan seeds of one extension.
+pub fn scans(ext: &str) -> Vec<&'static [u8]> {
+    SCANS
+        .iter()
+        .filter(|(name, _)| name.ends_with(ext))
+        .map(|(_, b)| *b)
+        .collect()
+}
+
 /// The stage tables and the light of the seeds' pipeline: small, fast settings.
 const STAGES: &str = "[output]\ndir = \"out\"\n\n[[lights]]\nposition = [0.0, 0.9, 0.2]\nintensity = [1.0, 0.9, 0.8]\n\n[octree]\nmax_leaf_points = 8\n\n[vmap]\nrays = 4\nnear_rays = 4\nheavy_rays = 0\n\n[caustics]\nphotons = 20000\n\n[fmm]\nemitter_samples = 4\nemitter_probes = 0\nmax_iterations = 3\n\n[raytrace]\nspp = 1\n";
 
@@ -87,6 +120,13 @@ pub fn write_corpus(root: &Path) -> std::io::Result<Vec<PathBuf>> {
         .map(|(i, b)| (root.join("ply").join(format!("seed-{i}.ply")), b.as_slice()))
         .collect();
     files.push((root.join("config/pipeline.toml"), s.config.as_bytes()));
+    for (name, bytes) in SCANS {
+        let target = name
+            .rsplit('.')
+            .next()
+            .expect("a scan file has an extension");
+        files.push((root.join(target).join(name), bytes));
+    }
     for (name, bytes) in [
         ("octree", &s.octree),
         ("vmap", &s.vmap),

@@ -70,15 +70,122 @@ pub fn config(data: &[u8]) -> bool {
     true
 }
 
+/// The scan formats, by the extension their reader is chosen by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScanFormat {
+    Las,
+    Laz,
+    E57,
+}
+
+impl ScanFormat {
+    fn extension(self) -> &'static str {
+        match self {
+            ScanFormat::Las => "las",
+            ScanFormat::Laz => "laz",
+            ScanFormat::E57 => "e57",
+        }
+    }
+}
+
+/// Any bytes as a LAS, LAZ or E57 model. What the reader returns holds its promises: points,
+/// every offset and the origin finite, attributes one per point in their ranges, stations
+/// named by each point valid.
+///
+/// E57 pages are given valid checksums first, so that mutations reach the parser behind them
+/// (the checksum check itself is tested on a real corrupt file in pc-import).
+pub fn scan(format: ScanFormat, data: &[u8]) -> bool {
+    let name = format!("fuzz.{}", format.extension());
+    let fixed;
+    let data = if format == ScanFormat::E57 {
+        fixed = e57_checksums(data);
+        &fixed
+    } else {
+        data
+    };
+    let read = with_named_file(&name, data, |path| {
+        pc_import::points::read_points(path, &PlyOptions::default())
+    });
+    let Ok(p) = read else {
+        return false;
+    };
+    let n = p.positions.len();
+    assert!(n > 0, "an accepted model has points");
+    assert!(p.origin.is_finite(), "the origin is finite");
+    assert!(p.positions.iter().all(|x| x.is_finite()), "offsets finite");
+    let unit = |v: &f32| (0.0..=1.0).contains(v);
+    if let Some(c) = &p.colors {
+        assert_eq!(c.len(), n);
+        assert!(
+            c.iter().all(|v| v.to_array().iter().all(unit)),
+            "colors in [0, 1]"
+        );
+    }
+    if let Some(i) = &p.intensity {
+        assert_eq!(i.len(), n);
+        assert!(i.iter().all(unit), "intensity in [0, 1]");
+    }
+    if let Some(c) = &p.classes {
+        assert_eq!(c.len(), n);
+    }
+    if let Some(of) = &p.station_of {
+        assert_eq!(of.len(), n);
+        assert!(
+            of.iter().all(|&s| (s as usize) < p.stations.len()),
+            "stations valid"
+        );
+        assert!(p.stations.iter().all(|s| s.is_finite()), "stations finite");
+    }
+    true
+}
+
+/// `data` with every whole E57 page's checksum recomputed: CRC-32C of the page but its last
+/// four bytes, stored there big-endian (the page size is the header's, at byte 40, when it is
+/// sane, else 1024).
+pub fn e57_checksums(data: &[u8]) -> Vec<u8> {
+    let mut out = data.to_vec();
+    let page = data
+        .get(40..48)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("eight bytes")))
+        .filter(|&p| (64..=1 << 20).contains(&p))
+        .unwrap_or(1024) as usize;
+    for chunk in out.chunks_exact_mut(page) {
+        let (body, sum) = chunk.split_at_mut(page - 4);
+        sum.copy_from_slice(&crc32c(body).to_be_bytes());
+    }
+    out
+}
+
+/// CRC-32C (Castagnoli), bit by bit: the fuzzer's inputs are small.
+fn crc32c(data: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in data {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0x82F6_3B78
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
 /// A temporary file per thread, for the readers, which read files.
 fn with_file<R>(bytes: &[u8], f: impl FnOnce(&Path) -> R) -> R {
+    with_named_file("fuzz.pcgi", bytes, f)
+}
+
+/// [`with_file`] under a given name (the scan readers choose by extension).
+fn with_named_file<R>(name: &str, bytes: &[u8], f: impl FnOnce(&Path) -> R) -> R {
     thread_local! {
         static DIR: RefCell<Option<tempfile::TempDir>> = const { RefCell::new(None) };
     }
     let path: PathBuf = DIR.with(|d| {
         let mut d = d.borrow_mut();
         let dir = d.get_or_insert_with(|| tempfile::tempdir().expect("a temporary folder"));
-        dir.path().join("fuzz.pcgi")
+        dir.path().join(name)
     });
     std::fs::write(&path, bytes).expect("the temporary file is written");
     f(&path)

@@ -66,6 +66,43 @@ fn ply_models() {
     assert!(accepted > 0, "no mutated model was accepted");
 }
 
+/// The scan readers: mutated real files of each format.
+#[test]
+fn scan_models() {
+    use pc_fuzz::seeds::scans;
+    use targets::ScanFormat;
+    for (i, (format, ext)) in [
+        (ScanFormat::Las, ".las"),
+        (ScanFormat::Laz, ".laz"),
+        (ScanFormat::E57, ".e57"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let bases = scans(ext);
+        let accepted = run(
+            ext,
+            20 + i as u64,
+            |m| {
+                let base = bases[m.below(bases.len())];
+                m.bytes(base)
+            },
+            |d| targets::scan(format, d),
+        );
+        assert!(accepted > 0, "no mutated {ext} file was accepted");
+    }
+}
+
+/// The checksums the E57 target recomputes are the ones real files carry.
+#[test]
+fn e57_checksums_are_those_of_real_files() {
+    for (name, bytes) in pc_fuzz::seeds::SCANS {
+        if name.ends_with(".e57") {
+            assert_eq!(&targets::e57_checksums(bytes)[..], *bytes, "{name}");
+        }
+    }
+}
+
 #[test]
 fn pipeline_configs() {
     let s = seeds();

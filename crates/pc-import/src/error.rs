@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-/// Everything that can go wrong while importing a scene: its PLY files, estimation, assembly.
+/// Everything that can go wrong while importing a scene: its model files, estimation, assembly.
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
     /// The file could not be opened or read (the OS error is the source, printed by `{:#}`).
@@ -20,6 +20,19 @@ pub enum ImportError {
     /// (binary) when known.
     #[error("{}: {msg}", path.display())]
     Ply { path: PathBuf, msg: String },
+
+    /// A LAS, LAZ or E57 file its reader refused: malformed, truncated, a failed checksum,
+    /// header counts that disagree with the body; `msg` says which.
+    #[error("{}: {format} file: {msg}", path.display())]
+    Scan {
+        path: PathBuf,
+        format: &'static str,
+        msg: String,
+    },
+
+    /// The file's extension names no format pcgi reads.
+    #[error("{}: unknown model format {ext:?}: pcgi reads .ply, .las, .laz and .e57 files", path.display())]
+    UnknownFormat { path: PathBuf, ext: String },
 
     /// A required vertex property is absent.
     #[error("{}: vertex element has no `{property}` property: {}", path.display(), missing_hint(property))]
@@ -130,6 +143,15 @@ impl ImportError {
         }
     }
 
+    /// `Scan` for `path`, a file of `format` ("LAS", "LAZ", "E57").
+    pub fn scan(path: &Path, format: &'static str, msg: impl Into<String>) -> Self {
+        Self::Scan {
+            path: path.to_path_buf(),
+            format,
+            msg: msg.into(),
+        }
+    }
+
     /// `Estimate` for `path`.
     pub fn estimate(path: &Path, msg: impl Into<String>) -> Self {
         Self::Estimate {
@@ -143,6 +165,8 @@ impl ImportError {
         match self {
             Self::Io { path, .. }
             | Self::Ply { path, .. }
+            | Self::Scan { path, .. }
+            | Self::UnknownFormat { path, .. }
             | Self::MissingProperty { path, .. }
             | Self::ListProperty { path, .. }
             | Self::NoVertexElement { path }

@@ -20,6 +20,8 @@ use crate::ImportError;
 pub enum Orientation {
     /// Every normal faces this point (the scanner position): `n · (sensor - p) >= 0`.
     Sensor(Vec3),
+    /// Left as PCA gives them (the caller orients them, e.g. per scan station).
+    Unoriented,
     /// Consistent orientation by propagation over the k-nearest-neighbour graph, outward at the
     /// extremes of each connected part; see [`estimate_normals`].
     Propagate,
@@ -76,7 +78,7 @@ fn normals_of_distinct(positions: &[Vec3], k: usize, orient: Orientation) -> Vec
     let k = k.min(n - 1);
     let kg = match orient {
         Orientation::Propagate => k.min(GRAPH_NEIGHBOURS),
-        Orientation::Sensor(_) => 0,
+        Orientation::Sensor(_) | Orientation::Unoriented => 0,
     };
     let tree = build_tree(positions);
     let mut normals = vec![Vec3::ZERO; n];
@@ -112,6 +114,7 @@ fn normals_of_distinct(positions: &[Vec3], k: usize, orient: Orientation) -> Vec
                 });
         }
         Orientation::Propagate => propagate(positions, &mut normals, &graph, kg),
+        Orientation::Unoriented => {}
     }
     normals
 }
@@ -293,9 +296,9 @@ impl Distinct {
 // ---------------------------------------------------------------------------------------------
 // Neighbours
 
-type Tree = ImmutableKdTree<f32, 3>;
+pub(crate) type Tree = ImmutableKdTree<f32, 3>;
 
-fn build_tree(positions: &[Vec3]) -> Tree {
+pub(crate) fn build_tree(positions: &[Vec3]) -> Tree {
     let pts: &[[f32; 3]] = bytemuck::cast_slice(positions);
     // Item indices are u32: more than 4G points would not fit in memory here anyway.
     Tree::new_from_slice(pts).expect("kd-tree construction: more than u32::MAX points")
@@ -303,7 +306,13 @@ fn build_tree(positions: &[Vec3]) -> Tree {
 
 /// The `k` nearest neighbours of point `i` (itself excluded) as (index, squared distance),
 /// nearest first, into `buf`.
-fn neighbours(tree: &Tree, positions: &[Vec3], i: usize, k: usize, buf: &mut Vec<(u32, f32)>) {
+pub(crate) fn neighbours(
+    tree: &Tree,
+    positions: &[Vec3],
+    i: usize,
+    k: usize,
+    buf: &mut Vec<(u32, f32)>,
+) {
     buf.clear();
     if k == 0 {
         return;

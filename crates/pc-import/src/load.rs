@@ -1,12 +1,12 @@
-//! Scene assembly: read every model's PLY, fill in missing normals and radii, apply transforms,
+//! Scene assembly: read every model's file, fill in missing normals and radii, apply transforms,
 //! resolve materials, and concatenate everything into one structure-of-arrays splat set.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use glam::{Mat3, Vec3};
+use glam::{DVec3, Mat3, Vec3};
 
 use crate::estimate::{try_estimate_normals, try_estimate_radii, Orientation};
-use crate::ply::{read_ply, PlyOptions};
+use crate::points::{read_points, Format, PlyOptions, PointSet};
 use crate::ImportError;
 use pc_artifact::PointLight;
 use pc_config::{LoadedConfig, MaterialConfig, ModelConfig};
@@ -17,7 +17,8 @@ pub struct SceneSplats {
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
     pub radii: Vec<f32>,
-    /// Per-point linear RGB color (from the PLY when the material asks for it), else (1, 1, 1).
+    /// Per-point albedo factor (the file's linear colors, or intensity, when the point's
+    /// material asks for them), else (1, 1, 1).
     pub albedo: Vec<Vec3>,
     /// Index into `LoadedScene::materials`.
     pub material: Vec<u32>,
@@ -36,11 +37,80 @@ impl SceneSplats {
 #[derive(Clone, Debug)]
 pub struct ModelReport {
     pub path: PathBuf,
+    pub format: Format,
     pub points: usize,
     pub dropped: usize,
     pub drop_reasons: Vec<(String, usize)>,
     pub estimated_normals: bool,
     pub estimated_radii: bool,
+    /// Where the per-point albedo came from, when the model's material asks for it.
+    pub albedo_from: Option<AlbedoSource>,
+    /// Points whose albedo was clamped to [`pc_config::MAX_ALBEDO`].
+    pub albedo_clamped: usize,
+    /// How estimated normals were oriented.
+    pub oriented: Oriented,
+}
+
+impl ModelReport {
+    /// One line for the terminal: the file, its points and what import did to them.
+    pub fn describe(&self) -> String {
+        let mut parts = vec![format!("{} points", self.points)];
+        if self.dropped > 0 {
+            let why: Vec<String> = self
+                .drop_reasons
+                .iter()
+                .map(|(r, n)| format!("{n} {r}"))
+                .collect();
+            parts.push(format!("{} left out ({})", self.dropped, why.join(", ")));
+        }
+        if self.estimated_normals {
+            parts.push(match self.oriented {
+                Oriented::Scanner => "normals estimated, facing the scanner".to_string(),
+                Oriented::Stations(n) => format!("normals estimated, facing {n} scan stations"),
+                _ => "normals estimated, oriented by propagation".to_string(),
+            });
+        }
+        if self.estimated_radii {
+            parts.push("radii estimated".to_string());
+        }
+        if let Some(src) = self.albedo_from {
+            let from = match src {
+                AlbedoSource::Color => "color",
+                AlbedoSource::Intensity => "intensity",
+            };
+            parts.push(format!("albedo from {from}"));
+            if self.albedo_clamped > 0 {
+                parts.push(format!(
+                    "{} albedos clamped to {}",
+                    self.albedo_clamped,
+                    pc_config::MAX_ALBEDO
+                ));
+            }
+        }
+        let (path, format) = (self.path.display(), self.format.name());
+        format!("{path} ({format}): {}", parts.join(", "))
+    }
+}
+
+/// The per-point values a `"vertex"` albedo was taken from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AlbedoSource {
+    Color,
+    /// No color in the file: its intensity, normalized per file, as grey.
+    Intensity,
+}
+
+/// How a model's normals were oriented.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Oriented {
+    /// The file gave normals.
+    Given,
+    /// Toward the model's `scanner`, or `import.sensor`.
+    Scanner,
+    /// Toward the station of the scan each point belongs to (E57 poses).
+    Stations(usize),
+    /// By propagation over the neighbour graph.
+    Propagated,
 }
 
 /// A loaded scene.
@@ -51,6 +121,9 @@ pub struct LoadedScene {
     pub materials: Vec<(String, MaterialConfig)>,
     pub lights: Vec<PointLight>,
     pub models: Vec<ModelReport>,
+    /// The point of the models' own frame at the scene's origin: a splat at `p` is at
+    /// `origin + p` in the files' coordinates (f64).
+    pub origin: DVec3,
 }
 
 impl LoadedScene {
@@ -90,6 +163,174 @@ fn out_of_range(x: Vec3, r: f32) -> Option<(&'static str, f32)> {
     (r.is_nan() || r > limit).then_some(("the radius", r))
 }
 
+/// The scene's origin in the models' frame: `import.origin`, else the first model's bounds
+/// centre rounded to whole units when it is a scan, else zero (PLY scenes stay where they are).
+pub fn scene_origin(cfg: &LoadedConfig, first: &PointSet, format: Format) -> DVec3 {
+    if let Some(o) = cfg.config.import.origin {
+        return DVec3::from(o);
+    }
+    match (format.is_scan(), first.bounds()) {
+        (true, Some((lo, hi))) => ((lo + hi) * 0.5).round(),
+        _ => DVec3::ZERO,
+    }
+}
+
+/// The materials of one model: its own, and those its `classes` pick, as indices into the
+/// scene's sorted material list.
+struct ModelMaterials {
+    default: u32,
+    by_class: Option<[u32; 256]>,
+}
+
+impl ModelMaterials {
+    fn new(
+        cfg: &LoadedConfig,
+        mi: usize,
+        m: &ModelConfig,
+        materials: &[(String, MaterialConfig)],
+    ) -> Result<Self, ImportError> {
+        let index_of = |name: &str| {
+            materials
+                .iter()
+                .position(|(n, _)| n == name)
+                .map(|i| i as u32)
+                .ok_or_else(|| ImportError::UnknownMaterial {
+                    path: cfg.path.clone(),
+                    model: mi,
+                    name: name.to_string(),
+                })
+        };
+        let default = index_of(&m.material)?;
+        let by_class = match &m.classes {
+            None => None,
+            Some(classes) => {
+                let mut table = [default; 256];
+                for (code, name) in classes {
+                    // validate() checked the codes; a bad one here is a config built in code.
+                    let code: u8 = code.parse().map_err(|_| ImportError::Scene {
+                        path: cfg.path.clone(),
+                        msg: format!("models[{mi}].classes: {code:?} is not a class code 0-255"),
+                    })?;
+                    table[code as usize] = index_of(name)?;
+                }
+                Some(table)
+            }
+        };
+        Ok(Self { default, by_class })
+    }
+
+    /// The material of point `i`.
+    fn of(&self, classes: Option<&[u8]>, i: usize) -> u32 {
+        match (&self.by_class, classes) {
+            (Some(t), Some(c)) => t[c[i] as usize],
+            _ => self.default,
+        }
+    }
+
+    fn any(&self, mut f: impl FnMut(u32) -> bool) -> bool {
+        match &self.by_class {
+            Some(t) => t.iter().any(|&m| f(m)),
+            None => f(self.default),
+        }
+    }
+}
+
+/// The per-point albedo factors a model's `"vertex"` materials take: the file's colors, else
+/// its intensity as grey, times `albedo_scale`, clamped to [`pc_config::MAX_ALBEDO`].
+/// Returns the factors, their source and how many points were clamped.
+fn albedo_factors(
+    path: &Path,
+    pts: &PointSet,
+    scale: f32,
+) -> Result<(Vec<Vec3>, AlbedoSource, usize), ImportError> {
+    let (values, source): (Vec<Vec3>, _) = match (&pts.colors, &pts.intensity) {
+        (Some(c), _) => (c.clone(), AlbedoSource::Color),
+        (None, Some(i)) => (
+            i.iter().map(|&v| Vec3::splat(v)).collect(),
+            AlbedoSource::Intensity,
+        ),
+        (None, None) => {
+            return Err(ImportError::MissingProperty {
+                path: path.to_path_buf(),
+                property: "red",
+            })
+        }
+    };
+    let max = pc_config::MAX_ALBEDO;
+    let mut clamped = 0usize;
+    let factors = values
+        .into_iter()
+        .map(|c| {
+            let a = (c * scale).max(Vec3::ZERO);
+            if a.max_element() > max {
+                clamped += 1;
+            }
+            a.min(Vec3::splat(max))
+        })
+        .collect();
+    Ok((factors, source, clamped))
+}
+
+/// Normals for a model that has none, and how they were oriented: toward the model's
+/// `scanner` (file frame), else the file's stations, else `import.sensor` (scene frame), else
+/// by propagation. `from_scene` maps a scene-frame point to the file's offsets.
+fn model_normals(
+    cfg: &LoadedConfig,
+    m: &ModelConfig,
+    path: &Path,
+    pts: &PointSet,
+    from_scene: impl Fn(Vec3) -> Vec3,
+) -> Result<(Vec<Vec3>, Oriented), ImportError> {
+    let k = cfg.config.import.normal_neighbors;
+    let local = |p: DVec3| (p - pts.origin).as_vec3();
+    if let Some(s) = m.scanner {
+        let s = local(DVec3::from(s));
+        let n = try_estimate_normals(path, &pts.positions, k, Orientation::Sensor(s))?;
+        return Ok((n, Oriented::Scanner));
+    }
+    if let Some(of) = &pts.station_of {
+        let mut n = try_estimate_normals(path, &pts.positions, k, Orientation::Unoriented)?;
+        let stations: Vec<Vec3> = pts.stations.iter().map(|&s| local(s)).collect();
+        face_stations(&mut n, &pts.positions, &stations, of);
+        return Ok((n, Oriented::Stations(pts.stations.len())));
+    }
+    if let Some(s) = cfg.config.import.sensor {
+        // import.sensor is in the scene frame: bring it into the file's offsets.
+        let sensor = Orientation::Sensor(from_scene(Vec3::from(s)));
+        let n = try_estimate_normals(path, &pts.positions, k, sensor)?;
+        return Ok((n, Oriented::Scanner));
+    }
+    let n = try_estimate_normals(path, &pts.positions, k, Orientation::Propagate)?;
+    Ok((n, Oriented::Propagated))
+}
+
+/// Flip each normal to face the station its point was scanned from.
+fn face_stations(normals: &mut [Vec3], positions: &[Vec3], stations: &[Vec3], of: &[u32]) {
+    use rayon::prelude::*;
+    normals
+        .par_iter_mut()
+        .zip(positions.par_iter().zip(of.par_iter()))
+        .for_each(|(n, (p, &s))| {
+            if let Some(s) = stations.get(s as usize) {
+                if n.dot(*s - *p) < 0.0 {
+                    *n = -*n;
+                }
+            }
+        });
+}
+
+/// The `[import]` cleaning options applied to one model's points.
+fn clean(import: &pc_config::ImportConfig, pts: &mut PointSet) {
+    if let Some(d) = import.merge_distance {
+        let keep = crate::clean::merge_duplicates(&pts.positions, d);
+        pts.retain(&keep, "duplicates merged");
+    }
+    if let Some(o) = import.outliers {
+        let keep = crate::clean::remove_outliers(&pts.positions, o.neighbors, o.std_ratio);
+        pts.retain(&keep, "statistical outliers");
+    }
+}
+
 /// Load every model of the config. `progress(done, total)` is called after each model.
 pub fn load_scene(
     cfg: &LoadedConfig,
@@ -107,94 +348,23 @@ pub fn load_scene(
         .iter()
         .map(|(k, v)| (k.clone(), v.clone()))
         .collect();
-    let index_of = |name: &str| materials.iter().position(|(n, _)| n == name);
     let opts = PlyOptions {
         drop_invalid: c.import.drop_invalid,
     };
     let mut out = SceneSplats::default();
     let mut reports = Vec::with_capacity(c.models.len());
+    let mut origin = None;
     for (mi, m) in c.models.iter().enumerate() {
         let path = model_path(cfg, m);
-        let mat_index = index_of(&m.material).ok_or_else(|| ImportError::UnknownMaterial {
-            path: cfg.path.clone(),
-            model: mi,
-            name: m.material.clone(),
-        })?;
-        let material = &materials[mat_index].1;
-        let pts = read_ply(&path, &opts)?;
-        let n = pts.positions.len();
-        let estimated_normals = pts.normals.is_none();
-        let estimated_radii = pts.radii.is_none();
-        let normals = match pts.normals {
-            Some(nrm) => nrm,
-            None => {
-                let orient = match c.import.sensor {
-                    Some(s) => Orientation::Sensor(Vec3::from(s)),
-                    None => Orientation::Propagate,
-                };
-                try_estimate_normals(&path, &pts.positions, c.import.normal_neighbors, orient)?
-            }
-        };
-        let radii = match pts.radii {
-            Some(r) => r,
-            None => try_estimate_radii(&path, &pts.positions, c.import.radius_neighbors)?,
-        };
-        // Per-point colors multiply the material's color; without them the factor is 1, so
-        // a material's albedo can change without rebuilding the octree.
-        let colors = if material.wants_vertex_colors() {
-            match pts.colors {
-                Some(c) => Some(c),
-                None => {
-                    return Err(ImportError::MissingProperty {
-                        path: path.clone(),
-                        property: "red",
-                    })
-                }
-            }
-        } else {
-            None
-        };
-        let (s, rot, t) = model_transform(m);
-        out.positions.reserve(n);
-        let mut beyond = 0usize;
-        for i in 0..n {
-            let x = rot * (pts.positions[i] * s) + t;
-            let r = radii[i] * s;
-            if let Some((what, value)) = out_of_range(x, r) {
-                if c.import.drop_invalid {
-                    beyond += 1;
-                    continue;
-                }
-                return Err(ImportError::OutOfRange {
-                    path,
-                    index: i,
-                    what,
-                    value,
-                    limit: pc_config::MAX_COORDINATE,
-                });
-            }
-            out.positions.push(x);
-            out.normals.push((rot * normals[i]).normalize());
-            out.radii.push(r);
-            out.albedo.push(
-                colors
-                    .as_ref()
-                    .map_or(Vec3::ONE, |c| c[i].clamp(Vec3::ZERO, Vec3::ONE)),
-            );
-            out.material.push(mat_index as u32);
-        }
-        let mut drop_reasons = pts.drop_reasons;
-        if beyond > 0 {
-            drop_reasons.push(("beyond the extent".to_string(), beyond));
-        }
-        reports.push(ModelReport {
-            path,
-            points: n - beyond,
-            dropped: pts.dropped + beyond,
-            drop_reasons,
-            estimated_normals,
-            estimated_radii,
-        });
+        let mats = ModelMaterials::new(cfg, mi, m, &materials)?;
+        let format = Format::of(&path)?;
+        let mut pts = read_points(&path, &opts)?;
+        clean(&c.import, &mut pts);
+        let origin = *origin.get_or_insert_with(|| scene_origin(cfg, &pts, format));
+        let report = add_model(
+            cfg, m, &path, format, pts, origin, &mats, &materials, &mut out,
+        )?;
+        reports.push(report);
         progress(mi + 1, c.models.len());
     }
     if out.positions.len() > u32::MAX as usize / 2 {
@@ -211,6 +381,93 @@ pub fn load_scene(
         materials,
         lights: c.lights.clone(),
         models: reports,
+        origin: origin.unwrap_or(DVec3::ZERO),
+    })
+}
+
+/// Append one model's points to `out`: normals and radii estimated where missing, albedo and
+/// material per point, moved into the scene frame (f64 shift, then the model's transform).
+#[allow(clippy::too_many_arguments)]
+fn add_model(
+    cfg: &LoadedConfig,
+    m: &ModelConfig,
+    path: &Path,
+    format: Format,
+    pts: PointSet,
+    origin: DVec3,
+    mats: &ModelMaterials,
+    materials: &[(String, MaterialConfig)],
+    out: &mut SceneSplats,
+) -> Result<ModelReport, ImportError> {
+    let c = &cfg.config;
+    let n = pts.positions.len();
+    let (s, rot, t) = model_transform(m);
+    // The file's offsets into the scene frame: one f64 shift for the whole file.
+    let shift = (pts.origin - origin).as_vec3();
+    let from_scene = |x: Vec3| rot.transpose() * (x - t) / s - shift;
+    let estimated_normals = pts.normals.is_none();
+    let estimated_radii = pts.radii.is_none();
+    let (normals, oriented) = match &pts.normals {
+        Some(nrm) => (nrm.clone(), Oriented::Given),
+        None => model_normals(cfg, m, path, &pts, from_scene)?,
+    };
+    let radii = match &pts.radii {
+        Some(r) => r.clone(),
+        None => try_estimate_radii(path, &pts.positions, c.import.radius_neighbors)?,
+    };
+    // Per-point colors multiply the material's color; without them the factor is 1, so a
+    // material's albedo can change without rebuilding the octree.
+    let wants = |i: u32| materials[i as usize].1.wants_vertex_colors();
+    let (factors, albedo_from, albedo_clamped) = if mats.any(wants) {
+        let (f, src, clamped) = albedo_factors(path, &pts, m.albedo_scale.unwrap_or(1.0))?;
+        (Some(f), Some(src), clamped)
+    } else {
+        (None, None, 0)
+    };
+    let classes = pts.classes.as_deref();
+    out.positions.reserve(n);
+    let mut beyond = 0usize;
+    for i in 0..n {
+        let x = rot * ((pts.positions[i] + shift) * s) + t;
+        let r = radii[i] * s;
+        if let Some((what, value)) = out_of_range(x, r) {
+            if c.import.drop_invalid {
+                beyond += 1;
+                continue;
+            }
+            return Err(ImportError::OutOfRange {
+                path: path.to_path_buf(),
+                index: i,
+                what,
+                value,
+                limit: pc_config::MAX_COORDINATE,
+            });
+        }
+        let material = mats.of(classes, i);
+        out.positions.push(x);
+        out.normals.push((rot * normals[i]).normalize());
+        out.radii.push(r);
+        out.albedo.push(match &factors {
+            Some(f) if wants(material) => f[i],
+            _ => Vec3::ONE,
+        });
+        out.material.push(material);
+    }
+    let mut drop_reasons = pts.drop_reasons;
+    if beyond > 0 {
+        drop_reasons.push(("beyond the extent".to_string(), beyond));
+    }
+    Ok(ModelReport {
+        path: path.to_path_buf(),
+        format,
+        points: n - beyond,
+        dropped: pts.dropped + beyond,
+        drop_reasons,
+        estimated_normals,
+        estimated_radii,
+        albedo_from,
+        albedo_clamped,
+        oriented,
     })
 }
 
@@ -226,6 +483,7 @@ mod tests {
             translate: Some([1.0, 0.0, 0.0]),
             rotate: Some([0.0, 90.0, 0.0]),
             scale: Some(2.0),
+            ..ModelConfig::default()
         };
         let (s, r, t) = model_transform(&m);
         let p = r * (Vec3::X * s) + t;

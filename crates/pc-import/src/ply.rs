@@ -26,44 +26,10 @@ use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{DefaultElement, Encoding, PropertyType, ScalarType};
 use rayon::prelude::*;
 
+use crate::points::srgb_to_linear;
 use crate::ImportError;
 
-/// How to treat invalid points.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct PlyOptions {
-    /// Drop invalid points (non-finite values, zero normals, bad radii) and count them in
-    /// [`PointSet::dropped`] instead of failing on the first one.
-    pub drop_invalid: bool,
-}
-
-/// The points of one PLY file. Optional attributes are `Some` when the file has them.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct PointSet {
-    pub positions: Vec<Vec3>,
-    /// Unit normals (normalized on import).
-    pub normals: Option<Vec<Vec3>>,
-    /// Positive finite radii.
-    pub radii: Option<Vec<f32>>,
-    /// Linear RGB.
-    pub colors: Option<Vec<Vec3>>,
-    /// Points dropped as invalid (only with [`PlyOptions::drop_invalid`]).
-    pub dropped: usize,
-    /// Dropped points per reason, e.g. `("zero-length normal", 3)`; only reasons that occurred,
-    /// in a fixed order. Each dropped point counts once, for the first problem found.
-    pub drop_reasons: Vec<(String, usize)>,
-}
-
-impl PointSet {
-    /// Number of points.
-    pub fn len(&self) -> usize {
-        self.positions.len()
-    }
-
-    /// True when there are no points.
-    pub fn is_empty(&self) -> bool {
-        self.positions.is_empty()
-    }
-}
+pub use crate::points::{PlyOptions, PointSet};
 
 /// The header's `comment` and `obj_info` lines may hold any bytes (scanner software writes
 /// Latin-1 names and degree signs there); the header parser reads UTF-8. Their bytes outside
@@ -463,14 +429,6 @@ impl Invalid {
 }
 
 /// sRGB transfer function, decoded.
-fn srgb_to_linear(c: f64) -> f64 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 fn srgb_u8_table() -> &'static [f32; 256] {
     static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| std::array::from_fn(|i| srgb_to_linear(i as f64 / 255.0) as f32))
@@ -698,6 +656,7 @@ fn finish(mut out: Outputs, done: &[(usize, Done)], ctx: &Ctx) -> Result<PointSe
     out.rad.truncate(w);
     Ok(PointSet {
         positions: out.pos,
+        origin: glam::DVec3::ZERO,
         normals: keep(out.nrm, map.normals),
         radii: map.radius.then_some(out.rad),
         colors: keep(out.col, map.colors),
@@ -708,6 +667,7 @@ fn finish(mut out: Outputs, done: &[(usize, Done)], ctx: &Ctx) -> Result<PointSe
             .filter(|(_, n)| *n > 0)
             .map(|(r, n)| (r.to_string(), n))
             .collect(),
+        ..PointSet::default()
     })
 }
 

@@ -6,7 +6,7 @@ use std::time::Instant;
 use pc_artifact::octree::{sections, InputFile, OctreeMeta};
 use pc_artifact::{ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{material_table, LoadedConfig, MaterialConfig};
-use pc_import::load::{load_scene, model_path, LoadedScene};
+use pc_import::load::{load_scene, model_path, LoadedScene, ModelReport};
 use pc_stage::{Progress, Stage};
 
 use crate::build::{build, BuildInput, Octree};
@@ -17,7 +17,8 @@ pub const STAGE: &str = "pc-octree";
 pub const STAGE_VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// The octree artifact's key: this stage's version, the octree and import parameters, each
-/// model's transform, material name and class, and the content of each model file. Material
+/// model's transform, material names and classes (its own and its `classes`'), color scale and
+/// scanner, and the content of each model file. Material
 /// colors, lights and the camera are deliberately left out: they do not change the tree.
 pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, OctreeError> {
     let c = &cfg.config;
@@ -27,22 +28,26 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, OctreeError> {
     h.update_key(&pc_artifact::build_id());
     h.update_serialize(&c.octree.params);
     h.update_serialize(&c.import);
-    for m in &c.models {
-        let mat = &c.materials[&m.material];
+    // What the tree takes from a material: its class, and whether it reads the file's colors.
+    let identity = |name: &String| {
+        let mat = &c.materials[name];
         let cls = match mat {
             MaterialConfig::Diffuse { .. } => "diffuse",
             MaterialConfig::Emitter { .. } => "emitter",
             MaterialConfig::Mirror { .. } => "mirror",
             MaterialConfig::Dielectric { .. } => "dielectric",
         };
-        h.update_serialize(&(
-            &m.material,
-            cls,
-            mat.wants_vertex_colors(),
-            m.translate,
-            m.rotate,
-            m.scale,
-        ));
+        (name.clone(), cls, mat.wants_vertex_colors())
+    };
+    for m in &c.models {
+        h.update_serialize(&(identity(&m.material), m.translate, m.rotate, m.scale));
+        let classes: Vec<_> = m
+            .classes
+            .iter()
+            .flatten()
+            .map(|(code, name)| (code, identity(name)))
+            .collect();
+        h.update_serialize(&(classes, m.albedo_scale, m.scanner));
         let path = model_path(cfg, m);
         h.update_file(&path)
             .map_err(|source| OctreeError::Model { path, source })?;
@@ -61,6 +66,10 @@ pub struct Summary {
     pub build_seconds: f64,
     pub write_seconds: f64,
     pub dropped: usize,
+    /// What import did to each model.
+    pub models: Vec<ModelReport>,
+    /// The scene's origin in the models' coordinates.
+    pub origin: glam::DVec3,
 }
 
 /// Build the octree of a loaded scene with the config's parameters.
@@ -118,6 +127,7 @@ pub fn write(
         stats: octree.stats.clone(),
         material_names: scene.materials.iter().map(|(n, _)| n.clone()).collect(),
         dropped_points: scene.dropped() as u64,
+        origin: scene.origin.to_array(),
     };
     let mut w = ArtifactWriter::create(path, ArtifactKind::Octree, STAGE, STAGE_VERSION, key)?;
     w.section(sections::FRAME, std::slice::from_ref(&octree.frame))?;
@@ -161,6 +171,8 @@ pub fn run(
         build_seconds,
         write_seconds,
         dropped: scene.dropped(),
+        models: scene.models,
+        origin: scene.origin,
     })
 }
 
@@ -195,7 +207,22 @@ impl Stage for OctreeStage {
             0 => String::new(),
             n => format!(", dropped {n} invalid points"),
         };
-        format!(
+        // A line per model that import changed (scans, estimated normals, points left out),
+        // the scene's origin when it moved, then the summary.
+        let mut lines: Vec<String> = summary
+            .models
+            .iter()
+            .filter(|m| m.format.is_scan() || m.dropped > 0 || m.estimated_normals)
+            .map(|m| format!("{STAGE}: {}", m.describe()))
+            .collect();
+        if summary.origin != glam::DVec3::ZERO {
+            let o = summary.origin;
+            lines.push(format!(
+                "{STAGE}: scene origin ({}, {}, {}) in the models' coordinates; camera and lights are relative to it",
+                o.x, o.y, o.z
+            ));
+        }
+        lines.push(format!(
             "pc-octree: wrote {} ({} splats, {} nodes, {} leaves, depth {}, {} extra refs{dropped}) in {:.2} s (import {:.2} s, build {:.2} s, {:.1} M splats/s)",
             summary.path.display(),
             s.splats,
@@ -207,7 +234,8 @@ impl Stage for OctreeStage {
             summary.import_seconds,
             summary.build_seconds,
             s.splats as f64 / summary.build_seconds.max(1e-9) / 1e6
-        )
+        ));
+        lines.join("\n")
     }
 
     fn stats(&self, summary: &Summary, seconds: f64) -> serde_json::Value {

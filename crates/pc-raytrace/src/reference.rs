@@ -318,9 +318,7 @@ pub fn config_toml(dir: &Path) -> Result<String, ReferenceError> {
         models.push(ModelConfig {
             file: points.join(file),
             material: name,
-            translate: None,
-            rotate: None,
-            scale: None,
+            ..ModelConfig::default()
         });
     }
     let sensor = &s["sensor"];

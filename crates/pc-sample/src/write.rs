@@ -40,9 +40,7 @@ impl SampledScene {
                 .map(|shape| ModelConfig {
                     file: self.file_name(shape).into(),
                     material: shape.material.clone(),
-                    translate: None,
-                    rotate: None,
-                    scale: None,
+                    ..ModelConfig::default()
                 })
                 .collect(),
             lights: &self.lights,

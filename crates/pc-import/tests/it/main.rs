@@ -2,3 +2,4 @@
 
 mod estimate;
 mod ply;
+mod scan;

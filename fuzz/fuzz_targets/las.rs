@@ -1,0 +1,6 @@
+//! libFuzzer target: pc_fuzz::targets::scan on .las files.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = pc_fuzz::targets::scan(pc_fuzz::targets::ScanFormat::Las, data);
+});
