@@ -17,6 +17,9 @@ commands:
                                              skipping the ones that are up to date (pc-run)
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
+  sample scan --points N --out DIR [--format laz|las|e57]
+                                             scan the hall with a virtual terrestrial scanner
+                                             (three stations) into DIR/hall.laz + scene.toml
   reference-config [--out FILE]              write a pipeline config for ../shared/reference/cornell
   compare IMAGE.exr REFERENCE.exr [--regions FILE] [--diff PNG]
                                              relative RMSE, per-region means (regions: JSON with

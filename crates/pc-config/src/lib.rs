@@ -96,10 +96,12 @@ pub struct ModelConfig {
     /// material; the product is clamped to [`MAX_ALBEDO`] and the clamped points counted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub albedo_scale: Option<f32>,
-    /// Where the scanner stood, in the file's own coordinates: estimated normals face it.
-    /// Overrides the stations an E57 file gives and `import.sensor`.
+    /// Where the scanner stood, in the file's own coordinates: estimated normals face it. One
+    /// position serves every point; with several, a LAS point faces the one its
+    /// `point_source_id` indexes (the scan it came from). Overrides the stations an E57 file
+    /// gives and `import.sensor`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scanner: Option<[f64; 3]>,
+    pub scanners: Option<Vec<[f64; 3]>>,
     /// Translation applied last.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub translate: Option<[f32; 3]>,

@@ -174,8 +174,15 @@ fn scene(c: &PipelineConfig) -> Result<(), ParamError> {
                 Incl(1e3),
             )?;
         }
-        if let Some(p) = m.scanner {
-            world_position(&format!("models[{i}].scanner"), p)?;
+        if let Some(list) = &m.scanners {
+            int(
+                &format!("models[{i}].scanners (count)"),
+                list.len() as u64,
+                1..=65536,
+            )?;
+            for (k, p) in list.iter().enumerate() {
+                world_position(&format!("models[{i}].scanners[{k}]"), *p)?;
+            }
         }
         for (code, material) in m.classes.iter().flatten() {
             let key = format!("models[{i}].classes.{code}");

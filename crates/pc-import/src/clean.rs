@@ -85,6 +85,9 @@ impl PointSet {
         if let Some(v) = &mut self.classes {
             filter(v, keep);
         }
+        if let Some(v) = &mut self.source_ids {
+            filter(v, keep);
+        }
         if let Some(v) = &mut self.station_of {
             filter(v, keep);
         }

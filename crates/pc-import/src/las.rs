@@ -167,6 +167,7 @@ struct Accumulator {
     positions: Vec<Vec3>,
     intensity: Vec<u16>,
     classes: Vec<u8>,
+    sources: Vec<u16>,
     colors: Option<Vec<[u16; 3]>>,
 }
 
@@ -179,6 +180,7 @@ impl Accumulator {
             positions: Vec::with_capacity(n),
             intensity: Vec::with_capacity(n),
             classes: Vec::with_capacity(n),
+            sources: Vec::with_capacity(n),
             colors: has_color.then(|| Vec::with_capacity(n)),
         }
     }
@@ -196,6 +198,7 @@ impl Accumulator {
             self.positions.push(o);
             self.intensity.push(p.intensity);
             self.classes.push(u8::from(p.classification));
+            self.sources.push(p.point_source_id);
             if let Some(c) = &mut self.colors {
                 let rgb = p.color.map_or([0; 3], |c| [c.red, c.green, c.blue]);
                 c.push(rgb);
@@ -217,6 +220,7 @@ impl Accumulator {
             colors: self.colors.map(|c| linear_colors(&c)),
             intensity,
             classes: Some(self.classes),
+            source_ids: Some(self.sources),
             ..PointSet::default()
         }
     }

@@ -283,10 +283,20 @@ fn model_normals(
 ) -> Result<(Vec<Vec3>, Oriented), ImportError> {
     let k = cfg.config.import.normal_neighbors;
     let local = |p: DVec3| (p - pts.origin).as_vec3();
-    if let Some(s) = m.scanner {
-        let s = local(DVec3::from(s));
-        let n = try_estimate_normals(path, &pts.positions, k, Orientation::Sensor(s))?;
-        return Ok((n, Oriented::Scanner));
+    match m.scanners.as_deref() {
+        Some([s]) => {
+            let s = local(DVec3::from(*s));
+            let n = try_estimate_normals(path, &pts.positions, k, Orientation::Sensor(s))?;
+            return Ok((n, Oriented::Scanner));
+        }
+        Some(list) if !list.is_empty() => {
+            let of = scanner_of_points(path, pts, list.len())?;
+            let mut n = try_estimate_normals(path, &pts.positions, k, Orientation::Unoriented)?;
+            let stations: Vec<Vec3> = list.iter().map(|&s| local(DVec3::from(s))).collect();
+            face_stations(&mut n, &pts.positions, &stations, &of);
+            return Ok((n, Oriented::Stations(list.len())));
+        }
+        _ => {}
     }
     if let Some(of) = &pts.station_of {
         let mut n = try_estimate_normals(path, &pts.positions, k, Orientation::Unoriented)?;
@@ -302,6 +312,34 @@ fn model_normals(
     }
     let n = try_estimate_normals(path, &pts.positions, k, Orientation::Propagate)?;
     Ok((n, Oriented::Propagated))
+}
+
+/// Each point's index into a model's `scanners`: its LAS `point_source_id`.
+fn scanner_of_points(path: &Path, pts: &PointSet, count: usize) -> Result<Vec<u32>, ImportError> {
+    let Some(ids) = &pts.source_ids else {
+        return Err(ImportError::Scene {
+            path: path.to_path_buf(),
+            msg: format!(
+                "{count} scanners are given, but the file has no point_source_id to tell which \
+                 scan each point came from (LAS only): give one scanner"
+            ),
+        });
+    };
+    ids.iter()
+        .enumerate()
+        .map(|(i, &id)| {
+            if (id as usize) < count {
+                Ok(u32::from(id))
+            } else {
+                Err(ImportError::Scene {
+                    path: path.to_path_buf(),
+                    msg: format!(
+                        "point {i}: point_source_id {id} names no scanner ({count} are given)"
+                    ),
+                })
+            }
+        })
+        .collect()
 }
 
 /// Flip each normal to face the station its point was scanned from.

@@ -39,6 +39,8 @@ pub struct PointSet {
     pub intensity: Option<Vec<f32>>,
     /// LAS classification codes (0 to 255).
     pub classes: Option<Vec<u8>>,
+    /// LAS point source ids (the scan or flight line a point came from).
+    pub source_ids: Option<Vec<u16>>,
     /// Scanner positions in the file's frame (E57 scans with a pose or spherical coordinates),
     /// and for each point the index of the station that saw it.
     pub stations: Vec<DVec3>,

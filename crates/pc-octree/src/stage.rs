@@ -47,7 +47,7 @@ pub fn octree_key(cfg: &LoadedConfig) -> Result<Key, OctreeError> {
             .flatten()
             .map(|(code, name)| (code, identity(name)))
             .collect();
-        h.update_serialize(&(classes, m.albedo_scale, m.scanner));
+        h.update_serialize(&(classes, m.albedo_scale, &m.scanners));
         let path = model_path(cfg, m);
         h.update_file(&path)
             .map_err(|source| OctreeError::Model { path, source })?;

@@ -16,6 +16,7 @@
 
 mod geometry;
 mod grid;
+pub mod scan;
 mod scenes;
 mod write;
 

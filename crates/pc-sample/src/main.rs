@@ -1,4 +1,5 @@
-//! pc-sample: samples a built-in scene (cornell, sphere, glass-box) into splat PLY files and a scene.toml.
+//! pc-sample: samples a built-in scene (cornell, sphere, glass-box) into splat PLY files and a
+//! scene.toml, or scans the hall with a virtual terrestrial scanner into LAS/LAZ/E57 (`scan`).
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, ValueEnum};
@@ -16,6 +17,16 @@ enum SceneArg {
     Sphere,
     /// White room with a ceiling light and a floating glass sphere (caustic test).
     GlassBox,
+    /// A virtual terrestrial scan of a hall (columns, a niche with a figure, a skylight) from
+    /// three stations, written as a scanner writes it (--format) with a scene.toml.
+    Scan,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FormatArg {
+    Las,
+    Laz,
+    E57,
 }
 
 impl From<SceneArg> for SceneKind {
@@ -24,6 +35,7 @@ impl From<SceneArg> for SceneKind {
             SceneArg::Cornell => SceneKind::Cornell,
             SceneArg::Sphere => SceneKind::Sphere,
             SceneArg::GlassBox => SceneKind::GlassBox,
+            SceneArg::Scan => unreachable!("the scan is not a sampled scene"),
         }
     }
 }
@@ -56,6 +68,9 @@ struct Args {
     /// Write ASCII PLY instead of binary little-endian.
     #[arg(long)]
     ascii: bool,
+    /// scan only: the file format (the file is `hall.<format>`).
+    #[arg(long, value_enum, default_value = "laz")]
+    format: FormatArg,
 }
 
 fn parse_count(s: &str) -> std::result::Result<usize, String> {
@@ -80,7 +95,42 @@ fn parse_count(s: &str) -> std::result::Result<usize, String> {
     Ok(v as usize)
 }
 
+/// `pc-sample scan`: the virtual scanner.
+fn run_scan(args: &Args) -> Result<()> {
+    use pc_sample::scan::{
+        room::Room, write::write_scan_scene, write_scan, ScanFormat, ScanParams,
+    };
+    let start = Instant::now();
+    if args.points == 0 || args.points > 1_000_000_000 {
+        bail!("--points {}: a scan holds 1 to 1e9 points", args.points);
+    }
+    let format = match args.format {
+        FormatArg::Las => ScanFormat::Las,
+        FormatArg::Laz => ScanFormat::Laz,
+        FormatArg::E57 => ScanFormat::E57,
+    };
+    let params = ScanParams::hall(args.points as u64, args.seed);
+    let name = format!("hall.{}", format.extension());
+    let path = args.out.join(&name);
+    let n = write_scan(&Room::hall(), &params, format, &path)
+        .with_context(|| format!("writing the scan {}", path.display()))?;
+    let toml = write_scan_scene(&args.out, &name, &params, format)
+        .with_context(|| format!("writing {}", args.out.join("scene.toml").display()))?;
+    let seconds = start.elapsed().as_secs_f64();
+    println!(
+        "wrote {} ({n} points from {} stations, {:.1} M points/s) and {} in {seconds:.2} s",
+        path.display(),
+        params.stations.len(),
+        n as f64 / seconds / 1e6,
+        toml.display()
+    );
+    Ok(())
+}
+
 fn run(args: Args) -> Result<()> {
+    if matches!(args.scene, SceneArg::Scan) {
+        return run_scan(&args);
+    }
     let start = Instant::now();
     let params = SampleParams {
         points: args.points,

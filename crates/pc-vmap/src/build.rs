@@ -511,8 +511,8 @@ pub fn build_links(
     Ok(links)
 }
 
-/// For each point light, the nodes it sees with the visible fraction (coarsest level at which
-/// the fraction is 1, V-map leaves when partial).
+/// For each point light, the V-map leaves it sees, with the fraction of their sample rays that
+/// reach it.
 pub fn light_lists(
     view: &OctreeView,
     vn: &[VNode],
@@ -522,63 +522,60 @@ pub fn light_lists(
 ) -> Result<Vec<Vec<Link>>, GpuError> {
     let mut out = Vec::with_capacity(lights.len());
     for (li, &pos) in lights.iter().enumerate() {
-        let mut list = Vec::new();
+        // Descend by geometry alone: every V-map leaf whose splats may face the light. Rays
+        // decide only at the leaves: a few samples of a large node cannot prove it unlit (a
+        // sun seen through a skylight lights a small patch of a large room, which its samples
+        // miss), nor fully lit (a shadow can cover a corner the samples missed).
+        let mut leaves = Vec::new();
         let mut frontier: Vec<u32> = if vn[0].count() > 0 { vec![0] } else { vec![] };
-        while !frontier.is_empty() {
-            let candidates: Vec<u32> = frontier
-                .iter()
-                .copied()
-                .filter(|&a| {
-                    let v = &vn[a as usize];
-                    let d = pos - v.center;
-                    let dist = d.length();
-                    dist <= v.radius || faces(v, d / dist, (v.radius / dist).min(1.0).asin())
-                })
-                .collect();
-            let per: Vec<Vec<Ray>> = candidates
-                .par_iter()
-                .map(|&a| {
-                    let v = &vn[a as usize];
-                    let stream = pcg(a ^ pcg(0x5151 + li as u32));
-                    let mut r = Vec::new();
-                    for k in 0..p.rays {
-                        let (_, x, n, rad) = sample(view, v, p.seed, stream, k, p.rays);
-                        let d = pos - x;
-                        let len = d.length();
-                        if len <= 1e-9 || n.dot(d) <= 0.0 {
-                            continue;
-                        }
-                        r.push(Ray {
-                            origin: x,
-                            dir: d / len,
-                            t_min: p.self_hit * rad,
-                            t_max: len * (1.0 - 1e-4),
-                        });
-                    }
-                    r
-                })
-                .collect();
-            let rays: Vec<Ray> = per.iter().flatten().copied().collect();
-            let visible = caster.visible(&rays)?;
-            let mut at = 0;
-            let mut next = Vec::new();
-            for (&a, r) in candidates.iter().zip(&per) {
-                let total = r.len();
-                let seen = visible[at..at + total].iter().filter(|&&v| v).count();
-                at += total;
-                if total == 0 || seen == 0 {
-                    continue;
-                }
-                // Light lists always go down to V-map leaves: a few rays cannot prove a large
-                // node fully lit (a shadow can cover a corner the samples missed), and the lists
-                // stay small (one entry per lit leaf).
-                if vn[a as usize].vleaf {
-                    list.push(Link::far(a, seen as f32 / total as f32));
-                } else {
-                    next.extend(children(view, vn, a));
-                }
+        while let Some(a) = frontier.pop() {
+            let v = &vn[a as usize];
+            let d = pos - v.center;
+            let dist = d.length();
+            if !(dist <= v.radius || faces(v, d / dist, (v.radius / dist).min(1.0).asin())) {
+                continue;
             }
-            frontier = next;
+            if v.vleaf {
+                leaves.push(a);
+            } else {
+                frontier.extend(children(view, vn, a));
+            }
+        }
+        leaves.sort_unstable();
+        let per: Vec<Vec<Ray>> = leaves
+            .par_iter()
+            .map(|&a| {
+                let v = &vn[a as usize];
+                let stream = pcg(a ^ pcg(0x5151 + li as u32));
+                let mut r = Vec::new();
+                for k in 0..p.rays {
+                    let (_, x, n, rad) = sample(view, v, p.seed, stream, k, p.rays);
+                    let d = pos - x;
+                    let len = d.length();
+                    if len <= 1e-9 || n.dot(d) <= 0.0 {
+                        continue;
+                    }
+                    r.push(Ray {
+                        origin: x,
+                        dir: d / len,
+                        t_min: p.self_hit * rad,
+                        t_max: len * (1.0 - 1e-4),
+                    });
+                }
+                r
+            })
+            .collect();
+        let mut list = Vec::new();
+        let rays: Vec<Ray> = per.iter().flatten().copied().collect();
+        let visible = caster.visible(&rays)?;
+        let mut at = 0;
+        for (&a, r) in leaves.iter().zip(&per) {
+            let total = r.len();
+            let seen = visible[at..at + total].iter().filter(|&&v| v).count();
+            at += total;
+            if seen > 0 {
+                list.push(Link::far(a, seen as f32 / total as f32));
+            }
         }
         list.sort_by_key(|l| l.node);
         out.push(list);

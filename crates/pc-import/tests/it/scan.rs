@@ -369,7 +369,7 @@ fn estimated_normals_face_the_scanner() {
     }
     // A LAS tile with a `scanner` high above it: every normal points up to it.
     let s = scene(
-        "[[models]]\nfile = \"32-1-472-150-76.laz\"\nmaterial = \"grey\"\nscanner = [326800.0, 6724186.0, 5000.0]\n",
+        "[[models]]\nfile = \"32-1-472-150-76.laz\"\nmaterial = \"grey\"\nscanners = [[326800.0, 6724186.0, 5000.0]]\n",
         "",
     );
     assert_eq!(s.models[0].oriented, Oriented::Scanner);

@@ -398,3 +398,64 @@ fn gpu_casting_matches_the_cpu() {
         cpu.iter().filter(|&&v| v).count() > 1000 && cpu.iter().filter(|&&v| !v).count() > 1000
     );
 }
+
+/// A closed room lit only through a small skylight by a light far above it: the patch of
+/// floor under the opening is in the light list, though the light's rays miss it from almost
+/// every sample of a large node (before, a node whose samples all missed was dropped whole,
+/// and such a sun lit nothing).
+#[test]
+fn a_distant_light_through_a_skylight_lights_the_floor_below() {
+    let mut rng = Pcg64::seed_from_u64(11);
+    let mut s = Soa::default();
+    let h = 0.04;
+    s.rect(Vec3::ZERO, Vec3::X, -Vec3::Z, h, 0, &mut rng); // floor y = 0, up
+    let floor = s.p.len();
+    let (c, w) = (0.15f32, 0.425f32); // hole half-width, strip half-width
+    for (at, u, v) in [
+        (Vec3::new(0.0, 2.0, 1.0 - w), Vec3::X, Vec3::Z * w),
+        (Vec3::new(0.0, 2.0, -1.0 + w), Vec3::X, Vec3::Z * w),
+        (Vec3::new(1.0 - w, 2.0, 0.0), Vec3::X * w, Vec3::Z * c),
+        (Vec3::new(-1.0 + w, 2.0, 0.0), Vec3::X * w, Vec3::Z * c),
+    ] {
+        s.rect(at, u, v, h, 0, &mut rng); // ceiling around the hole, facing down
+    }
+    s.rect(Vec3::new(-1.0, 1.0, 0.0), Vec3::Y, Vec3::Z, h, 0, &mut rng);
+    s.rect(Vec3::new(1.0, 1.0, 0.0), Vec3::Z, Vec3::Y, h, 0, &mut rng);
+    s.rect(Vec3::new(0.0, 1.0, -1.0), Vec3::X, Vec3::Y, h, 0, &mut rng);
+    s.rect(Vec3::new(0.0, 1.0, 1.0), Vec3::Y, Vec3::X, h, 0, &mut rng);
+    let o = s.build(8);
+    let view = o.view();
+    let p = params(16, 16);
+    let vn = vnodes(&view, p.leaf_splats);
+    let light = Vec3::new(0.0, 60.0, 0.0);
+    let lists = light_lists(&view, &vn, &[light], &p, &CpuCaster::new(&view)).unwrap();
+    let mut implied = vec![0.0f32; view.splats.len()];
+    for l in &lists[0] {
+        let v = &vn[l.slot() as usize];
+        for i in v.lo..v.hi {
+            implied[i as usize] = l.fraction;
+        }
+    }
+    let (mut under, mut beside) = (0, 0);
+    for (i, sp) in view.splats.iter().enumerate() {
+        let pos = Vec3::from(sp.position);
+        if (sp.source as usize) < floor && pos.x.abs() < 0.08 && pos.z.abs() < 0.08 {
+            under += 1;
+            assert!(
+                implied[i] > 0.0,
+                "floor splat at {pos} under the skylight is unlit"
+            );
+        }
+        if (sp.source as usize) < floor && (pos.x.abs() > 0.4 || pos.z.abs() > 0.4) {
+            beside += 1;
+            assert_eq!(
+                implied[i], 0.0,
+                "floor splat at {pos} away from the opening is lit"
+            );
+        }
+    }
+    assert!(
+        under > 10 && beside > 1000,
+        "{under} under, {beside} beside"
+    );
+}
