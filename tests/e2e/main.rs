@@ -13,6 +13,7 @@ mod raytrace_cli;
 mod reference;
 mod robustness;
 mod run_cli;
+mod scan_cli;
 mod vmap_cli;
 
 use std::path::{Path, PathBuf};

@@ -239,6 +239,48 @@ fn case_08_temporary_files_of_killed_runs_go_even_when_up_to_date() {
     assert_eq!(files_under(out_dir), [PathBuf::from("octree.pcgi")]);
 }
 
+/// The render publishes two files: what a killed render left of the PNG goes too (found by
+/// the kill test on a fresh clone: only the EXR's temporaries were looked for).
+#[test]
+fn case_08_a_killed_renders_png_temporaries_go_too() {
+    let dir = temp_dir();
+    let cfg = pcgi_tests::sampled_cornell(
+        dir.path(),
+        1500,
+        false,
+        "[raytrace]\nspp = 1\nmode = \"direct\"\n",
+    );
+    pc_octree(args!["--quiet", "--config", &cfg]).success();
+    let render = || {
+        pcgi_tests::run(
+            "pc-raytrace",
+            args![
+                "--quiet",
+                "--if-stale",
+                "--config",
+                &cfg,
+                "--backend",
+                "cpu"
+            ],
+        )
+        .success()
+    };
+    render();
+    let out_dir = dir.path().join("out");
+    for name in [
+        "image.png.0.0123456789abcdef.tmp",
+        "image.exr.0.fedcba9876543210.tmp",
+    ] {
+        std::fs::write(out_dir.join(name), vec![7u8; 1 << 16]).unwrap();
+    }
+    assert!(render().stdout.contains("up to date"));
+    let tmps: Vec<_> = files_under(&out_dir)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(tmps.is_empty(), "{tmps:?}");
+}
+
 #[test]
 fn case_09_concurrent_runs_on_one_folder_both_succeed_and_publish_a_whole_artifact() {
     let dir = temp_dir();

@@ -161,8 +161,12 @@ fn force_from_and_until_choose_the_stages() {
     assert_eq!(ran(&pc_run(&cfg, &["--force", "all"])), ALL);
 
     run("pc-run", args!["--config", &cfg, "--force", "pc-render"]).error(&[
-        "`pc-render` is not a stage (one of: pc-octree, pc-vmap, pc-caustics, pc-fmm, pc-raytrace)",
+        "`pc-render` is not a stage (one of: pc-octree, pc-vmap, pc-caustics, pc-fmm, pc-raytrace, pc-bake)",
     ]);
+    // pc-bake runs only when asked for, after the rest.
+    let r = pc_run(&cfg, &["--until", "pc-bake"]);
+    assert_eq!(r.len(), 6);
+    assert_eq!(ran(&r), ["pc-bake"]);
     run(
         "pc-run",
         args!["--config", &cfg, "--from", "fmm", "--until", "vmap"],

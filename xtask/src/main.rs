@@ -14,7 +14,8 @@ cargo xtask <command>
 commands:
   run [--config FILE] [--set KEY=VALUE]... [--force STAGE|all]... [--from STAGE] [--until STAGE]
                                              run the pipeline's stages in order (release build),
-                                             skipping the ones that are up to date (pc-run)
+                                             skipping the ones that are up to date (pc-run);
+                                             --until pc-bake also writes the lit cloud
   sample <cornell|sphere|glass-box> --points N --out DIR [pc-sample options]
                                              sample a built-in scene into PLY files + scene.toml
   sample scan --points N --out DIR [--format laz|las|e57]
@@ -42,7 +43,7 @@ commands:
                                              (writes BENCHMARKS.md with --write)
 ";
 
-/// The stages in dependency order. pc-caustics (a later issue) goes before pc-fmm.
+/// The stages of a render, in dependency order.
 pub(crate) const STAGES: &[&str] = &[
     "pc-octree",
     "pc-vmap",
@@ -50,6 +51,8 @@ pub(crate) const STAGES: &[&str] = &[
     "pc-fmm",
     "pc-raytrace",
 ];
+/// The stage after them that writes the lit cloud (run with `--until pc-bake`).
+pub(crate) const BAKE: &str = "pc-bake";
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -115,7 +118,7 @@ pub(crate) fn run_checked(cmd: &mut Command, what: &str) -> Result<()> {
 /// which runs the stages that are not up to date. The config defaults to the workspace's
 /// pipeline.toml.
 fn run(args: &[String]) -> Result<()> {
-    let bin = build_release(&[STAGES, &["pc-run", "pc-inspect"]].concat())?;
+    let bin = build_release(&[STAGES, &[BAKE, "pc-run", "pc-inspect"]].concat())?;
     let mut cmd = Command::new(bin.join("pc-run"));
     if !args
         .iter()

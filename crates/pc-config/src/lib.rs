@@ -57,6 +57,27 @@ pub struct PipelineConfig {
     pub caustics: CausticsConfig,
     #[serde(default)]
     pub raytrace: RaytraceConfig,
+    #[serde(default)]
+    pub bake: BakeConfig,
+}
+
+/// pc-bake: the lit scan written back as a point cloud.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct BakeConfig {
+    /// The lit cloud, in `output.dir`; its format follows the extension: `.ply`, `.las`, `.laz`.
+    pub file: PathBuf,
+    /// Factor on the linear radiance before the sRGB curve makes its 8/16-bit color.
+    pub exposure: f32,
+}
+
+impl Default for BakeConfig {
+    fn default() -> Self {
+        BakeConfig {
+            file: "lit.ply".into(),
+            exposure: 1.0,
+        }
+    }
 }
 
 /// Where artifacts and images go.
@@ -516,6 +537,10 @@ impl LoadedConfig {
     /// The photons artifact path, resolved.
     pub fn photons_path(&self) -> PathBuf {
         self.out_dir().join(&self.config.caustics.file)
+    }
+    /// The lit cloud's path (pc-bake), resolved.
+    pub fn bake_path(&self) -> PathBuf {
+        self.out_dir().join(&self.config.bake.file)
     }
     /// The rendered image path, resolved.
     pub fn image_path(&self) -> PathBuf {

@@ -283,6 +283,7 @@ fn file_names(c: &PipelineConfig) -> Result<(), ParamError> {
         ("caustics.file", &c.caustics.file),
         ("fmm.file", &c.fmm.file),
         ("raytrace.image", &c.raytrace.image),
+        ("bake.file", &c.bake.file),
     ] {
         let text = path.to_string_lossy();
         require(
@@ -292,6 +293,19 @@ fn file_names(c: &PipelineConfig) -> Result<(), ParamError> {
             format!("{text:?}"),
         )?;
     }
+    let ext = c
+        .bake
+        .file
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    require(
+        "bake.file",
+        matches!(ext.as_deref(), Some("ply" | "las" | "laz")),
+        "end in .ply, .las or .laz",
+        format!("{:?}", c.bake.file.to_string_lossy()),
+    )?;
+    real("bake.exposure", c.bake.exposure, Excl(0.0), Incl(1e9))?;
     Ok(())
 }
 
@@ -311,6 +325,7 @@ pub fn check_paths(cfg: &crate::LoadedConfig) -> Result<(), ConfigError> {
         ("caustics.file", cfg.photons_path()),
         ("fmm.file", cfg.radiosity_path()),
         ("raytrace.image", cfg.image_path()),
+        ("bake.file", cfg.bake_path()),
     ] {
         if path.is_dir() {
             return Err(ConfigError::invalid(

@@ -251,6 +251,10 @@ impl Stage for RaytraceStage {
         &self.exr
     }
 
+    fn outputs(&self) -> Vec<PathBuf> {
+        vec![self.exr.clone(), png_path(&self.exr)]
+    }
+
     fn key(&self) -> Result<Key, RenderError> {
         render_key(&self.cfg, &self.inputs, self.backend)
     }

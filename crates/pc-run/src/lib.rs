@@ -25,16 +25,19 @@ pub enum Stage {
     Caustics,
     Fmm,
     Raytrace,
+    /// The lit cloud (pc-bake): after the render, run only when asked (`--until pc-bake`).
+    Bake,
 }
 
 impl Stage {
     /// Every stage, in the order they run.
-    pub const ALL: [Stage; 5] = [
+    pub const ALL: [Stage; 6] = [
         Stage::Octree,
         Stage::Vmap,
         Stage::Caustics,
         Stage::Fmm,
         Stage::Raytrace,
+        Stage::Bake,
     ];
 
     /// The stage's binary.
@@ -45,6 +48,7 @@ impl Stage {
             Stage::Caustics => "pc-caustics",
             Stage::Fmm => "pc-fmm",
             Stage::Raytrace => "pc-raytrace",
+            Stage::Bake => "pc-bake",
         }
     }
 
@@ -81,7 +85,7 @@ pub struct Options {
     /// The first stage to consider: earlier ones are neither checked nor run (their
     /// artifacts are used as they are).
     pub from: Stage,
-    /// The last stage to consider.
+    /// The last stage to consider (default pc-raytrace: pc-bake runs when asked for).
     pub until: Stage,
     /// The folder holding the stage binaries.
     pub bin_dir: PathBuf,
@@ -276,10 +280,11 @@ mod tests {
     fn stages_parse_by_either_name() {
         assert_eq!(Stage::parse("pc-fmm").unwrap(), Stage::Fmm);
         assert_eq!(Stage::parse("vmap").unwrap(), Stage::Vmap);
+        assert_eq!(Stage::parse("bake").unwrap(), Stage::Bake);
         let e = Stage::parse("pc-render").unwrap_err().to_string();
         assert_eq!(
             e,
-            "`pc-render` is not a stage (one of: pc-octree, pc-vmap, pc-caustics, pc-fmm, pc-raytrace)"
+            "`pc-render` is not a stage (one of: pc-octree, pc-vmap, pc-caustics, pc-fmm, pc-raytrace, pc-bake)"
         );
     }
 

@@ -9,8 +9,8 @@ use anyhow::Context;
 use clap::Parser;
 use pc_run::{Options, Stage};
 
-/// Run pc-octree, pc-vmap, pc-caustics, pc-fmm and pc-raytrace as separate processes in
-/// dependency order. A stage whose output already has the key this run would give it (hashed
+/// Run pc-octree, pc-vmap, pc-caustics, pc-fmm and pc-raytrace (and pc-bake with
+/// `--until pc-bake`) as separate processes in dependency order. A stage whose output already has the key this run would give it (hashed
 /// from the stage's version, its parameters, the keys of its input artifacts and the content
 /// of its input files) is skipped as up to date.
 #[derive(Parser)]
@@ -28,7 +28,7 @@ struct Args {
     /// Start at this stage: the ones before it are neither checked nor run.
     #[arg(long, value_name = "STAGE")]
     from: Option<String>,
-    /// Stop after this stage.
+    /// Stop after this stage (default pc-raytrace; `pc-bake` also writes the lit cloud).
     #[arg(long, value_name = "STAGE")]
     until: Option<String>,
     /// Where the stage binaries are (default: this executable's folder).

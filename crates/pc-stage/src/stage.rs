@@ -31,6 +31,11 @@ pub trait Stage {
 
     /// The file a run writes (its artifact, or its EXR).
     fn output(&self) -> &Path;
+    /// Every file a run publishes (the render writes a PNG beside its EXR): the temporary
+    /// files a killed run left of each are removed before the next run.
+    fn outputs(&self) -> Vec<std::path::PathBuf> {
+        vec![self.output().to_path_buf()]
+    }
     /// The key of what a run would make now, from its inputs and parameters; computes nothing
     /// else. The same function stamps the output, so this is what decides "up to date".
     fn key(&self) -> Result<Key, Self::Error>;
@@ -108,8 +113,10 @@ fn run<S: Stage>(
         )
     })
     .with_context(|| format!("{}: cannot lock the output folder", out.display()))?;
-    pc_artifact::atomic::remove_stale_temps(&out)
-        .with_context(|| format!("{}: cannot remove old temporary files", out.display()))?;
+    for file in stage.outputs() {
+        pc_artifact::atomic::remove_stale_temps(&file)
+            .with_context(|| format!("{}: cannot remove old temporary files", file.display()))?;
+    }
     let key = stage.key().with_context(context)?;
     let started = Instant::now();
     if args.if_stale && stage.existing_key() == Some(key) {
