@@ -28,7 +28,7 @@ macro_rules! args {
 }
 
 /// The packages whose binaries the tests run, and the binaries.
-const BIN_PACKAGES: [&str; 8] = [
+const BIN_PACKAGES: [&str; 9] = [
     "pc-octree",
     "pc-inspect",
     "pc-sample",
@@ -37,6 +37,7 @@ const BIN_PACKAGES: [&str; 8] = [
     "pc-fmm",
     "pc-caustics",
     "pc-run",
+    "pc-bake",
 ];
 
 /// The workspace root (the folder of the root Cargo.toml).

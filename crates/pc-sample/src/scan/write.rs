@@ -239,7 +239,7 @@ pub fn write_scan_scene(
         }],
         lights: vec![
             // The sun, high above the skylight, and a small lamp before the niche.
-            PointLight::new([1.8, -0.6, 40.0], [60_000.0, 56_000.0, 48_000.0]),
+            PointLight::new([1.8, -0.6, 40.0], [16_000.0, 15_000.0, 13_000.0]),
             PointLight::new([0.0, 2.6, 3.2], [1.2, 1.0, 0.7]),
         ],
         camera: CameraConfig {
