@@ -70,23 +70,8 @@ pub fn config(data: &[u8]) -> bool {
     true
 }
 
-/// The scan formats, by the extension their reader is chosen by.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ScanFormat {
-    Las,
-    Laz,
-    E57,
-}
-
-impl ScanFormat {
-    fn extension(self) -> &'static str {
-        match self {
-            ScanFormat::Las => "las",
-            ScanFormat::Laz => "laz",
-            ScanFormat::E57 => "e57",
-        }
-    }
-}
+/// The scan formats (the virtual scanner's), by the extension their reader is chosen by.
+pub use pc_sample::scan::ScanFormat;
 
 /// Any bytes as a LAS, LAZ or E57 model. What the reader returns holds its promises: points,
 /// every offset and the origin finite, attributes one per point in their ranges, stations

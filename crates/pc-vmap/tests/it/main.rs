@@ -295,6 +295,22 @@ fn no_link_crosses_an_occluding_plate() {
     assert!(beside > 10, "only {beside} links pass beside the plate");
 }
 
+/// The light list of one light (16 rays per V-map leaf of 16 splats), as the fraction it
+/// implies for each splat (entries are disjoint subtrees).
+fn lit_fractions(view: &OctreeView, light: Vec3) -> Vec<f32> {
+    let p = params(16, 16);
+    let vn = vnodes(view, p.leaf_splats);
+    let lists = light_lists(view, &vn, &[light], &p, &CpuCaster::new(view)).unwrap();
+    let mut implied = vec![0.0f32; view.splats.len()];
+    for l in &lists[0] {
+        let v = &vn[l.slot() as usize];
+        for i in v.lo..v.hi {
+            implied[i as usize] = l.fraction;
+        }
+    }
+    implied
+}
+
 #[test]
 fn a_point_light_above_a_box_does_not_see_its_shadow() {
     let mut rng = Pcg64::seed_from_u64(7);
@@ -311,18 +327,8 @@ fn a_point_light_above_a_box_does_not_see_its_shadow() {
     );
     let o = s.build(8);
     let view = o.view();
-    let p = params(16, 16);
-    let vn = vnodes(&view, p.leaf_splats);
     let light = Vec3::new(0.2, 2.0, 0.1);
-    let lists = light_lists(&view, &vn, &[light], &p, &CpuCaster::new(&view)).unwrap();
-    // The fraction the list implies for each splat (entries are disjoint subtrees).
-    let mut implied = vec![0.0f32; view.splats.len()];
-    for l in &lists[0] {
-        let v = &vn[l.slot() as usize];
-        for i in v.lo..v.hi {
-            implied[i as usize] = l.fraction;
-        }
-    }
+    let implied = lit_fractions(&view, light);
     // Analytic shadow of the box on the floor, with a margin of two splat radii.
     let shadowed = |p: Vec3, margin: f32| {
         let d = light - p;
@@ -425,17 +431,7 @@ fn a_distant_light_through_a_skylight_lights_the_floor_below() {
     s.rect(Vec3::new(0.0, 1.0, 1.0), Vec3::Y, Vec3::X, h, 0, &mut rng);
     let o = s.build(8);
     let view = o.view();
-    let p = params(16, 16);
-    let vn = vnodes(&view, p.leaf_splats);
-    let light = Vec3::new(0.0, 60.0, 0.0);
-    let lists = light_lists(&view, &vn, &[light], &p, &CpuCaster::new(&view)).unwrap();
-    let mut implied = vec![0.0f32; view.splats.len()];
-    for l in &lists[0] {
-        let v = &vn[l.slot() as usize];
-        for i in v.lo..v.hi {
-            implied[i as usize] = l.fraction;
-        }
-    }
+    let implied = lit_fractions(&view, Vec3::new(0.0, 60.0, 0.0));
     let (mut under, mut beside) = (0, 0);
     for (i, sp) in view.splats.iter().enumerate() {
         let pos = Vec3::from(sp.position);
