@@ -139,202 +139,154 @@ impl Room {
 
     /// The hall: 10 × 8 × 4 m, floor at z = 0, centred on the z axis.
     pub fn hall() -> Room {
-        const FLOOR: [u8; 3] = [178, 158, 128];
-        const WALL: [u8; 3] = [206, 194, 172];
-        const CEILING: [u8; 3] = [190, 182, 166];
-        const COLUMN: [u8; 3] = [222, 216, 204];
-        const NICHE: [u8; 3] = [164, 68, 52];
-        const PEDESTAL: [u8; 3] = [118, 118, 124];
-        const FIGURE: [u8; 3] = [88, 132, 104];
-        let (x, y, h) = (5.0f32, 4.0f32, 4.0f32);
-        let rect = |o: Vec3, u: Vec3, v: Vec3, holes: Vec<[f32; 4]>| Prim::Rect { o, u, v, holes };
         let mut s = Vec::new();
-        let mut add = |prim, color, class| s.push(Surface { prim, color, class });
-        // Floor, ceiling with a 2 × 1.5 m skylight at x in [0.5, 2.5], y in [-0.75, 0.75].
-        add(
-            rect(
-                Vec3::new(-x, -y, 0.0),
-                Vec3::X * 2.0 * x,
-                Vec3::Y * 2.0 * y,
-                vec![],
-            ),
-            FLOOR,
-            2,
-        );
-        let sky = [
-            (0.5 + x) / (2.0 * x),
-            (2.5 + x) / (2.0 * x),
-            (-0.75 + y) / (2.0 * y),
-            (0.75 + y) / (2.0 * y),
-        ];
-        add(
-            rect(
-                Vec3::new(-x, -y, h),
-                Vec3::X * 2.0 * x,
-                Vec3::Y * 2.0 * y,
-                vec![sky],
-            ),
-            CEILING,
-            6,
-        );
-        // Walls; the back wall (y = +4) has the niche's opening, x in [-1, 1], z in [0.5, 2.5].
-        let niche = [
-            (x - 1.0) / (2.0 * x),
-            (x + 1.0) / (2.0 * x),
-            0.5 / h,
-            2.5 / h,
-        ];
-        add(
-            rect(
-                Vec3::new(-x, y, 0.0),
-                Vec3::X * 2.0 * x,
-                Vec3::Z * h,
-                vec![niche],
-            ),
-            WALL,
-            6,
-        );
-        add(
-            rect(
-                Vec3::new(-x, -y, 0.0),
-                Vec3::X * 2.0 * x,
-                Vec3::Z * h,
-                vec![],
-            ),
-            WALL,
-            6,
-        );
-        add(
-            rect(
-                Vec3::new(-x, -y, 0.0),
-                Vec3::Y * 2.0 * y,
-                Vec3::Z * h,
-                vec![],
-            ),
-            WALL,
-            6,
-        );
-        add(
-            rect(
-                Vec3::new(x, -y, 0.0),
-                Vec3::Y * 2.0 * y,
-                Vec3::Z * h,
-                vec![],
-            ),
-            WALL,
-            6,
-        );
-        // The niche: 2 m wide, 2 m high, 0.8 m deep.
-        let (n0, n1, d) = (0.5f32, 2.5f32, 0.8f32);
-        add(
-            rect(
-                Vec3::new(-1.0, y + d, n0),
-                Vec3::X * 2.0,
-                Vec3::Z * (n1 - n0),
-                vec![],
-            ),
-            NICHE,
-            6,
-        );
-        add(
-            rect(
-                Vec3::new(-1.0, y, n0),
-                Vec3::Y * d,
-                Vec3::Z * (n1 - n0),
-                vec![],
-            ),
-            NICHE,
-            6,
-        );
-        add(
-            rect(
-                Vec3::new(1.0, y, n0),
-                Vec3::Y * d,
-                Vec3::Z * (n1 - n0),
-                vec![],
-            ),
-            NICHE,
-            6,
-        );
-        add(
-            rect(Vec3::new(-1.0, y, n0), Vec3::X * 2.0, Vec3::Y * d, vec![]),
-            NICHE,
-            6,
-        );
-        add(
-            rect(Vec3::new(-1.0, y, n1), Vec3::X * 2.0, Vec3::Y * d, vec![]),
-            NICHE,
-            6,
-        );
-        // Columns.
-        for (cx, cy) in [(-2.5, -1.8), (2.5, -1.8), (-2.5, 1.8), (2.5, 1.8)] {
-            let prim = Prim::Cylinder {
-                c: Vec2::new(cx, cy),
-                r: 0.3,
-                z0: 0.0,
-                z1: h,
-            };
-            add(prim, COLUMN, 6);
-        }
-        // The figure in the niche: a pedestal, a body, a head.
-        let (px, py0, py1, pz) = (0.4f32, y + 0.1, y + 0.65, n0 + 0.6);
-        add(
-            rect(
-                Vec3::new(-px, py0, pz),
-                Vec3::X * 2.0 * px,
-                Vec3::Y * (py1 - py0),
-                vec![],
-            ),
-            PEDESTAL,
-            1,
-        );
-        add(
-            rect(
-                Vec3::new(-px, py0, n0),
-                Vec3::X * 2.0 * px,
-                Vec3::Z * (pz - n0),
-                vec![],
-            ),
-            PEDESTAL,
-            1,
-        );
-        add(
-            rect(
-                Vec3::new(-px, py0, n0),
-                Vec3::Y * (py1 - py0),
-                Vec3::Z * (pz - n0),
-                vec![],
-            ),
-            PEDESTAL,
-            1,
-        );
-        add(
-            rect(
-                Vec3::new(px, py0, n0),
-                Vec3::Y * (py1 - py0),
-                Vec3::Z * (pz - n0),
-                vec![],
-            ),
-            PEDESTAL,
-            1,
-        );
-        let cy = (py0 + py1) / 2.0;
-        let body = Prim::Cylinder {
-            c: Vec2::new(0.0, cy),
-            r: 0.2,
-            z0: pz,
-            z1: pz + 0.75,
-        };
-        add(body, FIGURE, 1);
-        add(
-            Prim::Sphere {
-                c: Vec3::new(0.0, cy, pz + 0.95),
-                r: 0.18,
-            },
-            FIGURE,
-            1,
-        );
+        shell(&mut s);
+        niche(&mut s);
+        columns(&mut s);
+        figure(&mut s);
         Room { surfaces: s }
+    }
+}
+
+/// Half extents of the hall and its height (m).
+const HALL: (f32, f32, f32) = (5.0, 4.0, 4.0);
+/// The niche's opening in the back wall: bottom and top (z), and its depth (m).
+const NICHE_Z: (f32, f32) = (0.5, 2.5);
+const NICHE_DEPTH: f32 = 0.8;
+
+/// sRGB colors of the surfaces.
+mod color {
+    pub const FLOOR: [u8; 3] = [178, 158, 128];
+    pub const WALL: [u8; 3] = [206, 194, 172];
+    pub const CEILING: [u8; 3] = [190, 182, 166];
+    pub const COLUMN: [u8; 3] = [222, 216, 204];
+    pub const NICHE: [u8; 3] = [164, 68, 52];
+    pub const PEDESTAL: [u8; 3] = [118, 118, 124];
+    pub const FIGURE: [u8; 3] = [88, 132, 104];
+}
+
+/// A rectangle `o + s u + t v` with holes, as a surface of `color` and LAS `class`.
+fn rect(o: Vec3, u: Vec3, v: Vec3, holes: Vec<[f32; 4]>, color: [u8; 3], class: u8) -> Surface {
+    Surface {
+        prim: Prim::Rect { o, u, v, holes },
+        color,
+        class,
+    }
+}
+
+/// Floor, walls, and the ceiling with its 2 × 1.5 m skylight (x in [0.5, 2.5], y in
+/// [-0.75, 0.75]); the back wall (y = +4) has the niche's opening (x in [-1, 1]).
+fn shell(s: &mut Vec<Surface>) {
+    let (x, y, h) = HALL;
+    let (dx, dy) = (Vec3::X * 2.0 * x, Vec3::Y * 2.0 * y);
+    let sky = [
+        (0.5 + x) / (2.0 * x),
+        (2.5 + x) / (2.0 * x),
+        (y - 0.75) / (2.0 * y),
+        (y + 0.75) / (2.0 * y),
+    ];
+    let opening = [
+        (x - 1.0) / (2.0 * x),
+        (x + 1.0) / (2.0 * x),
+        NICHE_Z.0 / h,
+        NICHE_Z.1 / h,
+    ];
+    let corner = Vec3::new(-x, -y, 0.0);
+    s.push(rect(corner, dx, dy, vec![], color::FLOOR, 2));
+    s.push(rect(
+        corner + Vec3::Z * h,
+        dx,
+        dy,
+        vec![sky],
+        color::CEILING,
+        6,
+    ));
+    s.push(rect(
+        Vec3::new(-x, y, 0.0),
+        dx,
+        Vec3::Z * h,
+        vec![opening],
+        color::WALL,
+        6,
+    ));
+    s.push(rect(corner, dx, Vec3::Z * h, vec![], color::WALL, 6));
+    s.push(rect(corner, dy, Vec3::Z * h, vec![], color::WALL, 6));
+    s.push(rect(
+        Vec3::new(x, -y, 0.0),
+        dy,
+        Vec3::Z * h,
+        vec![],
+        color::WALL,
+        6,
+    ));
+}
+
+/// The niche behind the back wall: 2 m wide, 2 m high, 0.8 m deep.
+fn niche(s: &mut Vec<Surface>) {
+    let (y, (n0, n1), d) = (HALL.1, NICHE_Z, NICHE_DEPTH);
+    let (w, up, deep) = (Vec3::X * 2.0, Vec3::Z * (n1 - n0), Vec3::Y * d);
+    for (o, u, v) in [
+        (Vec3::new(-1.0, y + d, n0), w, up),
+        (Vec3::new(-1.0, y, n0), deep, up),
+        (Vec3::new(1.0, y, n0), deep, up),
+        (Vec3::new(-1.0, y, n0), w, deep),
+        (Vec3::new(-1.0, y, n1), w, deep),
+    ] {
+        s.push(rect(o, u, v, vec![], color::NICHE, 6));
+    }
+}
+
+/// Four columns of radius 0.3 m, floor to ceiling.
+fn columns(s: &mut Vec<Surface>) {
+    for (cx, cy) in [(-2.5, -1.8), (2.5, -1.8), (-2.5, 1.8), (2.5, 1.8)] {
+        let prim = Prim::Cylinder {
+            c: Vec2::new(cx, cy),
+            r: 0.3,
+            z0: 0.0,
+            z1: HALL.2,
+        };
+        s.push(Surface {
+            prim,
+            color: color::COLUMN,
+            class: 6,
+        });
+    }
+}
+
+/// The figure in the niche: a pedestal (top and three sides), a body, a head.
+fn figure(s: &mut Vec<Surface>) {
+    let (y, n0) = (HALL.1, NICHE_Z.0);
+    let (px, py0, py1, pz) = (0.4f32, y + 0.1, y + 0.65, n0 + 0.6);
+    let (wide, deep, high) = (
+        Vec3::X * 2.0 * px,
+        Vec3::Y * (py1 - py0),
+        Vec3::Z * (pz - n0),
+    );
+    for (o, u, v) in [
+        (Vec3::new(-px, py0, pz), wide, deep),
+        (Vec3::new(-px, py0, n0), wide, high),
+        (Vec3::new(-px, py0, n0), deep, high),
+        (Vec3::new(px, py0, n0), deep, high),
+    ] {
+        s.push(rect(o, u, v, vec![], color::PEDESTAL, 1));
+    }
+    let cy = (py0 + py1) / 2.0;
+    let body = Prim::Cylinder {
+        c: Vec2::new(0.0, cy),
+        r: 0.2,
+        z0: pz,
+        z1: pz + 0.75,
+    };
+    let head = Prim::Sphere {
+        c: Vec3::new(0.0, cy, pz + 0.95),
+        r: 0.18,
+    };
+    for prim in [body, head] {
+        s.push(Surface {
+            prim,
+            color: color::FIGURE,
+            class: 1,
+        });
     }
 }
 
