@@ -99,6 +99,32 @@ pub fn remove_stale_temps(path: &Path) -> io::Result<usize> {
     Ok(removed)
 }
 
+/// Publishes a file that a writer must create itself (a library that opens its own file by
+/// path: the LAS and E57 writers): `write` fills the fresh temporary path it is given; on
+/// success the file is fsynced, renamed over `path` and the folder fsynced (best effort); on
+/// failure the temporary file is removed and `path` is as it was.
+pub fn publish_with<T>(path: &Path, write: impl FnOnce(&Path) -> io::Result<T>) -> io::Result<T> {
+    fs::create_dir_all(parent_dir(path))?;
+    let tmp = tmp_path(path)?;
+    let published = write(&tmp).and_then(|value| {
+        File::open(&tmp)?.sync_all()?;
+        fs::rename(&tmp, path)?;
+        Ok(value)
+    });
+    match published {
+        Ok(value) => {
+            if let Ok(dir) = File::open(parent_dir(path)) {
+                let _ = dir.sync_all();
+            }
+            Ok(value)
+        }
+        Err(e) => {
+            let _ = fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
 /// A file being written that becomes `path` only on [`AtomicFile::commit`]; dropped without
 /// committing, the temporary file is removed and `path` is as it was.
 #[derive(Debug)]

@@ -167,9 +167,8 @@ fn write_las(
         data: key.to_string().into_bytes(),
     });
     let header = b.into_header().map_err(err)?;
-    let tmp = pc_artifact::atomic::tmp_path(path)?;
-    let result = (|| {
-        let mut w = las::Writer::new(BufWriter::new(File::create(&tmp)?), header).map_err(err)?;
+    pc_artifact::atomic::publish_with(path, |tmp| {
+        let mut w = las::Writer::new(BufWriter::new(File::create(tmp)?), header).map_err(err)?;
         let written = points.iter().try_for_each(|p| {
             let c = tone_map(p.radiance, exposure).map(|v| (v * 65535.0).round() as u16);
             let mut extra = Vec::with_capacity(12);
@@ -194,12 +193,5 @@ fn write_las(
                 Err(e)
             }
         }
-    })();
-    match result.and_then(|()| File::open(&tmp)?.sync_all()) {
-        Ok(()) => std::fs::rename(&tmp, path),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
+    })
 }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{DVec3, Mat3, Vec3};
 
 use crate::estimate::{try_estimate_normals, try_estimate_radii, Orientation};
-use crate::points::{read_points, Format, PlyOptions, PointSet};
+use crate::points::{read_points, round_origin, Format, PlyOptions, PointSet};
 use crate::ImportError;
 use pc_artifact::PointLight;
 use pc_config::{LoadedConfig, MaterialConfig, ModelConfig};
@@ -170,7 +170,7 @@ pub fn scene_origin(cfg: &LoadedConfig, first: &PointSet, format: Format) -> DVe
         return DVec3::from(o);
     }
     match (format.is_scan(), first.bounds()) {
-        (true, Some((lo, hi))) => ((lo + hi) * 0.5).round(),
+        (true, Some((lo, hi))) => round_origin((lo + hi) * 0.5),
         _ => DVec3::ZERO,
     }
 }

@@ -164,7 +164,7 @@ pub fn srgb_to_linear(c: f64) -> f64 {
     }
 }
 
-/// A file-frame point rounded to whole metres: the origin a reader picks for its f32
+/// A point rounded to whole units: the origin a reader (and the scene) picks for its f32
 /// offsets (any point of the cloud keeps them small; a round one reads well in reports).
 pub fn round_origin(p: DVec3) -> DVec3 {
     p.round()

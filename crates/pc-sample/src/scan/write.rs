@@ -10,7 +10,7 @@ use std::io::{self, BufWriter};
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use pc_artifact::atomic::tmp_path;
+use pc_artifact::atomic::publish_with;
 use pc_artifact::PointLight;
 use pc_config::{Albedo, CameraConfig, ImportConfig, MaterialConfig, ModelConfig};
 use serde::Serialize;
@@ -46,25 +46,11 @@ fn other(path: &Path, e: impl std::fmt::Display) -> io::Error {
 /// Scans the hall with `p` into `path` (its format from `format`), atomically. Returns the
 /// number of points written.
 pub fn write_scan(room: &Room, p: &ScanParams, format: ScanFormat, path: &Path) -> io::Result<u64> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
-    }
-    let tmp = tmp_path(path)?;
-    let written = match format {
-        ScanFormat::Las | ScanFormat::Laz => write_las(room, p, format == ScanFormat::Laz, &tmp),
-        ScanFormat::E57 => write_e57(room, p, &tmp),
-    };
-    match written {
-        Ok(n) => {
-            File::open(&tmp)?.sync_all()?;
-            std::fs::rename(&tmp, path)?;
-            Ok(n)
-        }
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(other(path, e))
-        }
-    }
+    publish_with(path, |tmp| match format {
+        ScanFormat::Las | ScanFormat::Laz => write_las(room, p, format == ScanFormat::Laz, tmp),
+        ScanFormat::E57 => write_e57(room, p, tmp),
+    })
+    .map_err(|e| other(path, e))
 }
 
 fn write_las(room: &Room, p: &ScanParams, laz: bool, tmp: &Path) -> io::Result<u64> {
