@@ -146,8 +146,13 @@ pub struct VmapParams {
     /// samples. 1..=4096: with none, near pairs would get no link and their light would be lost.
     pub near_rays: u32,
     /// Nodes with at most this many splats are V-map leaves (their pairs are near-field).
-    /// 1..=65536.
+    /// 1..=65536. Above `full_resolution_splats` splats it grows with the scan (see there).
     pub leaf_splats: u32,
+    /// Up to this many splats visibility is resolved at `leaf_splats`; a larger octree of N
+    /// splats gets V-map leaves of `leaf_splats · ⌈N / full_resolution_splats⌉` splats, so the
+    /// number of V-map leaves, and with it the pairs and rays per splat, stops growing
+    /// (docs/vmap.md, "Scale"). 1,000..=4,000,000,000.
+    pub full_resolution_splats: u64,
     /// Self-hit distance in radii of the splat a visibility ray leaves or reaches (§8.5.6).
     /// [0, 100].
     pub self_hit: f32,
@@ -172,6 +177,7 @@ impl Default for VmapParams {
             rays: 16,
             near_rays: 64,
             leaf_splats: 64,
+            full_resolution_splats: 1_000_000,
             self_hit: 0.5,
             refine_form_factor: 1e-3,
             heavy_rays: 64,
@@ -182,12 +188,26 @@ impl Default for VmapParams {
 }
 
 impl VmapParams {
+    /// The V-map leaf size used on an octree of `splats` splats: `leaf_splats` up to
+    /// `full_resolution_splats`, then in proportion.
+    pub fn leaf_splats_for(&self, splats: usize) -> u32 {
+        let scale = (splats as u64)
+            .div_ceil(self.full_resolution_splats.max(1))
+            .max(1);
+        (self.leaf_splats as u64 * scale).min(u32::MAX as u64) as u32
+    }
+
     /// Every value within its documented range.
     pub fn validate(&self) -> Result<(), ParamError> {
         real("vmap.theta", self.theta, Excl(0.0), Excl(2.0))?;
         int("vmap.rays", self.rays, 1..=4096)?;
         int("vmap.near_rays", self.near_rays, 1..=4096)?;
         int("vmap.leaf_splats", self.leaf_splats, 1..=65536)?;
+        int(
+            "vmap.full_resolution_splats",
+            self.full_resolution_splats,
+            1_000..=4_000_000_000,
+        )?;
         real("vmap.self_hit", self.self_hit, Incl(0.0), Incl(100.0))?;
         real(
             "vmap.refine_form_factor",
@@ -281,6 +301,12 @@ pub struct FmmParams {
     pub solver: Solver,
     /// GMRES: later products at a lower order as the residual falls (relaxed products).
     pub relax: bool,
+    /// The solve's unknowns: up to this many active splats each splat is one; above, the
+    /// splats of the smallest octree nodes are merged into clusters of like normal (at most
+    /// about this many, never coarser than a V-map leaf), solved for, and every splat gets its
+    /// own direct light plus its cluster's gathered light (docs/fmm.md, "Scale").
+    /// 1,000..=4,000,000,000.
+    pub max_elements: u64,
 }
 
 impl Default for FmmParams {
@@ -295,6 +321,7 @@ impl Default for FmmParams {
             emitter_probes: 16,
             solver: Solver::Gmres,
             relax: true,
+            max_elements: 250_000,
         }
     }
 }
@@ -308,7 +335,8 @@ impl FmmParams {
         real("fmm.tolerance", self.tolerance, Excl(0.0), Excl(1.0))?;
         int("fmm.max_iterations", self.max_iterations, 1..=10_000)?;
         int("fmm.emitter_samples", self.emitter_samples, 0..=4096)?;
-        int("fmm.emitter_probes", self.emitter_probes, 0..=4096)
+        int("fmm.emitter_probes", self.emitter_probes, 0..=4096)?;
+        int("fmm.max_elements", self.max_elements, 1_000..=4_000_000_000)
     }
 }
 

@@ -43,6 +43,10 @@ pub struct RadiosityMeta {
     pub orders: Vec<u32>,
     /// Splats that take part (diffuse and emitting).
     pub active_splats: u64,
+    /// The solve's unknowns when they were clusters of splats (`fmm.max_elements`), 0 when
+    /// every active splat was its own.
+    #[serde(default)]
+    pub elements: u64,
     pub m2l: u64,
     pub p2l: u64,
     pub m2p: u64,

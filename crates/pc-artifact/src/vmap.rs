@@ -76,6 +76,10 @@ pub struct VmapMeta {
     /// enter it, so a rerun after moving a light reuses the links.
     pub links_key: String,
     pub params: VmapParams,
+    /// The V-map leaf size used: `params.leaf_splats`, or more on a large octree
+    /// ([`VmapParams::leaf_splats_for`]).
+    #[serde(default)]
+    pub leaf_splats_used: u32,
     /// The point lights the light lists were computed for.
     pub lights: Vec<PointLight>,
     pub far_links: u64,

@@ -456,7 +456,6 @@ mod tests {
             src_lo,
             src_hi,
             fraction: 1.0,
-            _pad: [0; 3],
         }
     }
 

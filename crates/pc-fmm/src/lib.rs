@@ -8,6 +8,7 @@
 //! tensor form ([`expansion`]), on an interaction plan refined from the V-map's links
 //! ([`plan`]); [`cpu`] runs it with rayon and [`gpu`] with WGSL compute shaders.
 
+pub mod cluster;
 pub mod cpu;
 pub mod emitter;
 pub mod error;

@@ -60,6 +60,8 @@ pub struct NodeTask {
 
 /// A leaf-receiver task: M2P (`recv_hi == 0`: splat `recv_lo` from node `src_lo`) or P2P
 /// (splats `[recv_lo, recv_hi)` from splats `[src_lo, src_hi)`, a splat never from itself).
+/// 20 bytes, no padding: on a large scan these are most of the stage's memory (the GPU gets
+/// them regrouped, `crate::gpu_work::splat_tasks`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LeafTask {
@@ -68,7 +70,6 @@ pub struct LeafTask {
     pub src_lo: u32,
     pub src_hi: u32,
     pub fraction: f32,
-    pub _pad: [u32; 3],
 }
 
 impl LeafTask {
@@ -254,12 +255,12 @@ fn box_cos_bounds(g: &Geo, to: (Vec3, Vec3), (dmin, dmax): (f32, f32)) -> (f32, 
 }
 
 /// Tasks one worker found, each receiver's together: the node tasks and their runs `(compact
-/// index, start, length)`, the leaf tasks (with their leaf's slot, for merging) and their runs
-/// `(compact leaf index, start, length)`; and the interactions dropped as facing away.
+/// index, start, length)`, the leaf tasks and their runs `(compact leaf index, start, length)`;
+/// and the interactions dropped as facing away.
 #[derive(Default)]
 struct Out {
     node: Vec<NodeTask>,
-    leaf: Vec<(u32, LeafTask)>,
+    leaf: Vec<LeafTask>,
     node_runs: Vec<(u32, u32, u32)>,
     leaf_runs: Vec<(u32, u32, u32)>,
     dropped: u64,
@@ -324,8 +325,9 @@ impl Refiner<'_> {
         // splat against one source, or one receiver against sibling leaves): fewer and fuller
         // tasks. (A leaf's tasks come in an order of their own, whatever the workers do.)
         let n = out.leaf.len();
-        for (l, q) in out.leaf[n.saturating_sub(MERGE_BACK)..].iter_mut().rev() {
-            if *l == leaf && !q.is_m2p() && q.fraction.to_bits() == f.to_bits() {
+        for q in out.leaf[n.saturating_sub(MERGE_BACK)..].iter_mut().rev() {
+            let same_leaf = self.p.leaf[q.recv_lo as usize] == leaf;
+            if same_leaf && !q.is_m2p() && q.fraction.to_bits() == f.to_bits() {
                 if (q.src_lo, q.src_hi) == (slo, shi) {
                     if q.recv_hi == rlo {
                         q.recv_hi = rhi;
@@ -347,17 +349,13 @@ impl Refiner<'_> {
                 }
             }
         }
-        out.leaf.push((
-            leaf,
-            LeafTask {
-                recv_lo: rlo,
-                recv_hi: rhi,
-                src_lo: slo,
-                src_hi: shi,
-                fraction: f,
-                _pad: [0; 3],
-            },
-        ));
+        out.leaf.push(LeafTask {
+            recv_lo: rlo,
+            recv_hi: rhi,
+            src_lo: slo,
+            src_hi: shi,
+            fraction: f,
+        });
     }
 
     /// An accepted pair: an expansion task, or, when it is small, point to point (into every
@@ -399,20 +397,13 @@ impl Refiner<'_> {
                 src: b,
                 fraction: f,
             }),
-            (true, false) => {
-                let i = a & !POINT;
-                out.leaf.push((
-                    self.p.leaf[i as usize],
-                    LeafTask {
-                        recv_lo: i,
-                        recv_hi: 0,
-                        src_lo: b,
-                        src_hi: 0,
-                        fraction: f,
-                        _pad: [0; 3],
-                    },
-                ))
-            }
+            (true, false) => out.leaf.push(LeafTask {
+                recv_lo: a & !POINT,
+                recv_hi: 0,
+                src_lo: b,
+                src_hi: 0,
+                fraction: f,
+            }),
             (true, true) => self.p2p(a, b, f, out),
         }
     }
@@ -681,7 +672,7 @@ pub fn build(
                 counts.m2l += 1;
             }
         }
-        for (_, task) in &o.leaf {
+        for task in &o.leaf {
             if task.is_m2p() {
                 counts.m2p += 1;
             } else {
@@ -691,16 +682,19 @@ pub fn build(
             }
         }
     }
-    let (node_offsets, mut node_tasks) = gather(
-        &parts,
-        |o| (o.node.as_slice(), &o.node_runs),
-        |&t| t,
-        t.nodes.len(),
-    );
+    // The workers' lists grew by doubling: give the slack back before the copy (on a large
+    // scan the leaf tasks are most of the stage's memory, and the copy holds both).
+    let mut parts = parts;
+    parts.par_iter_mut().for_each(|o| {
+        o.node.shrink_to_fit();
+        o.leaf.shrink_to_fit();
+    });
+    let (node_offsets, mut node_tasks) =
+        gather(&parts, |o| (o.node.as_slice(), &o.node_runs), t.nodes.len());
+    parts.iter_mut().for_each(|o| o.node = Vec::new());
     let (leaf_offsets, mut leaf_tasks) = gather(
         &parts,
         |o| (o.leaf.as_slice(), &o.leaf_runs),
-        |&(_, t)| t,
         t.leaves.len(),
     );
     drop(parts);
@@ -734,10 +728,9 @@ pub fn build(
 /// The workers' runs of tasks (one run per receiver key below `n`, at most) into one allocation
 /// in key order: the CSR offsets and the tasks, copied in parallel.
 #[allow(clippy::type_complexity)]
-fn gather<E: Sync, T: Copy + Send + Sync + bytemuck::Zeroable>(
+fn gather<T: Copy + Send + Sync + bytemuck::Zeroable>(
     parts: &[Out],
-    list: impl Fn(&Out) -> (&[E], &[(u32, u32, u32)]) + Sync,
-    task: impl Fn(&E) -> T + Sync,
+    list: impl Fn(&Out) -> (&[T], &[(u32, u32, u32)]) + Sync,
     n: usize,
 ) -> (Vec<u32>, Vec<T>) {
     let mut offsets = vec![0u32; n + 1];
@@ -761,7 +754,7 @@ fn gather<E: Sync, T: Copy + Send + Sync + bytemuck::Zeroable>(
             for (k, e) in run.iter().enumerate() {
                 // SAFETY: a key's run is written by the one worker that holds it (checked
                 // above), into its own range of the allocation.
-                unsafe { out.write(at + k, task(e)) };
+                unsafe { out.write(at + k, *e) };
             }
         }
     });

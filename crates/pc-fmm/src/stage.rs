@@ -1,5 +1,6 @@
 //! The pc-fmm stage: octree + V-map (+ photon map) artifacts + config → `radiosity` artifact.
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -14,6 +15,7 @@ use pc_config::{Backend, LoadedConfig};
 use pc_stage::{OptionalInput, Progress, Stage};
 use pc_tree::caster::Caster;
 
+use crate::cluster::Clustering;
 use crate::emitter::{self, EmitterRays, EmitterSampling};
 use crate::error::FmmError;
 use crate::expansion::Basis;
@@ -203,28 +205,43 @@ pub fn run(
     let (tree, pts) = tree::build(&view, &materials);
     time("tree", t);
 
-    progress.phase("interaction plan");
-    let t = Instant::now();
-    let v = vmap.view();
-    let plan_params = PlanParams {
-        theta: p.theta,
-        clamp_tol: p.clamp_tol,
-    };
-    let plan = plan::build(&tree, &pts, v.link_offsets, v.links, plan_params);
-    time("plan", t);
-
     progress.phase("direct light");
     let t = Instant::now();
     let (sys, emitter, caustic) =
         source_term(&view, &materials, &pts, &vmap, photons.as_ref(), cfg)?;
     time("source term", t);
 
+    // On a large scan the unknowns are clusters of splats (crate::cluster).
+    let v = vmap.view();
+    let t = Instant::now();
+    let clusters = Clustering::new(&view, &tree, &pts, v.vnode, p.max_elements);
+    let (s_tree, s_pts, s_sys) = match &clusters {
+        Some(c) => {
+            time("clusters", t);
+            (&c.tree, &c.points, Cow::Owned(c.system(&sys, &pts)))
+        }
+        None => (&tree, &pts, Cow::Borrowed(&sys)),
+    };
+
+    progress.phase("interaction plan");
+    let t = Instant::now();
+    let plan_params = PlanParams {
+        theta: p.theta,
+        clamp_tol: p.clamp_tol,
+    };
+    let plan = plan::build(s_tree, s_pts, v.link_offsets, v.links, plan_params);
+    time("plan", t);
+
     let basis = Basis::new(p.order as usize);
-    let mut op = operator(backend, &basis, &tree, &pts, &plan)?;
+    let mut op = operator(backend, &basis, s_tree, s_pts, &plan)?;
     let device = op.device();
     progress.phase("solve");
     let t = Instant::now();
-    let sol = solve(op.as_mut(), &sys, &pts, &p, progress)?;
+    let sol = solve(op.as_mut(), &s_sys, s_pts, &p, progress)?;
+    let solved = match &clusters {
+        Some(c) => c.radiance(op.as_mut(), &sol, &s_sys, &sys)?,
+        None => sol.radiance.clone(),
+    };
     let solve_s = t.elapsed().as_secs_f64();
     time("solve", t);
     timings.push((
@@ -243,8 +260,7 @@ pub fn run(
     );
     // The stored radiance: every bounce but the caustic energy's first (shown from the photon
     // map), zero for inactive splats.
-    let radiance: Vec<[f32; 3]> = sol
-        .radiance
+    let radiance: Vec<[f32; 3]> = solved
         .iter()
         .zip(&pts.active)
         .zip(&caustic)
@@ -263,6 +279,7 @@ pub fn run(
         residuals: sol.residuals.clone(),
         orders: sol.orders.clone(),
         active_splats: pts.active.iter().filter(|&&a| a).count() as u64,
+        elements: clusters.as_ref().map_or(0, |c| c.points.pos.len() as u64),
         m2l: plan.counts.m2l,
         p2l: plan.counts.p2l,
         m2p: plan.counts.m2p,
@@ -372,9 +389,13 @@ impl Stage for FmmStage {
             .find(|t| t.0 == "per iteration")
             .map_or(0.0, |t| t.1);
         format!(
-            "pc-fmm: wrote {} ({} splats, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs) in {:.2} s on {}",
+            "pc-fmm: wrote {} ({} splats{}, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs) in {:.2} s on {}",
             s.path.display(),
             m.active_splats,
+            match m.elements {
+                0 => String::new(),
+                e => format!(" solved as {e} clusters"),
+            },
             m.iterations,
             if m.converged { "" } else { " (not converged)" },
             m.residuals.last().copied().unwrap_or(0.0),

@@ -97,10 +97,12 @@ pub fn build(view: &OctreeView, materials: &[MaterialRecord]) -> (Tree, Points) 
     // Ranges and normal cones as every stage computes them.
     let ranges = pc_tree::nodes::subtree_ranges(view);
     let cones = pc_tree::nodes::normal_cones(view, &ranges);
-    t.sum_active(view, &ranges, &pts);
+    for (slot, &[lo, hi]) in ranges.iter().enumerate() {
+        t.lo[slot] = lo;
+        t.hi[slot] = hi;
+    }
     t.set_centres(view, &ranges, &cones);
-    t.bound(&pts);
-    t.index(&depth);
+    t.finish(&pts, &depth);
     (t, pts)
 }
 
@@ -152,7 +154,7 @@ impl Tree {
 
     /// Children and parents from the node pool, top-down (children always follow their parent
     /// in the pool). Returns each slot's depth.
-    fn link(&mut self, view: &OctreeView) -> Vec<u32> {
+    pub(crate) fn link(&mut self, view: &OctreeView) -> Vec<u32> {
         let mut depth = vec![0u32; self.slots];
         for slot in 0..self.slots {
             let w = view.nodes[slot];
@@ -168,17 +170,24 @@ impl Tree {
         depth
     }
 
-    /// Splat ranges, and active area and count, bottom-up.
-    fn sum_active(&mut self, view: &OctreeView, ranges: &[[u32; 2]], pts: &Points) {
+    /// Everything that follows from the ranges, links, centres and cones: active area and
+    /// count, bounds, compact indices and levels (`depth`: each slot's depth).
+    pub(crate) fn finish(&mut self, pts: &Points, depth: &[u32]) {
+        self.sum_active(pts);
+        self.bound(pts);
+        self.index(depth);
+    }
+
+    /// Active area and count, bottom-up (children always follow their parent in the pool).
+    fn sum_active(&mut self, pts: &Points) {
         for slot in (0..self.slots).rev() {
-            let [lo, hi] = ranges[slot];
-            self.lo[slot] = lo;
-            self.hi[slot] = hi;
-            let w = view.nodes[slot];
-            if node::is_empty(w) {
+            let (lo, hi) = (self.lo[slot], self.hi[slot]);
+            self.area[slot] = 0.0;
+            self.active[slot] = 0;
+            if lo >= hi {
                 continue;
             }
-            if node::is_leaf(w) {
+            if self.first_child[slot] == NONE {
                 for i in lo..hi {
                     if pts.active[i as usize] {
                         self.area[slot] += pts.area[i as usize];
@@ -265,6 +274,9 @@ impl Tree {
 
     /// Compact indices of the non-empty slots, the levels and the leaves.
     fn index(&mut self, depth: &[u32]) {
+        self.nodes.clear();
+        self.leaves.clear();
+        self.compact = vec![NONE; self.slots];
         let max_depth = depth.iter().copied().max().unwrap_or(0) as usize;
         self.levels = vec![Vec::new(); max_depth + 1];
         self.leaf_index = vec![NONE; self.slots];

@@ -255,17 +255,9 @@ impl Stage for OctreeStage {
             "build_seconds": summary.build_seconds,
             "write_seconds": summary.write_seconds,
             "total_seconds": seconds,
-            "peak_rss_bytes": peak_rss_bytes().unwrap_or(0),
+            "peak_rss_bytes": pc_stage::peak_rss_bytes().unwrap_or(0),
             "threads": rayon::current_num_threads(),
             "phases": phases,
         })
     }
-}
-
-/// Peak resident memory of this process (Linux: VmHWM in /proc/self/status).
-pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
 }

@@ -135,6 +135,8 @@ pub struct StageRun {
     pub key: String,
     /// Its output file.
     pub output: PathBuf,
+    /// The stage process's peak resident memory in bytes (0 where unknown).
+    pub peak_rss_bytes: u64,
 }
 
 /// A stage's `--report` file.
@@ -144,6 +146,8 @@ struct Report {
     status: String,
     output: PathBuf,
     key: String,
+    #[serde(default)]
+    peak_rss_bytes: u64,
 }
 
 /// The folder of the running executable (where `cargo build` puts the stage binaries too).
@@ -215,6 +219,7 @@ pub fn run(opts: &Options, on_done: &mut dyn FnMut(&StageRun)) -> Result<Vec<Sta
             seconds,
             key: r.key,
             output: r.output,
+            peak_rss_bytes: r.peak_rss_bytes,
         };
         on_done(&run);
         done.push(run);
@@ -242,7 +247,12 @@ pub fn summary(runs: &[StageRun], total_seconds: f64) -> String {
     let parts: Vec<String> = runs
         .iter()
         .map(|r| match r.status {
-            Status::Ran => format!("{} ran ({:.2} s)", r.stage, r.seconds),
+            Status::Ran => format!(
+                "{} ran ({:.2} s, {})",
+                r.stage,
+                r.seconds,
+                memory(r.peak_rss_bytes)
+            ),
             Status::UpToDate => format!("{} up to date", r.stage),
         })
         .collect();
@@ -255,7 +265,17 @@ pub fn summary(runs: &[StageRun], total_seconds: f64) -> String {
     )
 }
 
-/// The runs as JSON (for scripts and tests): a list of {stage, status, seconds, key, output}.
+/// A peak memory for people: `412 MB`, `11.3 GB`.
+fn memory(bytes: u64) -> String {
+    let mb = bytes as f64 / 1e6;
+    match mb {
+        m if m >= 1000.0 => format!("{:.1} GB", m / 1000.0),
+        m => format!("{m:.0} MB"),
+    }
+}
+
+/// The runs as JSON (for scripts and tests): a list of {stage, status, seconds, key, output,
+/// peak_rss_bytes}.
 pub fn to_json(runs: &[StageRun]) -> String {
     let list: Vec<serde_json::Value> = runs
         .iter()
@@ -266,6 +286,7 @@ pub fn to_json(runs: &[StageRun]) -> String {
                 "seconds": r.seconds,
                 "key": r.key,
                 "output": r.output.display().to_string(),
+                "peak_rss_bytes": r.peak_rss_bytes,
             })
         })
         .collect();
@@ -317,6 +338,7 @@ mod tests {
                 seconds: 0.01,
                 key: String::new(),
                 output: PathBuf::new(),
+                peak_rss_bytes: 1_500_000_000,
             },
             StageRun {
                 stage: Stage::Raytrace,
@@ -324,11 +346,12 @@ mod tests {
                 seconds: 1.5,
                 key: String::new(),
                 output: PathBuf::new(),
+                peak_rss_bytes: 1_500_000_000,
             },
         ];
         assert_eq!(
             summary(&runs, 1.6),
-            "1 ran, 1 up to date in 1.60 s: pc-octree up to date, pc-raytrace ran (1.50 s)"
+            "1 ran, 1 up to date in 1.60 s: pc-octree up to date, pc-raytrace ran (1.50 s, 1.5 GB)"
         );
     }
 }

@@ -17,4 +17,4 @@ pub use args::StageArgs;
 pub use device::{gpu_for, gpu_or_cpu};
 pub use input::OptionalInput;
 pub use progress::{Progress, Silent};
-pub use stage::{artifact_key, exit, main, say, Stage};
+pub use stage::{artifact_key, exit, main, peak_rss_bytes, say, Stage};

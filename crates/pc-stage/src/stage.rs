@@ -141,7 +141,17 @@ fn run<S: Stage>(
     report(args, S::NAME, "ran", &out, &key, seconds)
 }
 
-/// Writes the `--report` JSON, if asked for: stage, status, output, key, seconds.
+/// Peak resident memory of this process so far (Linux: `VmHWM` in /proc/self/status; `None`
+/// where that is not available).
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Writes the `--report` JSON, if asked for: stage, status, output, key, seconds, and the
+/// process's peak resident memory.
 fn report(
     args: &StageArgs,
     stage: &str,
@@ -159,6 +169,7 @@ fn report(
         "output": output.display().to_string(),
         "key": key.to_string(),
         "seconds": seconds,
+        "peak_rss_bytes": peak_rss_bytes().unwrap_or(0),
     });
     pc_artifact::write_file_atomically(path, format!("{json}\n").as_bytes())
         .with_context(|| format!("{}: cannot write the report", path.display()))

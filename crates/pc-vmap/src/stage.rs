@@ -111,7 +111,8 @@ pub fn run(
     let key = vmap_key(&lkey, lights);
     let mut timings = Vec::new();
     let t = Instant::now();
-    let vn = vnodes(&view, p.leaf_splats);
+    let leaf_splats = p.leaf_splats_for(view.splats.len());
+    let vn = vnodes(&view, leaf_splats);
     timings.push(("nodes and cones".to_string(), t.elapsed().as_secs_f64()));
     let caster = caster(&view, backend)?;
     let t = Instant::now();
@@ -159,6 +160,7 @@ pub fn run(
         octree_key: octree.key().to_string(),
         links_key: lkey.to_string(),
         params: p.clone(),
+        leaf_splats_used: leaf_splats,
         lights: lights.clone(),
         far_links: links.far,
         near_links: links.near,
@@ -224,7 +226,7 @@ impl Stage for VmapStage {
     fn summary(&self, s: &Summary, _seconds: f64) -> String {
         let m = &s.meta;
         format!(
-            "pc-vmap: wrote {} ({} far and {} near links{}, {} node pairs tested, {} rays, {} light lists) in {:.2} s on {}",
+            "pc-vmap: wrote {} ({} far and {} near links{}, {} node pairs tested, {} rays, {} light lists{}) in {:.2} s on {}",
             s.path.display(),
             m.far_links,
             m.near_links,
@@ -232,6 +234,10 @@ impl Stage for VmapStage {
             m.pairs_tested,
             m.rays_cast,
             m.lights.len(),
+            match m.leaf_splats_used > m.params.leaf_splats {
+                true => format!(", V-map leaves of up to {} splats", m.leaf_splats_used),
+                false => String::new(),
+            },
             s.seconds,
             m.device
         )

@@ -1,4 +1,4 @@
-//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain]`:
+//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale]`:
 //! the options and which benchmarks run; each benchmark is in its own module.
 
 mod caustics;
@@ -7,6 +7,7 @@ mod fmm;
 mod harness;
 mod octree;
 mod rays;
+mod scale;
 mod table;
 
 use anyhow::{bail, Context, Result};
@@ -54,7 +55,7 @@ impl Options {
                 "--only" => {
                     o.only = Some(
                         it.next()
-                            .context("--only needs octree, rays, caustics, fmm or chain")?
+                            .context("--only needs octree, rays, caustics, fmm, chain or scale")?
                             .clone(),
                     )
                 }
@@ -83,6 +84,8 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
         Some("chain") => chain::bench(&o.sizes_or(&[1_000_000]), write),
         Some("fmm") => fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write),
         Some(what @ ("octree" | "rays")) => octree_or_rays(what, &o.sizes, runs, write),
+        // Not part of the full run: the 20M scan alone takes most of an hour on two cores.
+        Some("scale") => scale::bench(&o.sizes_or(&[1_000_000, 4_000_000, 20_000_000]), write),
         None => {
             // Every benchmark: the stages' own (the radiosity solve at 100k, 1M and 4M), then the
             // whole chain at 1M splats.
@@ -95,7 +98,7 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
             chain::bench(&small, write)
         }
         Some(other) => {
-            bail!("bench: --only takes octree, rays, caustics, fmm or chain, not `{other}`")
+            bail!("bench: --only takes octree, rays, caustics, fmm, chain or scale, not `{other}`")
         }
     }
 }

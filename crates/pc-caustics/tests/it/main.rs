@@ -112,6 +112,7 @@ pub fn with_setup<R>(
         heavy_rays: 64,
         heavy_form_factor: 3e-3,
         seed: 1,
+        ..Default::default()
     };
     let vn = vnodes(&view, p.leaf_splats);
     let caster = CpuCaster::new(&view);

@@ -188,7 +188,6 @@ fn gpu_cuts_heavy_receivers_into_items() {
             src_lo: f.tree.lo[from],
             src_hi: f.tree.hi[from],
             fraction: 1e-4,
-            _pad: [0; 3],
         }),
     );
     for o in plan.leaf_offsets.iter_mut().skip(1) {

@@ -73,6 +73,7 @@ pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
         heavy_rays: 64,
         heavy_form_factor: 3e-3,
         seed: 1,
+        ..Default::default()
     };
     let vn = vnodes(&view, p.leaf_splats);
     let caster = CpuCaster::new(&view);
@@ -585,3 +586,5 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     assert!(pen_diff < 0.01, "penumbra differs by {pen_diff}");
     assert!(share < 0.6, "probing cast {share} of the rays");
 }
+
+mod cluster;

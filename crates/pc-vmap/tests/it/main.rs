@@ -56,6 +56,7 @@ pub fn params(rays: u32, leaf: u32) -> VmapParams {
         heavy_rays: 0,
         heavy_form_factor: 0.0,
         seed: 1,
+        ..Default::default()
     }
 }
 
