@@ -22,6 +22,7 @@
 use glam::Vec3;
 use pc_artifact::octree::class;
 use pc_tree::OctreeView;
+use rayon::prelude::*;
 
 use crate::error::FmmError;
 use crate::solve::{Operator, Solution};
@@ -295,6 +296,33 @@ fn element_tree(
             }
         }
     }
+    cones(&mut t, pts);
     t.finish(pts, &depth);
     t
+}
+
+/// Normal cones of the elements' normals, about their area-weighted mean: tighter than the
+/// splats' cones, since a scan's noisy normals average out within an element, so fewer pairs
+/// straddle a cosine clamp and refine (4M-splat hall: see docs/fmm.md, "Scale").
+fn cones(t: &mut Tree, pts: &Points) {
+    let cones: Vec<Option<(Vec3, f32)>> = (0..t.slots)
+        .into_par_iter()
+        .map(|slot| {
+            let (lo, hi) = (t.lo[slot] as usize, t.hi[slot] as usize);
+            let normal = |k: usize| Vec3::from(pts.normal[k]);
+            let sum: Vec3 = (lo..hi).map(|k| pts.area[k] * normal(k)).sum();
+            let axis = sum.try_normalize()?;
+            let cos = (lo..hi).map(|k| axis.dot(normal(k))).fold(1.0f32, f32::min);
+            Some((axis, cos))
+        })
+        .collect();
+    for (slot, cone) in cones.into_iter().enumerate() {
+        match cone {
+            Some((axis, cos)) => {
+                t.axis[slot] = axis.into();
+                t.cone_cos[slot] = cos;
+            }
+            None => t.cone_cos[slot] = -1.0,
+        }
+    }
 }
