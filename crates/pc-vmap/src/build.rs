@@ -292,12 +292,8 @@ fn decide(
             .filter(|(_, &v)| v)
             .map(|(x, _)| x.1)
             .sum();
-        let fraction = if seen == total {
-            1.0
-        } else if wsum > 0.0 {
-            (wvis / wsum).clamp(0.0, 1.0)
-        } else {
-            seen as f32 / total as f32
+        let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
+            continue; // the visible samples carry no weight: no light flows
         };
         if near {
             let l = |x: u32| Link::near(x, fraction);
@@ -359,8 +355,9 @@ fn exact_partial(
                 .filter(|(_, &v)| v)
                 .map(|(x, _)| x.1)
                 .sum();
-            if wvis > 0.0 && wsum > 0.0 {
-                let f = (wvis / wsum).clamp(0.0, 1.0);
+            let seen = vis.iter().filter(|&&v| v).count();
+            let weighed = wvis > 0.0 && wsum > 0.0;
+            if let Some(f) = link_fraction(wvis, wsum, seen, r.len()).filter(|_| weighed) {
                 links.pairs.push((a, Link::far(b, f)));
                 links.pairs.push((b, Link::far(a, f)));
                 links.far += 1;
@@ -368,6 +365,23 @@ fn exact_partial(
         }
     }
     Ok(())
+}
+
+/// A link's fraction from its samples: the visible share of their weights, in (0, 1]; the share
+/// of rays where no sample has weight (or the weights overflowed); `None` where the visible
+/// samples carry no weight at all (splats of zero area: on a 20M-point scan quantised to a
+/// millimetre, coincident points share their area and some get none), which the artifact's
+/// readers would refuse as a fraction of 0.
+fn link_fraction(wvis: f32, wsum: f32, seen: usize, total: usize) -> Option<f32> {
+    if seen == total {
+        return Some(1.0);
+    }
+    let by_rays = seen as f32 / total as f32;
+    let f = match wsum > 0.0 && (wvis / wsum).is_finite() {
+        true => (wvis / wsum).min(1.0),
+        false => by_rays,
+    };
+    (f > 0.0).then_some(f)
 }
 
 /// The larger of the two form factors F_AB, F_BA estimated from a pair's sample weights: the
@@ -594,4 +608,24 @@ pub fn csr(nodes: usize, mut pairs: Vec<(u32, Link)>) -> (Vec<u32>, Vec<Link>) {
         offsets[i + 1] += offsets[i];
     }
     (offsets, pairs.into_iter().map(|p| p.1).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::link_fraction;
+
+    #[test]
+    fn a_link_fraction_lies_in_zero_one_or_there_is_no_link() {
+        assert_eq!(link_fraction(3.0, 3.0, 16, 16), Some(1.0));
+        assert_eq!(link_fraction(1.0, 4.0, 8, 16), Some(0.25));
+        // Visible samples of zero weight (splats of zero area): no light flows, no link.
+        assert_eq!(link_fraction(0.0, 4.0, 8, 16), None);
+        // No weight anywhere, or weights that overflowed: the share of rays.
+        assert_eq!(link_fraction(0.0, 0.0, 4, 16), Some(0.25));
+        assert_eq!(
+            link_fraction(f32::INFINITY, f32::INFINITY, 8, 16),
+            Some(0.5)
+        );
+        assert_eq!(link_fraction(f32::NAN, 1.0, 8, 16), Some(0.5));
+    }
 }
