@@ -313,6 +313,7 @@ fn cones(t: &mut Tree, pts: &Points) {
             let sum: Vec3 = (lo..hi).map(|k| pts.area[k] * normal(k)).sum();
             let axis = sum.try_normalize()?;
             let cos = (lo..hi).map(|k| axis.dot(normal(k))).fold(1.0f32, f32::min);
+            let cos = cos.clamp(-1.0, 1.0);
             Some((axis, cos))
         })
         .collect();

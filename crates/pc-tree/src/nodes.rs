@@ -57,6 +57,8 @@ pub fn normal_cones(view: &OctreeView, ranges: &[[u32; 2]]) -> Vec<f32> {
                 .iter()
                 .map(|s| axis.dot(Vec3::from(s.normal)))
                 .fold(1.0f32, f32::min)
+                // A node of one normal rounds to just above 1 (the 20M scan had one).
+                .clamp(-1.0, 1.0)
         })
         .collect()
 }
