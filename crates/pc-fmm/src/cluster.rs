@@ -89,11 +89,7 @@ impl Clustering {
     /// The elements' system: area-weighted means of their splats' source, emission and albedo.
     pub fn system(&self, sys: &System, pts: &Points) -> System {
         let n = self.points.pos.len();
-        let mut e = System {
-            source: vec![[0.0; 3]; n],
-            emission: vec![[0.0; 3]; n],
-            albedo: vec![[0.0; 3]; n],
-        };
+        let mut e = System::zeros(n);
         for (i, &el) in self.of.iter().enumerate() {
             if el == NONE {
                 continue;

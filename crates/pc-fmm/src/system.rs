@@ -30,6 +30,17 @@ pub struct System {
     pub albedo: Vec<[f32; 3]>,
 }
 
+impl System {
+    /// `n` splats with no source, no emission and no albedo.
+    pub fn zeros(n: usize) -> System {
+        System {
+            source: vec![[0.0; 3]; n],
+            emission: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+        }
+    }
+}
+
 /// What the point lights' direct light takes from the V-map: which nodes each light sees.
 #[derive(Clone, Copy, Debug)]
 pub struct LightLists<'a> {
@@ -55,11 +66,7 @@ pub fn system(
     tester: &dyn Caster,
 ) -> Result<System, GpuError> {
     let n = view.splats.len();
-    let mut sys = System {
-        source: vec![[0.0; 3]; n],
-        emission: vec![[0.0; 3]; n],
-        albedo: vec![[0.0; 3]; n],
-    };
+    let mut sys = System::zeros(n);
     for (i, s) in view.splats.iter().enumerate() {
         if !pts.active[i] {
             continue;

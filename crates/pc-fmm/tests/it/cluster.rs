@@ -105,11 +105,7 @@ fn a_clustered_solve_of_a_lit_box_agrees_with_the_full_one() {
     let view = sc.octree.view();
     let n = view.splats.len();
     // The ceiling's splats have a source (light they reflect), everything reflects its albedo.
-    let mut sys = System {
-        source: vec![[0.0; 3]; n],
-        emission: vec![[0.0; 3]; n],
-        albedo: vec![[0.0; 3]; n],
-    };
+    let mut sys = System::zeros(n);
     for (i, s) in view.splats.iter().enumerate() {
         sys.albedo[i] = materials[s.material as usize].color;
         if s.normal[1] < -0.99 && s.position[1] > 0.99 {
