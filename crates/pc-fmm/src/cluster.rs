@@ -66,18 +66,19 @@ impl Clustering {
         if active <= max_elements || tree.slots == 0 {
             return None;
         }
+        let in_vleaf = within_vleaf(tree, vleaf);
         // The smallest m whose cut has at most max_elements nodes (fewer as m grows).
         let (mut lo, mut hi) = (1u32, 1u32 << 20);
         while lo < hi {
             let m = lo + (hi - lo) / 2;
-            match cut_nodes(view, tree, vleaf, m).0 <= max_elements {
+            match cut_nodes(view, tree, &in_vleaf, m).0 <= max_elements {
                 true => hi = m,
                 false => lo = m + 1,
             }
         }
-        let (_, cut) = cut_nodes(view, tree, vleaf, lo);
+        let (_, cut) = cut_nodes(view, tree, &in_vleaf, lo);
         let (of, mut points, ranges) = elements(tree, pts, &cut);
-        let tree = element_tree(tree, &cut, &ranges, &mut points, vleaf);
+        let tree = element_tree(tree, &cut, &ranges, &mut points, &in_vleaf);
         Some(Clustering {
             of,
             points,
@@ -146,21 +147,26 @@ impl Clustering {
     }
 }
 
+/// Whether each slot is a V-map leaf (`vleaf`: the V-map's per-slot flags) or lies below one.
+fn within_vleaf(tree: &Tree, vleaf: &[u32]) -> Vec<bool> {
+    let mut within = vec![false; tree.slots];
+    // Parents come before their children in the pool.
+    for slot in 0..tree.slots {
+        let parent = tree.parent[slot];
+        within[slot] =
+            (parent != NONE && within[parent as usize]) || vleaf.get(slot).is_some_and(|&v| v != 0);
+    }
+    within
+}
+
 /// The cut for node size `m`: how many cut nodes own active splats, and each slot's place.
-fn cut_nodes(view: &OctreeView, tree: &Tree, vleaf: &[u32], m: u32) -> (u64, Vec<Cut>) {
+fn cut_nodes(view: &OctreeView, tree: &Tree, in_vleaf: &[bool], m: u32) -> (u64, Vec<Cut>) {
     let mut cut = vec![Cut::Above; tree.slots];
-    // Whether a slot is a V-map leaf or below one.
-    let mut in_vleaf = vec![false; tree.slots];
     let mut count = 0u64;
     // Parents come before their children in the pool.
     for slot in 0..tree.slots {
         let parent = tree.parent[slot];
-        let (parent_cut, parent_in) = match parent {
-            NONE => (Cut::Above, false),
-            p => (cut[p as usize], in_vleaf[p as usize]),
-        };
-        in_vleaf[slot] = parent_in || vleaf.get(slot).is_some_and(|&v| v != 0);
-        if parent_cut != Cut::Above {
+        if parent != NONE && cut[parent as usize] != Cut::Above {
             cut[slot] = Cut::Below;
             continue;
         }
@@ -250,7 +256,7 @@ fn element_tree(
     cut: &[Cut],
     ranges: &[[u32; 2]],
     pts: &mut Points,
-    vleaf: &[u32],
+    in_vleaf: &[bool],
 ) -> Tree {
     let mut t = full.clone();
     // Element ranges of every slot above or on the cut, bottom-up.
@@ -269,17 +275,14 @@ fn element_tree(
     }
     // The leaves, top-down: the first node within a V-map leaf small enough, or the cut node.
     let mut depth = vec![0u32; t.slots];
-    let mut in_vleaf = vec![false; t.slots];
     let mut gone = vec![false; t.slots];
     for slot in 0..t.slots {
         let parent = t.parent[slot];
         if parent != NONE {
             let p = parent as usize;
             depth[slot] = depth[p] + 1;
-            in_vleaf[slot] = in_vleaf[p];
             gone[slot] = gone[p] || t.first_child[p] == NONE;
         }
-        in_vleaf[slot] |= vleaf.get(slot).is_some_and(|&v| v != 0);
         if gone[slot] {
             (t.lo[slot], t.hi[slot]) = (0, 0);
             t.first_child[slot] = NONE;

@@ -237,10 +237,10 @@ pub fn run(
     let device = op.device();
     progress.phase("solve");
     let t = Instant::now();
-    let sol = solve(op.as_mut(), &s_sys, s_pts, &p, progress)?;
+    let mut sol = solve(op.as_mut(), &s_sys, s_pts, &p, progress)?;
     let solved = match &clusters {
         Some(c) => c.radiance(op.as_mut(), &sol, &s_sys, &sys)?,
-        None => sol.radiance.clone(),
+        None => std::mem::take(&mut sol.radiance),
     };
     let solve_s = t.elapsed().as_secs_f64();
     time("solve", t);

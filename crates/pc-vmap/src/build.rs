@@ -285,13 +285,7 @@ fn decide(
             }
             continue;
         }
-        let wsum: f32 = r.iter().map(|x| x.1).sum();
-        let wvis: f32 = r
-            .iter()
-            .zip(vis)
-            .filter(|(_, &v)| v)
-            .map(|(x, _)| x.1)
-            .sum();
+        let (wvis, wsum) = weights(r, vis);
         let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
             continue; // the visible samples carry no weight: no light flows
         };
@@ -348,13 +342,7 @@ fn exact_partial(
         for (&(a, b), r) in partial.iter().zip(&per_pair) {
             let vis = &visible[at..at + r.len()];
             at += r.len();
-            let wsum: f32 = r.iter().map(|x| x.1).sum();
-            let wvis: f32 = r
-                .iter()
-                .zip(vis)
-                .filter(|(_, &v)| v)
-                .map(|(x, _)| x.1)
-                .sum();
+            let (wvis, wsum) = weights(r, vis);
             let seen = vis.iter().filter(|&&v| v).count();
             let weighed = wvis > 0.0 && wsum > 0.0;
             if let Some(f) = link_fraction(wvis, wsum, seen, r.len()).filter(|_| weighed) {
@@ -365,6 +353,18 @@ fn exact_partial(
         }
     }
     Ok(())
+}
+
+/// The summed weights of a pair's visible samples and of all its samples.
+fn weights(samples: &[(Ray, f32)], visible: &[bool]) -> (f32, f32) {
+    let all = samples.iter().map(|x| x.1).sum();
+    let seen = samples
+        .iter()
+        .zip(visible)
+        .filter(|(_, &v)| v)
+        .map(|(x, _)| x.1)
+        .sum();
+    (seen, all)
 }
 
 /// A link's fraction from its samples: the visible share of their weights, in (0, 1]; the share
