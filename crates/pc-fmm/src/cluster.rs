@@ -7,11 +7,12 @@
 //! the smallest octree nodes are merged into **elements**: the *cut* is the highest node on
 //! every root-to-leaf path that lies within a V-map leaf (no link points below a V-map leaf)
 //! and is an octree leaf or holds at most `m` splats of one material class (the V-map's own
-//! purity rule), `m` the smallest size that leaves at most `max_elements` cut nodes. Within a
-//! cut node, splats whose normals lie within `ELEMENT_COS` of a cluster's first normal form one
-//! element (a node across a corner gives one element per face): its area is the sum of their
-//! areas, its position and normal their area-weighted means, its albedo, emission and source
-//! their area-weighted means, so the element's equation is the area-weighted sum of its splats'.
+//! purity rule), `m` the smallest size whose cut nodes make at most `max_elements` elements.
+//! Within a cut node, splats of like normal form one element (a node across a corner gives one
+//! element per face; noisy normals of one face give one element, [`groups`]): its area is the
+//! sum of their areas, its position and normal their area-weighted means, its albedo, emission
+//! and source their area-weighted means, so the element's equation is the area-weighted sum of
+//! its splats'.
 //!
 //! The FMM then runs unchanged on the elements; its leaves are the highest nodes within V-map
 //! leaves that hold at most [`LEAF_ELEMENTS`] elements (or the cut nodes, if larger). What a splat
@@ -29,7 +30,7 @@ use crate::solve::{Operator, Solution};
 use crate::system::System;
 use crate::tree::{Points, Tree, NONE};
 
-/// Splats whose normal is within this cosine (about 25°) of a cluster's first normal join it.
+/// Splats whose normal is within this cosine (about 25°) of a group's seed normal join it.
 pub const ELEMENT_COS: f32 = 0.9;
 
 /// Where the cut lies on a slot: above it, on it (an element-tree leaf), or below (gone).
@@ -67,23 +68,35 @@ impl Clustering {
             return None;
         }
         let in_vleaf = within_vleaf(tree, vleaf);
-        // The smallest m whose cut has at most max_elements nodes (fewer as m grows).
-        let (mut lo, mut hi) = (1u32, 1u32 << 20);
-        while lo < hi {
-            let m = lo + (hi - lo) / 2;
-            match cut_nodes(view, tree, &in_vleaf, m).0 <= max_elements {
-                true => hi = m,
-                false => lo = m + 1,
+        // The smallest m whose cut has at most max_elements elements (fewer as m grows). A cut
+        // node holds at least one element: first the smallest m with few enough nodes (cheap),
+        // then the elements counted from there.
+        let smallest = |lo: u32, fits: &dyn Fn(u32) -> bool| {
+            let (mut lo, mut hi) = (lo, 1u32 << 20);
+            while lo < hi {
+                let m = lo + (hi - lo) / 2;
+                match fits(m) {
+                    true => hi = m,
+                    false => lo = m + 1,
+                }
             }
-        }
-        let (_, cut) = cut_nodes(view, tree, &in_vleaf, lo);
+            lo
+        };
+        let nodes = smallest(1, &|m| {
+            cut_nodes(view, tree, &in_vleaf, m).0 <= max_elements
+        });
+        let m = smallest(nodes, &|m| {
+            let (_, cut) = cut_nodes(view, tree, &in_vleaf, m);
+            element_count(tree, pts, &cut) <= max_elements
+        });
+        let (_, cut) = cut_nodes(view, tree, &in_vleaf, m);
         let (of, mut points, ranges) = elements(tree, pts, &cut);
         let tree = element_tree(tree, &cut, &ranges, &mut points, &in_vleaf);
         Some(Clustering {
             of,
             points,
             tree,
-            node_splats: lo,
+            node_splats: m,
         })
     }
 
@@ -185,6 +198,127 @@ fn cut_nodes(view: &OctreeView, tree: &Tree, in_vleaf: &[bool], m: u32) -> (u64,
     (count, cut)
 }
 
+/// A cut node's share of area below which a normal group joins the group of the nearest normal
+/// (see [`groups`]).
+pub const MINOR_SHARE: f32 = 0.125;
+
+/// One normal group of a cut node: its splats' count, area, area × position and area ×
+/// normal, the seed normal that gathered them, and the first of them.
+#[derive(Clone, Copy)]
+struct Group {
+    count: u32,
+    area: f32,
+    pos: Vec3,
+    normal: Vec3,
+    seed: Vec3,
+    first: u32,
+}
+
+impl Group {
+    fn new(seed: Vec3) -> Group {
+        Group {
+            count: 0,
+            area: 0.0,
+            pos: Vec3::ZERO,
+            normal: Vec3::ZERO,
+            seed,
+            first: NONE,
+        }
+    }
+
+    fn add(&mut self, pts: &Points, i: u32) {
+        let a = pts.area[i as usize];
+        self.count += 1;
+        self.area += a;
+        self.pos += a * Vec3::from(pts.pos[i as usize]);
+        self.normal += a * Vec3::from(pts.normal[i as usize]);
+        self.first = self.first.min(i);
+    }
+
+    fn merge(&mut self, o: &Group) {
+        self.count += o.count;
+        self.area += o.area;
+        self.pos += o.pos;
+        self.normal += o.normal;
+        self.first = self.first.min(o.first);
+    }
+
+    /// The area-weighted mean normal (the seed for splats of zero area).
+    fn direction(&self) -> Vec3 {
+        self.normal.try_normalize().unwrap_or(self.seed)
+    }
+}
+
+/// The normal groups of the active splats `lo..hi` (one cut node): each splat joins the first
+/// group whose seed lies within [`ELEMENT_COS`] of its normal, the first seed being the splats'
+/// area-weighted mean normal (the first splat's normal made the grouping hang on one noisy
+/// normal), later seeds the first normal no group took. Then each group of less than
+/// [`MINOR_SHARE`] of the area joins the major group of the nearest normal: a scan's noisy
+/// normals otherwise make elements of one or two splats whose odd normals widen every normal
+/// cone above them (docs/fmm.md, "Scale"). `of[i - lo]` gets each active splat's group.
+fn groups(pts: &Points, lo: u32, hi: u32, of: &mut [u32]) -> Vec<Group> {
+    let active = (lo..hi).filter(|&i| pts.active[i as usize]);
+    let mean: Vec3 = active
+        .clone()
+        .map(|i| pts.area[i as usize] * Vec3::from(pts.normal[i as usize]))
+        .sum();
+    let mut g: Vec<Group> = mean.try_normalize().map(Group::new).into_iter().collect();
+    for i in active.clone() {
+        let n = Vec3::from(pts.normal[i as usize]);
+        let k = match g.iter().position(|s| s.seed.dot(n) >= ELEMENT_COS) {
+            Some(k) => k,
+            None => {
+                g.push(Group::new(n));
+                g.len() - 1
+            }
+        };
+        g[k].add(pts, i);
+        of[(i - lo) as usize] = k as u32;
+    }
+    // Kept: the major groups, or every group when none is major (a node of many small faces).
+    let total: f32 = g.iter().map(|s| s.area).sum();
+    let major = |s: &Group| s.count > 0 && s.area > 0.0 && s.area >= MINOR_SHARE * total;
+    let any_major = g.iter().any(major);
+    let keep = |s: &Group| s.count > 0 && (major(s) || !any_major);
+    let mut to = vec![NONE; g.len()];
+    let mut kept: Vec<Group> = Vec::new();
+    for (k, s) in g.iter().enumerate().filter(|(_, s)| keep(s)) {
+        to[k] = kept.len() as u32;
+        kept.push(*s);
+    }
+    let majors: Vec<Vec3> = kept.iter().map(Group::direction).collect();
+    for (k, s) in g
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.count > 0 && !keep(s))
+    {
+        let n = s.direction();
+        let best = (0..majors.len())
+            .max_by(|&x, &y| majors[x].dot(n).total_cmp(&majors[y].dot(n)))
+            .unwrap_or(0);
+        to[k] = best as u32;
+        kept[best].merge(s);
+    }
+    for i in active {
+        let o = &mut of[(i - lo) as usize];
+        *o = to[*o as usize];
+    }
+    kept
+}
+
+/// How many elements the cut nodes make.
+fn element_count(tree: &Tree, pts: &Points, cut: &[Cut]) -> u64 {
+    (0..tree.slots as u32)
+        .into_par_iter()
+        .filter(|&s| cut[s as usize] == Cut::On && tree.count(s) > 0)
+        .map_init(Vec::new, |of, s| {
+            let (lo, hi) = (tree.lo[s as usize], tree.hi[s as usize]);
+            of.resize((hi - lo) as usize, 0);
+            groups(pts, lo, hi, of).len() as u64
+        })
+        .sum()
+}
+
 /// The elements of the cut nodes, in splat order: each splat's element, the elements as points
 /// and each slot's element range (`[0, 0)` off the cut).
 #[allow(clippy::type_complexity)]
@@ -196,46 +330,31 @@ fn elements(tree: &Tree, pts: &Points, cut: &[Cut]) -> (Vec<u32>, Points, Vec<[u
     let mut of = vec![NONE; pts.pos.len()];
     let mut e = Points::default();
     let mut ranges = vec![[0u32; 2]; tree.slots];
-    // Per element being built: area, area × position, area × normal, first normal, first splat.
-    let mut sums: Vec<(f32, Vec3, Vec3, Vec3, u32)> = Vec::new();
     for &slot in &on {
         let first = e.pos.len() as u32;
-        sums.clear();
-        for i in tree.lo[slot as usize]..tree.hi[slot as usize] {
-            let iu = i as usize;
-            if !pts.active[iu] {
-                continue;
-            }
-            let n = Vec3::from(pts.normal[iu]);
-            let k = match sums.iter().position(|s| s.3.dot(n) >= ELEMENT_COS) {
-                Some(k) => k,
-                None => {
-                    sums.push((0.0, Vec3::ZERO, Vec3::ZERO, n, i));
-                    sums.len() - 1
-                }
+        let (lo, hi) = (tree.lo[slot as usize], tree.hi[slot as usize]);
+        let local = &mut of[lo as usize..hi as usize];
+        let g = groups(pts, lo, hi, local);
+        for (i, o) in (lo..hi).zip(local.iter_mut()) {
+            *o = match pts.active[i as usize] {
+                true => first + *o,
+                false => NONE,
             };
-            let a = pts.area[iu];
-            let s = &mut sums[k];
-            s.0 += a;
-            s.1 += a * Vec3::from(pts.pos[iu]);
-            s.2 += a * n;
-            of[iu] = first + k as u32;
         }
-        for &(a, ap, an, n0, i0) in &sums {
+        for s in &g {
             // Splats of zero area (none in a built octree) leave the element at its first.
-            let pos = if a > 0.0 {
-                ap / a
-            } else {
-                Vec3::from(pts.pos[i0 as usize])
+            let pos = match s.area > 0.0 {
+                true => s.pos / s.area,
+                false => Vec3::from(pts.pos[s.first as usize]),
             };
             e.pos.push(pos.into());
-            e.normal.push(an.try_normalize().unwrap_or(n0).into());
-            e.area.push(a);
+            e.normal.push(s.direction().into());
+            e.area.push(s.area);
             e.active.push(true);
             e.leaf.push(slot);
         }
         // A cut node whose splats are all inactive has no element (and an empty range).
-        if sums.is_empty() {
+        if g.is_empty() {
             continue;
         }
         ranges[slot as usize] = [first, e.pos.len() as u32];
@@ -324,5 +443,82 @@ fn cones(t: &mut Tree, pts: &Points) {
             }
             None => t.cone_cos[slot] = -1.0,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Splats of area 1 at the origin with the given normals.
+    fn splats(normals: &[Vec3]) -> Points {
+        let n = normals.len();
+        Points {
+            pos: vec![[0.0; 3]; n],
+            normal: normals.iter().map(|v| v.normalize().into()).collect(),
+            area: vec![1.0; n],
+            active: vec![true; n],
+            leaf: vec![0; n],
+        }
+    }
+
+    /// A normal tilted from +z by `deg` degrees towards the azimuth `az` (radians).
+    fn tilted(deg: f32, az: f32) -> Vec3 {
+        let t = deg.to_radians();
+        Vec3::new(t.sin() * az.cos(), t.sin() * az.sin(), t.cos())
+    }
+
+    #[test]
+    fn noisy_normals_of_one_face_make_one_element() {
+        // 64 normals within 20° of +z, and three outliers at 30-40° that the first-normal rule
+        // made into elements of their own.
+        let mut normals: Vec<Vec3> = (0..64)
+            .map(|k| tilted((k % 5) as f32 * 5.0, k as f32 * 2.4))
+            .collect();
+        normals.extend([tilted(30.0, 0.3), tilted(35.0, 2.0), tilted(40.0, 4.0)]);
+        let pts = splats(&normals);
+        let mut of = vec![0; normals.len()];
+        let g = groups(&pts, 0, normals.len() as u32, &mut of);
+        assert_eq!(g.len(), 1);
+        assert!(of.iter().all(|&k| k == 0));
+        assert_eq!(g[0].count, normals.len() as u32);
+        assert!((g[0].area - normals.len() as f32).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_corner_keeps_one_element_per_face_and_slivers_join_the_nearest() {
+        // Floor (+z) 40 splats, wall (+x) 24, and 2 splats of a third face (+y): the third is
+        // under an eighth of the area and joins the face nearest its normal.
+        let mut normals = vec![Vec3::Z; 40];
+        normals.extend(vec![Vec3::X; 24]);
+        normals.extend([Vec3::new(0.3, 1.0, 0.0), Vec3::new(0.3, 1.0, 0.0)]);
+        let pts = splats(&normals);
+        let mut of = vec![0; normals.len()];
+        let g = groups(&pts, 0, normals.len() as u32, &mut of);
+        assert_eq!(g.len(), 2);
+        let counts: Vec<u32> = g.iter().map(|s| s.count).collect();
+        assert_eq!(counts.iter().sum::<u32>(), 66);
+        let floor = of[0] as usize;
+        let wall = of[40] as usize;
+        assert_ne!(floor, wall);
+        assert_eq!(g[floor].count, 40);
+        assert_eq!(
+            g[wall].count, 26,
+            "the sliver joins the wall, the nearer normal"
+        );
+        assert_eq!((of[64], of[65]), (wall as u32, wall as u32));
+    }
+
+    #[test]
+    fn a_node_of_many_small_faces_keeps_them_all() {
+        // Ten faces 36° apart around a cone, none a major share: every one stays an element.
+        let normals: Vec<Vec3> = (0..10)
+            .flat_map(|k| vec![tilted(60.0, k as f32 * std::f32::consts::TAU / 10.0); 3])
+            .collect();
+        let pts = splats(&normals);
+        let mut of = vec![0; normals.len()];
+        let g = groups(&pts, 0, normals.len() as u32, &mut of);
+        assert_eq!(g.len(), 10);
+        assert!(g.iter().all(|s| s.count == 3));
     }
 }

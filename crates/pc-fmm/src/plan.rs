@@ -266,13 +266,11 @@ struct Out {
     dropped: u64,
 }
 
-/// A pair waiting at a receiver: the source cluster, the link's visible fraction, and whether
-/// it is accepted already, to be summed point to point into every receiving leaf below.
+/// A pair waiting at a receiver: the source cluster and the link's visible fraction.
 #[derive(Clone, Copy, Debug)]
 struct Pending {
     src: u32,
     fraction: f32,
-    direct: bool,
 }
 
 /// The V-map's links: CSR offsets per node-pool slot and the links.
@@ -358,19 +356,13 @@ impl Refiner<'_> {
         });
     }
 
-    /// An accepted pair: an expansion task, or, when it is small, point to point (into every
-    /// receiving leaf under `a`: handed `down` to the children until the leaves).
-    fn accept(
-        &self,
-        a: u32,
-        b: u32,
-        f: f32,
-        at_leaf: bool,
-        down: &mut Vec<Pending>,
-        out: &mut Out,
-    ) {
+    /// An accepted pair: an expansion task, or, when it is small and `a` receives as one leaf
+    /// (or splat), point to point. Only there: a small pair at an internal receiver would become
+    /// one task per leaf below it, and on a scan solved on clusters (leaves of a few elements)
+    /// that multiplied the plan twentyfold (docs/fmm.md, "Interaction plan").
+    fn accept(&self, a: u32, b: u32, f: f32, at_leaf: bool, out: &mut Out) {
         // An expansion costs about as much as summing a few dozen splat pairs exactly: small
-        // far pairs are summed point to point instead, one task per receiving leaf.
+        // far pairs are summed point to point instead.
         let count = |x: u32| {
             let (lo, hi) = range(self.t, x);
             (hi - lo) as u64
@@ -380,16 +372,8 @@ impl Refiner<'_> {
             (true, false) | (false, true) => DIRECT_ONE_SIDED,
             (false, false) => DIRECT_M2L,
         };
-        if count(a) * count(b) <= limit {
-            if at_leaf {
-                self.p2p(a, b, f, out);
-            } else {
-                down.push(Pending {
-                    src: b,
-                    fraction: f,
-                    direct: true,
-                });
-            }
+        if at_leaf && count(a) * count(b) <= limit {
+            self.p2p(a, b, f, out);
             return;
         }
         match (a & POINT != 0, b & POINT != 0) {
@@ -464,7 +448,6 @@ impl Refiner<'_> {
             stack.extend(links.1[s..e].iter().rev().map(|l| Pending {
                 src: l.slot(),
                 fraction: l.fraction,
-                direct: false,
             }));
         }
         let mut kids = Vec::new();
@@ -472,15 +455,6 @@ impl Refiner<'_> {
         let at_leaf = !ga.internal;
         while let Some(pd) = stack.pop() {
             let (b, f) = (pd.src, pd.fraction);
-            if pd.direct {
-                // An accepted small far pair, summed point to point into every receiving leaf.
-                if at_leaf {
-                    self.p2p(a, b, f, out);
-                } else {
-                    down.push(pd);
-                }
-                continue;
-            }
             let gb = self.geo(b);
             if gb.area <= 0.0 {
                 continue;
@@ -491,7 +465,6 @@ impl Refiner<'_> {
                     down.extend(kids.iter().map(|&y| Pending {
                         src: y,
                         fraction: f,
-                        direct: false,
                     }));
                 } else {
                     self.p2p(a, b, f, out);
@@ -500,7 +473,7 @@ impl Refiner<'_> {
             }
             match self.verdict(&ga, &gb) {
                 Verdict::Drop => out.dropped += 1,
-                Verdict::Accept => self.accept(a, b, f, at_leaf, &mut down, out),
+                Verdict::Accept => self.accept(a, b, f, at_leaf, out),
                 Verdict::SplitReceiver => down.push(pd),
                 Verdict::SplitSource => {
                     self.split(b, &mut kids);
