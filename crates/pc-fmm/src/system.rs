@@ -51,6 +51,9 @@ pub struct LightLists<'a> {
     pub self_hit: f32,
 }
 
+/// Shadow rays cast at once (a batch is large enough to keep a GPU busy).
+const SHADOW_BATCH: usize = 1 << 20;
+
 /// Build the system: albedo from the materials, E from emission and the point lights' direct
 /// light.
 ///
@@ -92,26 +95,29 @@ pub fn system(
                 partial.extend(lo..hi);
             }
         }
-        let mut rays = Vec::with_capacity(partial.len());
-        let mut who = Vec::with_capacity(partial.len());
-        for &i in &partial {
-            let s = &view.splats[i as usize];
-            let x = Vec3::from(s.position);
-            let d = light_position - x;
-            let len = d.length();
-            if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
-                continue;
+        // In batches: a 20M-splat scan's rays for one light took 0.7 GB at once.
+        for batch in partial.chunks(SHADOW_BATCH) {
+            let mut rays = Vec::with_capacity(batch.len());
+            let mut who = Vec::with_capacity(batch.len());
+            for &i in batch {
+                let s = &view.splats[i as usize];
+                let x = Vec3::from(s.position);
+                let d = light_position - x;
+                let len = d.length();
+                if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
+                    continue;
+                }
+                rays.push(Ray {
+                    origin: x,
+                    dir: d / len,
+                    t_min: seen.self_hit * s.radius,
+                    t_max: len * (1.0 - 1e-4),
+                });
+                who.push(i);
             }
-            rays.push(Ray {
-                origin: x,
-                dir: d / len,
-                t_min: seen.self_hit * s.radius,
-                t_max: len * (1.0 - 1e-4),
-            });
-            who.push(i);
+            let vis = tester.visible(&rays)?;
+            lit.extend(who.iter().zip(&vis).filter(|(_, &v)| v).map(|(&i, _)| i));
         }
-        let vis = tester.visible(&rays)?;
-        lit.extend(who.iter().zip(&vis).filter(|(_, &v)| v).map(|(&i, _)| i));
         for i in lit {
             let iu = i as usize;
             if !pts.active[iu] {
