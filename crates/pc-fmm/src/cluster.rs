@@ -7,7 +7,7 @@
 //! the smallest octree nodes are merged into **elements**: the *cut* is the highest node on
 //! every root-to-leaf path that lies within a V-map leaf (no link points below a V-map leaf)
 //! and is an octree leaf or holds at most `m` splats of one material class (the V-map's own
-//! purity rule), `m` the smallest size whose cut nodes make at most `max_elements` elements.
+//! purity rule), `m` a small size (bisection) whose cut nodes make at most `max_elements` elements.
 //! Within a cut node, splats of like normal form one element (a node across a corner gives one
 //! element per face; noisy normals of one face give one element, [`groups`]): its area is the
 //! sum of their areas, its position and normal their area-weighted means, its albedo, emission
@@ -29,6 +29,9 @@ use crate::error::FmmError;
 use crate::solve::{Operator, Solution};
 use crate::system::System;
 use crate::tree::{Points, Tree, NONE};
+
+/// The largest cut-node size the search tries (a node this large is above every V-map leaf).
+const MAX_NODE_SPLATS: u32 = 1 << 20;
 
 /// Splats whose normal is within this cosine (about 25°) of a group's seed normal join it.
 pub const ELEMENT_COS: f32 = 0.9;
@@ -68,11 +71,14 @@ impl Clustering {
             return None;
         }
         let in_vleaf = within_vleaf(tree, vleaf);
-        // The smallest m whose cut has at most max_elements elements (fewer as m grows). A cut
-        // node holds at least one element: first the smallest m with few enough nodes (cheap),
-        // then the elements counted from there.
+        // A small m whose cut makes at most max_elements elements, by bisection (elements fall
+        // as m grows, not strictly: a merged node's mean seed may split a face its children
+        // kept whole). A cut node holds at least one element: first the smallest m with few
+        // enough nodes (cheap), then the elements counted from there. Where even the largest m
+        // does not fit (the V-map's leaves alone make more), the largest: `Clustering::points`
+        // tells how many it made.
         let smallest = |lo: u32, fits: &dyn Fn(u32) -> bool| {
-            let (mut lo, mut hi) = (lo, 1u32 << 20);
+            let (mut lo, mut hi) = (lo, MAX_NODE_SPLATS);
             while lo < hi {
                 let m = lo + (hi - lo) / 2;
                 match fits(m) {
@@ -202,6 +208,9 @@ fn cut_nodes(view: &OctreeView, tree: &Tree, in_vleaf: &[bool], m: u32) -> (u64,
 /// (see [`groups`]).
 pub const MINOR_SHARE: f32 = 0.125;
 
+/// A minor group joins a major one only within this cosine (60°) of its normal.
+pub const MERGE_COS: f32 = 0.5;
+
 /// One normal group of a cut node: its splats' count, area, area × position and area ×
 /// normal, the seed normal that gathered them, and the first of them.
 #[derive(Clone, Copy)]
@@ -226,12 +235,13 @@ impl Group {
         }
     }
 
-    fn add(&mut self, pts: &Points, i: u32) {
+    /// Splat `i` with its normal `n` (zero for a splat without a usable one).
+    fn add(&mut self, pts: &Points, i: u32, n: Vec3) {
         let a = pts.area[i as usize];
         self.count += 1;
         self.area += a;
         self.pos += a * Vec3::from(pts.pos[i as usize]);
-        self.normal += a * Vec3::from(pts.normal[i as usize]);
+        self.normal += a * n;
         self.first = self.first.min(i);
     }
 
@@ -253,51 +263,66 @@ impl Group {
 /// group whose seed lies within [`ELEMENT_COS`] of its normal, the first seed being the splats'
 /// area-weighted mean normal (the first splat's normal made the grouping hang on one noisy
 /// normal), later seeds the first normal no group took. Then each group of less than
-/// [`MINOR_SHARE`] of the area joins the major group of the nearest normal: a scan's noisy
-/// normals otherwise make elements of one or two splats whose odd normals widen every normal
-/// cone above them (docs/fmm.md, "Scale"). `of[i - lo]` gets each active splat's group.
+/// [`MINOR_SHARE`] of the area joins the major group of the nearest normal if that lies within
+/// [`MERGE_COS`]: a scan's noisy normals otherwise make elements of one or two splats whose odd
+/// normals widen every normal cone above them (docs/fmm.md, "Scale"), while the back of a thin
+/// slab or a small face at a corner stays an element of its own. A splat without a usable
+/// normal joins the first group. `of[i - lo]` gets each active splat's group.
 fn groups(pts: &Points, lo: u32, hi: u32, of: &mut [u32]) -> Vec<Group> {
     let active = (lo..hi).filter(|&i| pts.active[i as usize]);
+    let normal = |i: u32| {
+        let n = Vec3::from(pts.normal[i as usize]);
+        (n.is_finite() && n.length_squared() > 0.25).then_some(n)
+    };
     let mean: Vec3 = active
         .clone()
-        .map(|i| pts.area[i as usize] * Vec3::from(pts.normal[i as usize]))
+        .filter_map(|i| Some(pts.area[i as usize] * normal(i)?))
         .sum();
     let mut g: Vec<Group> = mean.try_normalize().map(Group::new).into_iter().collect();
     for i in active.clone() {
-        let n = Vec3::from(pts.normal[i as usize]);
-        let k = match g.iter().position(|s| s.seed.dot(n) >= ELEMENT_COS) {
+        let n = normal(i);
+        let k = match n.and_then(|n| g.iter().position(|s| s.seed.dot(n) >= ELEMENT_COS)) {
             Some(k) => k,
+            None if n.is_none() && !g.is_empty() => 0,
             None => {
-                g.push(Group::new(n));
+                g.push(Group::new(n.unwrap_or(Vec3::Z)));
                 g.len() - 1
             }
         };
-        g[k].add(pts, i);
+        g[k].add(pts, i, n.unwrap_or(Vec3::ZERO));
         of[(i - lo) as usize] = k as u32;
     }
-    // Kept: the major groups, or every group when none is major (a node of many small faces).
+    // The major groups first, then each minor group merged into the nearest major one within
+    // MERGE_COS, or kept (every group when none is major: a node of many small faces).
     let total: f32 = g.iter().map(|s| s.area).sum();
     let major = |s: &Group| s.count > 0 && s.area > 0.0 && s.area >= MINOR_SHARE * total;
-    let any_major = g.iter().any(major);
-    let keep = |s: &Group| s.count > 0 && (major(s) || !any_major);
     let mut to = vec![NONE; g.len()];
     let mut kept: Vec<Group> = Vec::new();
-    for (k, s) in g.iter().enumerate().filter(|(_, s)| keep(s)) {
+    for (k, s) in g.iter().enumerate().filter(|(_, s)| major(s)) {
         to[k] = kept.len() as u32;
         kept.push(*s);
     }
     let majors: Vec<Vec3> = kept.iter().map(Group::direction).collect();
-    for (k, s) in g
+    let minor = g
         .iter()
         .enumerate()
-        .filter(|(_, s)| s.count > 0 && !keep(s))
-    {
+        .filter(|(_, s)| s.count > 0 && !major(s));
+    for (k, s) in minor {
         let n = s.direction();
-        let best = (0..majors.len())
-            .max_by(|&x, &y| majors[x].dot(n).total_cmp(&majors[y].dot(n)))
-            .unwrap_or(0);
-        to[k] = best as u32;
-        kept[best].merge(s);
+        let nearest = (0..majors.len())
+            .map(|x| (x, majors[x].dot(n)))
+            .filter(|&(_, c)| c >= MERGE_COS)
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match nearest {
+            Some((x, _)) => {
+                to[k] = x as u32;
+                kept[x].merge(s);
+            }
+            None => {
+                to[k] = kept.len() as u32;
+                kept.push(*s);
+            }
+        }
     }
     for i in active {
         let o = &mut of[(i - lo) as usize];
@@ -487,26 +512,49 @@ mod tests {
 
     #[test]
     fn a_corner_keeps_one_element_per_face_and_slivers_join_the_nearest() {
-        // Floor (+z) 40 splats, wall (+x) 24, and 2 splats of a third face (+y): the third is
-        // under an eighth of the area and joins the face nearest its normal.
+        // Floor (+z) 40 splats, wall (+x) 24, 2 splats 40° off the wall towards +y, and 2 facing
+        // down (the back of a thin slab): each sliver is under an eighth of the area; the first
+        // joins the wall, the nearer normal, the second is within 60° of no face and stays.
         let mut normals = vec![Vec3::Z; 40];
         normals.extend(vec![Vec3::X; 24]);
-        normals.extend([Vec3::new(0.3, 1.0, 0.0), Vec3::new(0.3, 1.0, 0.0)]);
+        let off = Vec3::new(40f32.to_radians().cos(), 40f32.to_radians().sin(), 0.0);
+        normals.extend([off, off, -Vec3::Z, -Vec3::Z]);
         let pts = splats(&normals);
         let mut of = vec![0; normals.len()];
         let g = groups(&pts, 0, normals.len() as u32, &mut of);
-        assert_eq!(g.len(), 2);
-        let counts: Vec<u32> = g.iter().map(|s| s.count).collect();
-        assert_eq!(counts.iter().sum::<u32>(), 66);
-        let floor = of[0] as usize;
-        let wall = of[40] as usize;
-        assert_ne!(floor, wall);
+        assert_eq!(g.len(), 3);
+        assert_eq!(g.iter().map(|s| s.count).sum::<u32>(), 68);
+        let (floor, wall, back) = (of[0] as usize, of[40] as usize, of[66] as usize);
         assert_eq!(g[floor].count, 40);
         assert_eq!(
             g[wall].count, 26,
             "the sliver joins the wall, the nearer normal"
         );
         assert_eq!((of[64], of[65]), (wall as u32, wall as u32));
+        assert_eq!(g[back].count, 2, "the slab's back stays its own element");
+        assert!(g[back].direction().dot(-Vec3::Z) > 0.999);
+    }
+
+    #[test]
+    fn a_splat_without_a_usable_normal_joins_the_first_group() {
+        let mut normals = vec![Vec3::Z; 8];
+        normals.push(Vec3::X);
+        let mut pts = splats(&normals);
+        pts.normal.push([f32::NAN, 0.0, 0.0]);
+        pts.normal.push([0.0; 3]);
+        for p in [&mut pts.pos] {
+            p.extend([[0.0; 3]; 2]);
+        }
+        pts.area.extend([1.0, 1.0]);
+        pts.active.extend([true, true]);
+        pts.leaf.extend([0, 0]);
+        let mut of = vec![0; 11];
+        let g = groups(&pts, 0, 11, &mut of);
+        assert_eq!((of[9], of[10]), (of[0], of[0]));
+        assert!(g
+            .iter()
+            .all(|s| s.normal.is_finite() && s.direction().is_finite()));
+        assert_eq!(g.iter().map(|s| s.count).sum::<u32>(), 11);
     }
 
     #[test]

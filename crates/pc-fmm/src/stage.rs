@@ -215,6 +215,14 @@ pub fn run(
     let v = vmap.view();
     let t = Instant::now();
     let clusters = Clustering::new(&view, &tree, &pts, v.vnode, p.max_elements);
+    let elements = clusters.as_ref().map_or(0, |c| c.points.pos.len() as u64);
+    if elements > p.max_elements {
+        progress.note(&format!(
+            "pc-fmm: {elements} elements, more than fmm.max_elements = {}: the solve goes no \
+             coarser than the V-map's leaves (a lower vmap.full_resolution_splats makes them larger)",
+            p.max_elements
+        ));
+    }
     let (s_tree, s_pts, s_sys) = match &clusters {
         Some(c) => {
             time("clusters", t);
@@ -279,7 +287,7 @@ pub fn run(
         residuals: sol.residuals.clone(),
         orders: sol.orders.clone(),
         active_splats: pts.active.iter().filter(|&&a| a).count() as u64,
-        elements: clusters.as_ref().map_or(0, |c| c.points.pos.len() as u64),
+        elements,
         m2l: plan.counts.m2l,
         p2l: plan.counts.p2l,
         m2p: plan.counts.m2p,

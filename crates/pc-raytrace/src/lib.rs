@@ -10,6 +10,7 @@ pub mod cpu;
 pub mod error;
 pub mod gpu;
 pub mod image;
+pub mod per_pixel;
 pub mod reference;
 pub mod renderer;
 pub mod sample;

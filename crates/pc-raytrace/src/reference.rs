@@ -6,7 +6,9 @@
 //! same pixels, as the
 //! relative error of each channel and as `‖ours − ref‖₁ / ‖ref‖₁` over RGB (the figure the
 //! 3 % target is about: tiny channels, such as the red wall's green, cannot blow it up).
-//! Whole image: `rel_rmse = sqrt(Σ (o − r)² / Σ r²)` over every pixel and channel.
+//! Whole image: `rel_rmse = sqrt(Σ (o − r)² / Σ r²)` over every pixel and channel, and the
+//! per-pixel relative error ([`crate::per_pixel`]) over every pixel and outside the band around
+//! the light's border.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -55,6 +57,12 @@ pub struct Report {
     pub regions: Vec<Region>,
     /// sqrt(Σ (o − r)² / Σ r²) over the whole image.
     pub rel_rmse: f64,
+    /// The per-pixel relative error ([`crate::per_pixel::error`]) over the whole image.
+    pub per_pixel: f64,
+    /// The same outside the band around the light's border ([`crate::per_pixel::light_band`]).
+    pub per_pixel_outside_band: f64,
+    /// Pixels in that band.
+    pub band_pixels: usize,
     pub mean_ours: [f64; 3],
     pub mean_reference: [f64; 3],
 }
@@ -99,6 +107,13 @@ impl Report {
             self.mean_reference[1],
             self.mean_reference[2],
             100.0 * self.rel_rmse
+        ));
+        s.push_str(&format!(
+            "per-pixel relative error: {:.4} whole image, {:.4} outside the {} pixels within {} of the light's border\n",
+            self.per_pixel,
+            self.per_pixel_outside_band,
+            self.band_pixels,
+            crate::per_pixel::LIGHT_BAND
         ));
         s
     }
@@ -270,10 +285,14 @@ pub fn compare_images(
             r2 += (r[c] as f64).powi(2);
         }
     }
+    let band = crate::per_pixel::light_band(reference);
     Ok(Report {
         reference_exr: reference_path.to_path_buf(),
         regions,
         rel_rmse: (d2 / r2.max(1e-300)).sqrt(),
+        per_pixel: crate::per_pixel::error(ours, reference, None),
+        per_pixel_outside_band: crate::per_pixel::error(ours, reference, Some(&band)),
+        band_pixels: band.iter().filter(|&&b| b).count(),
         mean_ours: ours.mean(),
         mean_reference: reference.mean(),
     })

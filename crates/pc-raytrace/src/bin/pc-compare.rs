@@ -8,8 +8,8 @@ use anyhow::Context;
 use clap::Parser;
 use pc_raytrace::image::{read_exr, write_diff_png};
 
-/// Relative RMSE and region means of a render against a reference render, and the difference
-/// image: `pc-compare IMAGE.exr REFERENCE.exr [--regions FILE]`, or `pc-compare IMAGE.exr
+/// Relative RMSE, per-pixel relative error and region means of a render against a reference
+/// render, and the difference image: `pc-compare IMAGE.exr REFERENCE.exr [--regions FILE]`, or `pc-compare IMAGE.exr
 /// --reference DIR` for a reference folder (an EXR and its *.stats.json, as in
 /// ../shared/reference/cornell).
 #[derive(Parser)]
@@ -86,11 +86,13 @@ fn run(a: &Args) -> anyhow::Result<()> {
     print!("{}", report.table());
     let worst = report.worst();
     println!(
-        "pc-compare: {} regions, worst {} at {:.2} %, relative RMSE {:.2} %; wrote {}",
+        "pc-compare: {} regions, worst {} at {:.2} %, relative RMSE {:.2} %, per-pixel relative error {:.4} ({:.4} outside the light's border); wrote {}",
         report.regions.len(),
         worst.map_or("-", |r| r.name.as_str()),
         worst.map_or(0.0, |r| 100.0 * r.error()),
         100.0 * report.rel_rmse,
+        report.per_pixel,
+        report.per_pixel_outside_band,
         diff.display()
     );
     if let (Some(max), Some(w)) = (a.max_region_error, worst) {
