@@ -208,8 +208,13 @@ fn cut_nodes(view: &OctreeView, tree: &Tree, in_vleaf: &[bool], m: u32) -> (u64,
 /// (see [`groups`]).
 pub const MINOR_SHARE: f32 = 0.125;
 
-/// A minor group joins a major one only within this cosine (60°) of its normal.
+/// A minor group joins a major one within this cosine (60°) of its normal...
 pub const MERGE_COS: f32 = 0.5;
+
+/// ...or whatever its normal when it lies within this many of its splats' mean disk radii of
+/// the major group's plane (a scan's flipped normals; on the 20M hall one radius left 77M
+/// point-to-point tasks and two 45M, no limit 38M).
+pub const PLANE_RADII: f32 = 2.0;
 
 /// One normal group of a cut node: its splats' count, area, area × position and area ×
 /// normal, the seed normal that gathered them, and the first of them.
@@ -257,6 +262,19 @@ impl Group {
     fn direction(&self) -> Vec3 {
         self.normal.try_normalize().unwrap_or(self.seed)
     }
+
+    /// The area-weighted mean position (infinitely far for splats of zero area: in no plane).
+    fn centre(&self) -> Vec3 {
+        match self.area > 0.0 {
+            true => self.pos / self.area,
+            false => Vec3::INFINITY,
+        }
+    }
+
+    /// The area-equivalent disk radius of its mean splat.
+    fn disk_radius(&self) -> f32 {
+        (self.area / (self.count.max(1) as f32 * std::f32::consts::PI)).sqrt()
+    }
 }
 
 /// The normal groups of the active splats `lo..hi` (one cut node): each splat joins the first
@@ -264,10 +282,12 @@ impl Group {
 /// area-weighted mean normal (the first splat's normal made the grouping hang on one noisy
 /// normal), later seeds the first normal no group took. Then each group of less than
 /// [`MINOR_SHARE`] of the area joins the major group of the nearest normal if that lies within
-/// [`MERGE_COS`]: a scan's noisy normals otherwise make elements of one or two splats whose odd
-/// normals widen every normal cone above them (docs/fmm.md, "Scale"), while the back of a thin
-/// slab or a small face at a corner stays an element of its own. A splat without a usable
-/// normal joins the first group. `of[i - lo]` gets each active splat's group.
+/// [`MERGE_COS`], or, whatever its normal, the major group in whose plane it lies (within
+/// [`PLANE_RADII`] of its splats' mean disk radius: a scan's flipped normals). A scan's noisy and flipped normals
+/// otherwise make elements of one or two splats whose odd normals widen every normal cone above
+/// them (docs/fmm.md, "Scale"), while the back of a thin slab or a small face at a corner stays
+/// an element of its own. A splat without a usable normal joins the first group. `of[i - lo]`
+/// gets each active splat's group.
 fn groups(pts: &Points, lo: u32, hi: u32, of: &mut [u32]) -> Vec<Group> {
     let active = (lo..hi).filter(|&i| pts.active[i as usize]);
     let normal = |i: u32| {
@@ -302,7 +322,7 @@ fn groups(pts: &Points, lo: u32, hi: u32, of: &mut [u32]) -> Vec<Group> {
         to[k] = kept.len() as u32;
         kept.push(*s);
     }
-    let majors: Vec<Vec3> = kept.iter().map(Group::direction).collect();
+    let majors: Vec<(Vec3, Vec3)> = kept.iter().map(|s| (s.direction(), s.centre())).collect();
     let minor = g
         .iter()
         .enumerate()
@@ -310,10 +330,19 @@ fn groups(pts: &Points, lo: u32, hi: u32, of: &mut [u32]) -> Vec<Group> {
     for (k, s) in minor {
         let n = s.direction();
         let nearest = (0..majors.len())
-            .map(|x| (x, majors[x].dot(n)))
-            .filter(|&(_, c)| c >= MERGE_COS)
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        match nearest {
+            .map(|x| (x, majors[x].0.dot(n)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|&(_, c)| c >= MERGE_COS);
+        // Flipped normals (a scan orients some normals wrongly) lie in a major group's plane:
+        // they join it whatever their normal.
+        let in_plane = || {
+            let (c, r) = (s.centre(), s.disk_radius());
+            (0..majors.len())
+                .map(|x| (x, majors[x].0.dot(c - majors[x].1).abs()))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .filter(|&(_, d)| d <= PLANE_RADII * r)
+        };
+        match nearest.or_else(in_plane) {
             Some((x, _)) => {
                 to[k] = x as u32;
                 kept[x].merge(s);
@@ -519,7 +548,17 @@ mod tests {
         normals.extend(vec![Vec3::X; 24]);
         let off = Vec3::new(40f32.to_radians().cos(), 40f32.to_radians().sin(), 0.0);
         normals.extend([off, off, -Vec3::Z, -Vec3::Z]);
-        let pts = splats(&normals);
+        let mut pts = splats(&normals);
+        // The floor in z = 0, the wall in x = 0, the slab's back 3 from both planes (the splats'
+        // disk radius is 0.56).
+        for k in 0..40 {
+            pts.pos[k] = [0.5 + (k % 8) as f32 * 0.5, 0.5 + (k / 8) as f32 * 0.5, 0.0];
+        }
+        for k in 40..64 {
+            pts.pos[k] = [0.0, 0.5 + (k % 6) as f32 * 0.5, 0.5 + (k / 6) as f32 * 0.1];
+        }
+        pts.pos[66] = [3.0, 3.0, -3.0];
+        pts.pos[67] = [3.0, 3.0, -3.0];
         let mut of = vec![0; normals.len()];
         let g = groups(&pts, 0, normals.len() as u32, &mut of);
         assert_eq!(g.len(), 3);
@@ -536,15 +575,29 @@ mod tests {
     }
 
     #[test]
+    fn flipped_normals_in_a_faces_plane_join_it() {
+        // A floor of 40 splats at z = 0 and 3 of them with the normal flipped: they lie in the
+        // floor's plane and join it, though their normal is opposite.
+        let mut normals = vec![Vec3::Z; 40];
+        normals.extend([-Vec3::Z; 3]);
+        let mut pts = splats(&normals);
+        for (k, p) in pts.pos.iter_mut().enumerate() {
+            *p = [k as f32 * 0.3, (k % 7) as f32 * 0.2, 0.01 * (k % 3) as f32];
+        }
+        let mut of = vec![0; normals.len()];
+        let g = groups(&pts, 0, normals.len() as u32, &mut of);
+        assert_eq!(g.len(), 1);
+        assert_eq!(g[0].count, 43);
+    }
+
+    #[test]
     fn a_splat_without_a_usable_normal_joins_the_first_group() {
         let mut normals = vec![Vec3::Z; 8];
         normals.push(Vec3::X);
         let mut pts = splats(&normals);
         pts.normal.push([f32::NAN, 0.0, 0.0]);
         pts.normal.push([0.0; 3]);
-        for p in [&mut pts.pos] {
-            p.extend([[0.0; 3]; 2]);
-        }
+        pts.pos.extend([[0.0; 3]; 2]);
         pts.area.extend([1.0, 1.0]);
         pts.active.extend([true, true]);
         pts.leaf.extend([0, 0]);
