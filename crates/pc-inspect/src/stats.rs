@@ -112,9 +112,13 @@ pub(crate) fn radiosity(f: &RadiosityFile) -> String {
     };
     let _ = writeln!(
         s,
-        "splats      {} ({} take part in the solve)",
+        "splats      {} ({} take part in the solve{})",
         radiance.len(),
-        meta.active_splats
+        meta.active_splats,
+        match meta.elements {
+            0 => String::new(),
+            e => format!(", solved as {e} elements"),
+        }
     );
     let (m, x) = stats(radiance);
     let _ = writeln!(s, "radiance    mean {}, max {}", rgb(m), rgb(x));
@@ -355,11 +359,12 @@ pub(crate) fn vmap(f: &VmapFile) -> String {
     );
     let _ = writeln!(
         s,
-        "parameters  theta {}, rays {}, near rays {}, leaf splats {}, self-hit {}",
+        "parameters  theta {}, rays {}, near rays {}, leaf splats {} (used {}), self-hit {}",
         meta.params.theta,
         meta.params.rays,
         meta.params.near_rays,
         meta.params.leaf_splats,
+        meta.leaf_splats_used,
         meta.params.self_hit
     );
     let _ = writeln!(
