@@ -17,6 +17,7 @@ pub mod params;
 pub mod photons;
 pub mod radiosity;
 pub mod reader;
+pub mod specular;
 pub mod vmap;
 pub mod writer;
 

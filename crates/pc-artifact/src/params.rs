@@ -241,6 +241,15 @@ pub struct CausticsParams {
     pub self_hit: f32,
     /// Seed of the photons' random numbers.
     pub seed: u32,
+    /// Paths traced for the specular links (diffuse light through mirrors and glass onto
+    /// diffuse surfaces, docs/caustics.md "Specular links"), shared among the (diffuse leaf,
+    /// specular leaf) pairs the V-map links; 0: no links (the seed's §8.1 split, which loses
+    /// that light). 0..=100,000,000; each path is one chain of rays, like a photon.
+    pub specular_paths: u32,
+    /// Paths' worth of deposits each splat's estimate of that light gathers at least (the
+    /// kernel widens until it holds them): the noise of the estimate is about 1/√ of it.
+    /// 1..=1,000,000.
+    pub specular_gather: u32,
 }
 
 impl Default for CausticsParams {
@@ -250,6 +259,8 @@ impl Default for CausticsParams {
             max_bounces: 8,
             self_hit: 0.5,
             seed: 0,
+            specular_paths: 1_000_000,
+            specular_gather: 400,
         }
     }
 }
@@ -259,7 +270,9 @@ impl CausticsParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         int("caustics.photons", self.photons, 0..=100_000_000)?;
         int("caustics.max_bounces", self.max_bounces, 1..=64)?;
-        real("caustics.self_hit", self.self_hit, Incl(0.0), Incl(100.0))
+        real("caustics.self_hit", self.self_hit, Incl(0.0), Incl(100.0))?;
+        int("caustics.specular_paths", self.specular_paths, 0..=100_000_000)?;
+        int("caustics.specular_gather", self.specular_gather, 1..=1_000_000)
     }
 }
 

@@ -5,6 +5,7 @@
 //! |------------|---------------|---------------------------------------------------------------|
 //! | `photons`  | [`Photon`]    | every stored photon (LS⁺D: first diffuse hit after ≥ 1 specular bounce) |
 //! | `deposit`  | `[f32; 3]`    | per data-pool splat: the caustic power (W, RGB) its photons carry, which pc-fmm adds to its sources |
+//! | `spec_*`   |               | the specular links (light-independent; [`crate::specular`]) |
 //!
 //! No search structure is stored: the renderer builds its kd-tree over the positions when it
 //! opens the map (pc-raytrace `caustic.rs`, 50 ms for 750k photons on two cores). An archived
@@ -22,6 +23,7 @@ use crate::light::PointLight;
 use crate::octree::OctreeId;
 use crate::params::CausticsParams;
 use crate::reader::Checked;
+use crate::specular::{SpecularMeta, SpecularView};
 use crate::{Artifact, ArtifactError, ArtifactKind};
 
 pub mod sections {
@@ -69,6 +71,9 @@ pub struct PhotonsMeta {
     pub lost: u64,
     pub device: String,
     pub timings: Vec<(String, f64)>,
+    /// The specular links (none in artifacts written before they existed).
+    #[serde(default)]
+    pub specular: SpecularMeta,
 }
 
 /// The sections of a photon map, checked ([`PhotonsFile`]).
@@ -77,6 +82,8 @@ pub struct PhotonsView<'a> {
     pub photons: &'a [Photon],
     /// Per data-pool splat: the caustic power its photons carry (W, RGB).
     pub deposit: &'a [[f32; 3]],
+    /// The specular links (diffuse → specular → diffuse).
+    pub specular: SpecularView<'a>,
 }
 
 impl<'a> PhotonsView<'a> {
@@ -84,6 +91,7 @@ impl<'a> PhotonsView<'a> {
         Ok(PhotonsView {
             photons: a.section(sections::PHOTONS)?,
             deposit: a.section(sections::DEPOSIT)?,
+            specular: SpecularView::sections(a)?,
         })
     }
 
@@ -118,7 +126,7 @@ impl<'a> PhotonsView<'a> {
                 self.deposit[j], sum[j]
             ));
         }
-        Ok(())
+        self.specular.check(splats)
     }
 }
 

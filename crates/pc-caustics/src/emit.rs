@@ -196,16 +196,38 @@ pub fn plan(
             out.emitted += std::f32::consts::PI * Vec3::from(m.radiance) * view.splat_area[j];
         }
     }
-    let count_of = |want: &dyn Fn(u32) -> bool| {
+    let area_pairs: Vec<(u32, u32, Vec3)> = leaf_pairs(leaves, v, &|l| l.class == class::EMITTER)
+        .into_iter()
+        .map(|(e, t, g)| (e, t, leaves.leaves[e as usize].radiance * g))
+        .collect();
+    out.pairs.extend(
+        area_pairs
+            .into_iter()
+            .map(|(e, t, p)| (Source::Area(e), t, p)),
+    );
+    out
+}
+
+/// Every (source leaf, specular leaf) pair that meets under a V-map link, once, with its
+/// geometric factor `A_S cos θ_S · A_L |cos θ_L| / d²` between the leaves' centroids and mean
+/// normals (the flux per unit radiance of the source leaf; the specular side either way, since
+/// a dielectric is entered from both). Sources are the leaves `is_source` accepts that face the
+/// specular leaf. Each pair of splats lies under exactly one link.
+pub fn leaf_pairs(
+    leaves: &Leaves,
+    v: &VmapView,
+    is_source: &dyn Fn(&Leaf) -> bool,
+) -> Vec<(u32, u32, f32)> {
+    let count_of = |want: &dyn Fn(&Leaf) -> bool| {
         let mut pre = vec![0u32; leaves.leaves.len() + 1];
         for (i, l) in leaves.leaves.iter().enumerate() {
-            pre[i + 1] = pre[i] + want(l.class) as u32;
+            pre[i + 1] = pre[i] + want(l) as u32;
         }
         pre
     };
-    let emit_pre = count_of(&|c| c == class::EMITTER);
-    let spec_pre = count_of(&|c| class::is_specular(c));
-    let mut area_pairs: Vec<(u32, u32, Vec3)> = Vec::new();
+    let source_pre = count_of(is_source);
+    let spec_pre = count_of(&|l| class::is_specular(l.class));
+    let mut pairs: Vec<(u32, u32, f32)> = Vec::new();
     for x in 0..v.node_range.len() {
         let row = &v.links[v.link_offsets[x] as usize..v.link_offsets[x + 1] as usize];
         if row.is_empty() {
@@ -213,7 +235,7 @@ pub fn plan(
         }
         let [xlo, xhi] = v.node_range[x];
         let xr = leaves.within(xlo, xhi);
-        if emit_pre[xr.end] == emit_pre[xr.start] {
+        if source_pre[xr.end] == source_pre[xr.start] {
             continue;
         }
         for link in row.iter().filter(|k| k.fraction > 0.0) {
@@ -224,12 +246,12 @@ pub fn plan(
             }
             for ei in xr.clone() {
                 let e = &leaves.leaves[ei];
-                if e.class != class::EMITTER {
+                if !is_source(e) {
                     continue;
                 }
                 for si in yr.clone() {
                     let t = &leaves.leaves[si];
-                    if !spec(t.class) {
+                    if !class::is_specular(t.class) {
                         continue;
                     }
                     let d = t.centroid - e.centroid;
@@ -243,20 +265,14 @@ pub fn plan(
                     if ce <= 0.0 {
                         continue;
                     }
-                    let p = e.radiance * (e.area * ce * t.area * ct / r2);
-                    area_pairs.push((ei as u32, si as u32, p));
+                    pairs.push((ei as u32, si as u32, e.area * ce * t.area * ct / r2));
                 }
             }
         }
     }
-    area_pairs.sort_by_key(|x| (x.0, x.1));
-    area_pairs.dedup_by_key(|x| (x.0, x.1));
-    out.pairs.extend(
-        area_pairs
-            .into_iter()
-            .map(|(e, t, p)| (Source::Area(e), t, p)),
-    );
-    out
+    pairs.sort_by_key(|x| (x.0, x.1));
+    pairs.dedup_by_key(|x| (x.0, x.1));
+    pairs
 }
 
 /// Share the budget out: `n_e |P| / |Φ|` photons per pair, rounded stochastically.

@@ -136,10 +136,20 @@ impl GpuTracer {
         progress: &dyn Fn(u64),
     ) -> Result<Traced, GpuError> {
         let mut out = Traced::default();
-        self.dispatch_all(ctx, aims, &mut |slots| {
-            for p in slots {
+        let mut first = Vec::with_capacity(aims.len() + 1);
+        let mut total = 0u64;
+        for a in aims {
+            first.push(total);
+            total += a.photons as u64;
+        }
+        self.dispatch_all(ctx, aims, &mut |start, slots| {
+            for (k, p) in slots.iter().enumerate() {
                 match p._pad {
-                    FATE_STORED => out.photons.push(Photon { _pad: 0, ..*p }),
+                    FATE_STORED => {
+                        out.photons.push(Photon { _pad: 0, ..*p });
+                        let id = start + k as u64;
+                        out.aim.push((first.partition_point(|&f| f <= id) - 1) as u32);
+                    }
                     FATE_OCCLUDED => out.occluded += 1,
                     _ => out.lost += 1,
                 }
@@ -153,7 +163,7 @@ impl GpuTracer {
     /// The fate of every photon of `aims`, by id (for tests against the CPU twin).
     pub fn fates(&self, ctx: &GpuContext, aims: &[Aim]) -> Result<Vec<Fate>, GpuError> {
         let mut out = Vec::new();
-        self.dispatch_all(ctx, aims, &mut |slots| {
+        self.dispatch_all(ctx, aims, &mut |_, slots| {
             out.extend(slots.iter().map(|p| match p._pad {
                 FATE_STORED => Fate::Stored(Photon { _pad: 0, ..*p }),
                 FATE_OCCLUDED => Fate::Occluded,
@@ -165,12 +175,12 @@ impl GpuTracer {
     }
 
     /// Run the kernel over every photon id of `aims`, handing each dispatch's slots (photon
-    /// records with the fate in `_pad`) to `sink` in id order.
+    /// records with the fate in `_pad`, and the id of the first) to `sink` in id order.
     fn dispatch_all(
         &self,
         ctx: &GpuContext,
         aims: &[Aim],
-        sink: &mut dyn FnMut(&[Photon]),
+        sink: &mut dyn FnMut(u64, &[Photon]),
     ) -> Result<(), GpuError> {
         let mut ga = Vec::with_capacity(aims.len());
         let mut total = 0u64;
@@ -227,7 +237,7 @@ impl GpuTracer {
             )?;
             // A copy: the readback bytes carry no alignment guarantee for the cast.
             let slots: Vec<Photon> = bytemuck::pod_collect_to_vec(&bytes);
-            sink(&slots);
+            sink(done, &slots);
             done += count as u64;
         }
         Ok(())

@@ -14,5 +14,6 @@
 pub mod emit;
 pub mod error;
 pub mod gpu;
+pub mod links;
 pub mod stage;
 pub mod trace;

@@ -6,7 +6,8 @@ use std::time::Instant;
 use glam::Vec3;
 use pc_artifact::octree::OctreeFile;
 use pc_artifact::params::CausticsParams;
-use pc_artifact::photons::{sections, Photon, PhotonsMeta};
+use pc_artifact::photons::{sections, Photon, PhotonsFile, PhotonsMeta};
+use pc_artifact::specular::{self as spec, SpecularMeta};
 use pc_artifact::vmap::VmapFile;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{Backend, LoadedConfig};
@@ -16,6 +17,7 @@ use pc_tree::TraversalStats;
 use rayon::prelude::*;
 
 use crate::emit::{self, Aim, Leaves};
+use crate::links;
 use crate::error::CausticsError;
 use crate::trace::{Fate, Tracer};
 
@@ -33,6 +35,8 @@ pub struct Summary {
 #[derive(Debug, Default)]
 pub struct Traced {
     pub photons: Vec<Photon>,
+    /// The index of the aim each stored photon was traced for.
+    pub aim: Vec<u32>,
     pub traced: u64,
     pub occluded: u64,
     pub lost: u64,
@@ -62,7 +66,10 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
                 }
                 out.traced += 1;
                 match tracer.photon(&aims[a], id as u32, &mut st) {
-                    Fate::Stored(p) => out.photons.push(p),
+                    Fate::Stored(p) => {
+                        out.photons.push(p);
+                        out.aim.push(a as u32);
+                    }
                     Fate::Occluded => out.occluded += 1,
                     Fate::Lost | Fate::Absorbed => out.lost += 1,
                 }
@@ -74,6 +81,7 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
     let mut out = Traced::default();
     for c in chunks {
         out.photons.extend(c.photons);
+        out.aim.extend(c.aim);
         out.traced += c.traced;
         out.occluded += c.occluded;
         out.lost += c.lost;
@@ -123,11 +131,19 @@ pub fn run(
     timings.push(("emission".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
-    let start_tracing = || {
-        progress.phase("photons");
-        progress.total(total);
+    let spec_key = specular_key(&octree.key(), &vmap.meta().links_key, &p, &materials);
+    let reused = reusable(out, &spec_key, view.splats.len());
+    let spec_aims = match reused {
+        Some(_) => Vec::new(),
+        None => links::aims(&leaves, &vmap.view(), p.specular_paths, p.seed),
     };
-    let (traced, device) = pc_stage::gpu_or_cpu(
+    let spec_total: u64 = spec_aims.iter().map(|a| a.photons as u64).sum();
+    let start_tracing = || {
+        progress.phase("photons and specular links");
+        progress.total(total + spec_total);
+    };
+    let advance = |n| progress.advance(n);
+    let ((traced, spec), device) = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
         |ctx| {
@@ -141,10 +157,11 @@ pub fn run(
                 p.self_hit,
                 p.seed,
             )?;
-            Ok::<_, CausticsError>((
-                g.trace_all(&ctx, &aims, &|n| progress.advance(n))?,
-                ctx.describe(),
-            ))
+            let both = (
+                g.trace_all(&ctx, &aims, &advance)?,
+                g.trace_all(&ctx, &spec_aims, &advance)?,
+            );
+            Ok::<_, CausticsError>((both, ctx.describe()))
         },
         || {
             start_tracing();
@@ -158,11 +175,38 @@ pub fn run(
                 self_hit: p.self_hit,
                 seed: p.seed,
             };
-            let t = trace_all(&tracer, &aims, &|n| progress.advance(n));
-            Ok((t, format!("CPU ({} threads)", rayon::current_num_threads())))
+            let both = (
+                trace_all(&tracer, &aims, &advance),
+                trace_all(&tracer, &spec_aims, &advance),
+            );
+            Ok((both, format!("CPU ({} threads)", rayon::current_num_threads())))
         },
     )?;
     timings.push(("trace".to_string(), t.elapsed().as_secs_f64()));
+
+    let t = Instant::now();
+    let (links, mut spec_meta) = match reused {
+        Some(r) => r,
+        None => {
+            progress.phase("specular links");
+            let l = links::build(&view, &materials, &leaves, &spec_aims, &spec, p.specular_gather);
+            let m = SpecularMeta {
+                key: spec_key.to_string(),
+                paths: spec.traced,
+                stored: spec.photons.len() as u64,
+                occluded: spec.occluded,
+                lost: spec.lost,
+                ..Default::default()
+            };
+            (l, m)
+        }
+    };
+    spec_meta.senders = links.senders.len() as u64;
+    spec_meta.bins = links.flux_offsets.len().saturating_sub(1) as u64;
+    spec_meta.flux_links = links.flux.len() as u64;
+    spec_meta.gather_links = links.gather.len() as u64;
+    spec_meta.seconds = t.elapsed().as_secs_f64();
+    timings.push(("specular links".to_string(), spec_meta.seconds));
 
     let deposit = deposit(view.splats.len(), &traced.photons);
 
@@ -180,10 +224,16 @@ pub fn run(
         lost: traced.lost,
         device,
         timings,
+        specular: spec_meta,
     };
     let mut w = ArtifactWriter::create(out, ArtifactKind::Photons, STAGE, STAGE_VERSION, key)?;
     w.section(sections::PHOTONS, &traced.photons)?;
     w.section(sections::DEPOSIT, &deposit)?;
+    w.section(spec::sections::SENDERS, &links.senders)?;
+    w.section(spec::sections::FLUX_OFFSETS, &links.flux_offsets)?;
+    w.section(spec::sections::FLUX, &links.flux)?;
+    w.section(spec::sections::GATHER_OFFSETS, &links.gather_offsets)?;
+    w.section(spec::sections::GATHER, &links.gather)?;
     w.metadata(&meta)?;
     w.finish()?;
     Ok(Summary {
@@ -234,6 +284,51 @@ pub fn photons_key(
         h.update(bytemuck::bytes_of(&seen));
     }
     h.finish()
+}
+
+/// The key of the specular links alone: stage, build, octree, the V-map's links key (not its
+/// light lists), the parameters that shape them, and the materials as a photon meets them
+/// ([`photons_key`]): moving a light or recolouring a wall reuses them.
+pub fn specular_key(
+    octree: &Key,
+    vmap_links: &str,
+    p: &CausticsParams,
+    materials: &[pc_artifact::octree::MaterialRecord],
+) -> Key {
+    let shape = CausticsParams {
+        photons: 0,
+        ..*p
+    };
+    let mut h = KeyHasher::new();
+    h.update_str("specular links")
+        .update_key(&photons_key(octree, &Key::default(), &shape, materials))
+        .update_str(vmap_links);
+    h.finish()
+}
+
+/// The links of the previous artifact at `path` when its links key is `key` and it fits a data
+/// pool of `splats` splats.
+fn reusable(path: &Path, key: &Key, splats: usize) -> Option<(links::Links, SpecularMeta)> {
+    let f = PhotonsFile::open_alone(path).ok()?;
+    let (meta, v) = (&f.meta().specular, f.view());
+    if meta.key != key.to_string() || v.deposit.len() != splats {
+        return None;
+    }
+    let s = v.specular;
+    let links = links::Links {
+        senders: s.senders.to_vec(),
+        flux_offsets: s.flux_offsets.to_vec(),
+        flux: s.flux.to_vec(),
+        gather_offsets: s.gather_offsets.to_vec(),
+        gather: s.gather.to_vec(),
+    };
+    Some((
+        links,
+        SpecularMeta {
+            reused: true,
+            ..meta.clone()
+        },
+    ))
 }
 
 /// pc-caustics as its binary runs it.

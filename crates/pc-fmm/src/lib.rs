@@ -21,6 +21,7 @@ pub(crate) mod par;
 pub mod plan;
 pub mod shaft;
 pub mod solve;
+pub mod specular;
 pub mod stage;
 pub mod system;
 pub mod tree;

@@ -21,6 +21,7 @@ use crate::error::FmmError;
 use crate::expansion::Basis;
 use crate::plan::{self, Plan, PlanParams};
 use crate::solve::{self, Gmres, Operator, Solution};
+use crate::specular::{SpecularTransfer, WithSpecular};
 use crate::system::{self, LightLists, System};
 use crate::tree::{self, Points, Tree};
 use crate::{CpuFmm, CpuOperator};
@@ -242,6 +243,14 @@ pub fn run(
 
     let basis = Basis::new(p.order as usize);
     let mut op = operator(backend, &basis, s_tree, s_pts, &plan)?;
+    // Light through mirrors and glass between diffuse splats: pc-caustics' specular links.
+    let links = photons.as_ref().map(|f| f.view().specular).unwrap_or_default();
+    if let Some(transfer) = SpecularTransfer::new(links, &pts, clusters.as_ref()) {
+        op = Box::new(WithSpecular {
+            inner: op,
+            transfer,
+        });
+    }
     let device = op.device();
     progress.phase("solve");
     let t = Instant::now();

@@ -1,0 +1,218 @@
+//! Schema of the specular links, the light-independent part of the `photons` artifact
+//! (pc-caustics; docs/caustics.md "Specular links"): how the reflected light of diffuse splats
+//! reaches other diffuse splats through mirrors and glass (paths D S⁺ D).
+//!
+//! The transfer is a product of three sparse maps, applied by pc-fmm to the reflected
+//! radiance `L` of every splat in each product of the solve:
+//!
+//! 1. **senders**: `L̄_s`, the area-weighted mean of `L` over a sender's splats (an octree leaf
+//!    of diffuse splats, stored as its data-pool range);
+//! 2. **flux**: `Φ_b = Σ w ⊙ L̄_s` over the links `(s, w)` of bin `b`, the flux that arrives
+//!    in bin `b` (an octree leaf of diffuse splats) from the senders through specular chains;
+//! 3. **gather**: `T_i = Σ g Φ_b` over the links `(b, g)` of splat `i`, the density estimate
+//!    of the irradiance over π at splat `i` (a kernel over the nearby bins of its surface).
+//!
+//! | section               | element          | what |
+//! |-----------------------|------------------|------|
+//! | `spec_senders`        | `[u32; 2]`       | per sender: its splats `[lo, hi)` in the data pool |
+//! | `spec_flux_offsets`   | `u32`            | CSR row starts, one per bin plus one (empty: no links) |
+//! | `spec_flux`           | [`FluxLink`]     | per bin: the senders whose light reaches it, and the weight |
+//! | `spec_gather_offsets` | `u32`            | CSR row starts, one per data-pool splat plus one (empty: no links) |
+//! | `spec_gather`         | [`GatherLink`]   | per splat: the bins of its density estimate, and their weights |
+
+use bytemuck::{Pod, Zeroable};
+use serde::{Deserialize, Serialize};
+
+use crate::{Artifact, ArtifactError};
+
+pub mod sections {
+    pub const SENDERS: &str = "spec_senders";
+    pub const FLUX_OFFSETS: &str = "spec_flux_offsets";
+    pub const FLUX: &str = "spec_flux";
+    pub const GATHER_OFFSETS: &str = "spec_gather_offsets";
+    pub const GATHER: &str = "spec_gather";
+}
+
+/// Flux into a bin per unit reflected radiance of a sender (area · sr, RGB: the specular
+/// chains' tint): `Φ_b += weight ⊙ L̄_sender`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct FluxLink {
+    pub sender: u32,
+    pub weight: [f32; 3],
+}
+
+/// One bin of a splat's density estimate: `T_i += weight · Φ_bin` (1 / area).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GatherLink {
+    pub bin: u32,
+    pub weight: f32,
+}
+
+/// What the specular links were made from and how many there are.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(default)]
+pub struct SpecularMeta {
+    /// Key of the links alone: the octree, the V-map's links key, the parameters that shape
+    /// them and the materials; lights do not enter it, so moving a light reuses them.
+    pub key: String,
+    /// Paths traced from diffuse leaves toward the specular leaves they see.
+    pub paths: u64,
+    /// Paths that landed on a diffuse splat after ≥ 1 specular bounce.
+    pub stored: u64,
+    /// Paths whose aim point was hidden (another surface in front of it).
+    pub occluded: u64,
+    /// Paths that left the scene, hit a back face or reached the bounce limit.
+    pub lost: u64,
+    pub senders: u64,
+    pub bins: u64,
+    pub flux_links: u64,
+    pub gather_links: u64,
+    /// Whether the links were copied from the previous artifact (same key).
+    pub reused: bool,
+    pub seconds: f64,
+}
+
+/// The specular links' sections, checked.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SpecularView<'a> {
+    pub senders: &'a [[u32; 2]],
+    pub flux_offsets: &'a [u32],
+    pub flux: &'a [FluxLink],
+    pub gather_offsets: &'a [u32],
+    pub gather: &'a [GatherLink],
+}
+
+impl<'a> SpecularView<'a> {
+    /// The sections of `a`; an artifact written before the links existed has none: no links.
+    pub fn sections(a: &'a Artifact) -> Result<SpecularView<'a>, ArtifactError> {
+        if !a.has_section(sections::SENDERS) {
+            return Ok(SpecularView::default());
+        }
+        Ok(SpecularView {
+            senders: a.section(sections::SENDERS)?,
+            flux_offsets: a.section(sections::FLUX_OFFSETS)?,
+            flux: a.section(sections::FLUX)?,
+            gather_offsets: a.section(sections::GATHER_OFFSETS)?,
+            gather: a.section(sections::GATHER)?,
+        })
+    }
+
+    /// Whether there is any transfer to apply.
+    pub fn is_empty(&self) -> bool {
+        self.flux.is_empty() || self.gather.is_empty()
+    }
+
+    /// The number of bins.
+    pub fn bins(&self) -> usize {
+        self.flux_offsets.len().saturating_sub(1)
+    }
+
+    /// The flux links of bin `b`.
+    pub fn flux_of(&self, b: usize) -> &'a [FluxLink] {
+        &self.flux[self.flux_offsets[b] as usize..self.flux_offsets[b + 1] as usize]
+    }
+
+    /// The gather links of splat `i`.
+    pub fn gather_of(&self, i: usize) -> &'a [GatherLink] {
+        &self.gather[self.gather_offsets[i] as usize..self.gather_offsets[i + 1] as usize]
+    }
+
+    /// The structure every reader relies on, for a data pool of `splats` splats: CSR indices
+    /// (empty or complete), senders within the pool, bins and senders that exist, finite
+    /// non-negative weights.
+    pub fn check(&self, splats: usize) -> Result<(), String> {
+        let csr = |o: &[u32], rows: usize, len: usize| {
+            (o.is_empty() && len == 0)
+                || (o.len() == rows + 1
+                    && o.first() == Some(&0)
+                    && o.windows(2).all(|w| w[0] <= w[1])
+                    && o.last().map(|&x| x as usize) == Some(len))
+        };
+        let bins = self.bins();
+        if !csr(self.flux_offsets, bins, self.flux.len()) {
+            return Err("specular flux offsets are not a CSR index over the flux links".into());
+        }
+        if !csr(self.gather_offsets, splats, self.gather.len()) {
+            return Err(format!(
+                "specular gather offsets are not a CSR index over the gather links of {splats} splats"
+            ));
+        }
+        if self
+            .senders
+            .iter()
+            .any(|r| r[0] > r[1] || r[1] as usize > splats)
+        {
+            return Err("a specular sender's splat range lies outside the data pool".into());
+        }
+        let weight_ok = |w: f32| w.is_finite() && w >= 0.0;
+        if self.flux.iter().any(|l| {
+            l.sender as usize >= self.senders.len() || !l.weight.iter().all(|&w| weight_ok(w))
+        }) {
+            return Err(
+                "a specular flux link names a sender that does not exist or has a weight that is not finite and non-negative".into(),
+            );
+        }
+        if self
+            .gather
+            .iter()
+            .any(|g| g.bin as usize >= bins || !weight_ok(g.weight))
+        {
+            return Err(
+                "a specular gather link names a bin that does not exist or has a weight that is not finite and non-negative".into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view<'a>(
+        senders: &'a [[u32; 2]],
+        fo: &'a [u32],
+        flux: &'a [FluxLink],
+        go: &'a [u32],
+        gather: &'a [GatherLink],
+    ) -> SpecularView<'a> {
+        SpecularView {
+            senders,
+            flux_offsets: fo,
+            flux,
+            gather_offsets: go,
+            gather,
+        }
+    }
+
+    #[test]
+    fn the_check_names_what_is_wrong() {
+        let senders = [[0, 2]];
+        let flux = [FluxLink {
+            sender: 0,
+            weight: [1.0; 3],
+        }];
+        let gather = [GatherLink { bin: 0, weight: 2.0 }];
+        let go = [0, 1, 1, 1];
+        assert!(view(&senders, &[0, 1], &flux, &go, &gather).check(3).is_ok());
+        assert!(view(&[], &[], &[], &[], &[]).check(3).is_ok());
+        let e = view(&senders, &[0, 1], &flux, &go, &gather).check(4).unwrap_err();
+        assert!(e.contains("gather offsets"), "{e}");
+        let far = [[0, 9]];
+        let e = view(&far, &[0, 1], &flux, &go, &gather).check(3).unwrap_err();
+        assert!(e.contains("sender's splat range"), "{e}");
+        let nan = [FluxLink {
+            sender: 0,
+            weight: [f32::NAN, 0.0, 0.0],
+        }];
+        let e = view(&senders, &[0, 1], &nan, &go, &gather).check(3).unwrap_err();
+        assert!(e.contains("flux link"), "{e}");
+        let bad_bin = [GatherLink { bin: 1, weight: 1.0 }];
+        let e = view(&senders, &[0, 1], &flux, &go, &bad_bin).check(3).unwrap_err();
+        assert!(e.contains("gather link"), "{e}");
+        assert_eq!(std::mem::size_of::<FluxLink>(), 16);
+        assert_eq!(std::mem::size_of::<GatherLink>(), 8);
+    }
+}
