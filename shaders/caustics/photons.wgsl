@@ -15,14 +15,15 @@ struct Leaf {
 
 // Photons first .. first + count of one aim (twin of emit::Aim): from a point light at `origin`
 // (source_leaf == INVALID) or from a splat of emitter leaf `source_leaf`, towards a splat of
-// specular leaf `target`, each carrying `power`.
+// specular leaf `target`, each carrying `power` (times the sampled points' cos θ_s |cos θ_t| /
+// (d² + r_t²) when `sample_geometry` is 1).
 struct Aim {
     origin: vec3<f32>,
     source_leaf: u32,
     power: vec3<f32>,
     target_leaf: u32,
     first: u32,
-    _pad0: u32,
+    sample_geometry: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -130,6 +131,11 @@ fn photon(id: u32) -> PhotonOut {
     let first_min = dist - 2.0 * target_splat.radius;
     var ro = origin;
     var power = aim.power;
+    if aim.sample_geometry != 0u {
+        let ct = abs(dot(target_splat.normal, rd));
+        let ce = select(1.0, dot(emitter_normal, rd), aim.source_leaf != INVALID);
+        power = power * (ce * ct / (dist * dist + 0.1 * target_splat.radius * target_splat.radius));
+    }
     var bounces = 0u;
     loop {
         let hit = trace(ro, rd, t_min, F32_MAX, false);

@@ -69,11 +69,62 @@ fn traces_inspects_renders_and_rejects_bad_inputs() {
             c.stored,
             g.stored
         );
+        // The specular links' paths too (the same tracer from diffuse leaves).
+        let (cs, gs) = (c.specular.stored as f64, g.specular.stored as f64);
+        assert_eq!(c.specular.paths, g.specular.paths);
+        assert!(
+            cs > 0.0 && (cs - gs).abs() <= 4.0 * cs.sqrt(),
+            "specular paths kept: {cs} on the CPU, {gs} on the GPU"
+        );
     }
     let out = pc_inspect(args![&photons, "--verify"]).success();
-    for needle in ["stored of", "bounces", "in the map", "ok (checksums,"] {
+    for needle in [
+        "stored of",
+        "bounces",
+        "in the map",
+        "links paths kept",
+        "ok (checksums,",
+    ] {
         assert!(out.stdout.contains(needle), "{needle}: {out:?}");
     }
+    // The specular links (diffuse light through the spheres) depend on the geometry alone: a
+    // run with another photon budget (or another light) copies them.
+    let links = |p: &std::path::Path| {
+        let a = Artifact::open(p).unwrap();
+        let meta: pc_artifact::photons::PhotonsMeta = a.metadata().unwrap();
+        let flux: Vec<u8> = a
+            .section_bytes(pc_artifact::specular::sections::FLUX)
+            .unwrap()
+            .to_vec();
+        (meta.specular, flux)
+    };
+    let (first, flux) = links(&photons);
+    assert!(
+        first.stored > 1000 && first.flux_links > 0 && first.gather_links > 0 && !first.reused,
+        "{first:?}"
+    );
+    let out = run(
+        "pc-caustics",
+        args![
+            "--quiet",
+            "--backend",
+            "cpu",
+            "--config",
+            &cfg,
+            "--set",
+            "caustics.photons=150000"
+        ],
+    )
+    .success();
+    assert!(out.stdout.contains("reused"), "{out:?}");
+    let (again, flux_again) = links(&photons);
+    assert!(again.reused && again.key == first.key, "{again:?}");
+    assert_eq!(flux, flux_again, "the links are copied as they were");
+    run(
+        "pc-caustics",
+        args!["--quiet", "--backend", "cpu", "--config", &cfg],
+    )
+    .success();
     // pc-fmm takes the caustic energy into its sources; pc-raytrace reads both.
     run(
         "pc-fmm",

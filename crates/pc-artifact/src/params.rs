@@ -271,8 +271,16 @@ impl CausticsParams {
         int("caustics.photons", self.photons, 0..=100_000_000)?;
         int("caustics.max_bounces", self.max_bounces, 1..=64)?;
         real("caustics.self_hit", self.self_hit, Incl(0.0), Incl(100.0))?;
-        int("caustics.specular_paths", self.specular_paths, 0..=100_000_000)?;
-        int("caustics.specular_gather", self.specular_gather, 1..=1_000_000)
+        int(
+            "caustics.specular_paths",
+            self.specular_paths,
+            0..=100_000_000,
+        )?;
+        int(
+            "caustics.specular_gather",
+            self.specular_gather,
+            1..=1_000_000,
+        )
     }
 }
 

@@ -194,23 +194,39 @@ mod tests {
             sender: 0,
             weight: [1.0; 3],
         }];
-        let gather = [GatherLink { bin: 0, weight: 2.0 }];
+        let gather = [GatherLink {
+            bin: 0,
+            weight: 2.0,
+        }];
         let go = [0, 1, 1, 1];
-        assert!(view(&senders, &[0, 1], &flux, &go, &gather).check(3).is_ok());
+        assert!(view(&senders, &[0, 1], &flux, &go, &gather)
+            .check(3)
+            .is_ok());
         assert!(view(&[], &[], &[], &[], &[]).check(3).is_ok());
-        let e = view(&senders, &[0, 1], &flux, &go, &gather).check(4).unwrap_err();
+        let e = view(&senders, &[0, 1], &flux, &go, &gather)
+            .check(4)
+            .unwrap_err();
         assert!(e.contains("gather offsets"), "{e}");
         let far = [[0, 9]];
-        let e = view(&far, &[0, 1], &flux, &go, &gather).check(3).unwrap_err();
+        let e = view(&far, &[0, 1], &flux, &go, &gather)
+            .check(3)
+            .unwrap_err();
         assert!(e.contains("sender's splat range"), "{e}");
         let nan = [FluxLink {
             sender: 0,
             weight: [f32::NAN, 0.0, 0.0],
         }];
-        let e = view(&senders, &[0, 1], &nan, &go, &gather).check(3).unwrap_err();
+        let e = view(&senders, &[0, 1], &nan, &go, &gather)
+            .check(3)
+            .unwrap_err();
         assert!(e.contains("flux link"), "{e}");
-        let bad_bin = [GatherLink { bin: 1, weight: 1.0 }];
-        let e = view(&senders, &[0, 1], &flux, &go, &bad_bin).check(3).unwrap_err();
+        let bad_bin = [GatherLink {
+            bin: 1,
+            weight: 1.0,
+        }];
+        let e = view(&senders, &[0, 1], &flux, &go, &bad_bin)
+            .check(3)
+            .unwrap_err();
         assert!(e.contains("gather link"), "{e}");
         assert_eq!(std::mem::size_of::<FluxLink>(), 16);
         assert_eq!(std::mem::size_of::<GatherLink>(), 8);

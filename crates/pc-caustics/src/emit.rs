@@ -45,6 +45,10 @@ pub struct Aim {
     pub photons: u32,
     /// Power of each (W, RGB).
     pub power: [f32; 3],
+    /// The power is per unit of the sampled points' geometry, `cos θ_s |cos θ_t| / (d² + r_t²)`
+    /// (source point, aim point, the aimed splat's radius), not the pair's whole: unbiased
+    /// where the leaves' centroids misjudge it (the specular links, [`crate::links`]).
+    pub sample_geometry: bool,
 }
 
 /// One octree leaf's own splats, and their aggregate.
@@ -296,6 +300,7 @@ pub fn aims(plan: &Plan, budget: u32, seed: u32) -> Vec<Aim> {
                 target,
                 photons: count,
                 power: (p / n as f32).into(),
+                sample_geometry: false,
             })
         })
         .collect()

@@ -44,7 +44,8 @@ struct GpuAim {
     power: [f32; 3],
     target_leaf: u32,
     first: u32,
-    _pad: [u32; 3],
+    sample_geometry: u32,
+    _pad: [u32; 2],
 }
 
 /// WGSL `PhotonParams`.
@@ -148,7 +149,8 @@ impl GpuTracer {
                     FATE_STORED => {
                         out.photons.push(Photon { _pad: 0, ..*p });
                         let id = start + k as u64;
-                        out.aim.push((first.partition_point(|&f| f <= id) - 1) as u32);
+                        out.aim
+                            .push((first.partition_point(|&f| f <= id) - 1) as u32);
                     }
                     FATE_OCCLUDED => out.occluded += 1,
                     _ => out.lost += 1,
@@ -195,7 +197,8 @@ impl GpuTracer {
                 power: a.power,
                 target_leaf: a.target,
                 first: total as u32,
-                _pad: [0; 3],
+                sample_geometry: a.sample_geometry as u32,
+                _pad: [0; 2],
             });
             total += a.photons as u64;
         }

@@ -6,9 +6,12 @@
 //! 1. **Aims** ([`aims`]): every (diffuse leaf `D`, specular leaf `S`) pair that meets under a
 //!    V-map link ([`emit::leaf_pairs`]) has the flux per unit radiance of `D`,
 //!    `G = A_D cos θ_D · A_S |cos θ_S| / d²`. The budget of paths is shared in proportion to
-//!    `G`, rounded stochastically, and each path carries `G / n` for the `n` paths the pair
-//!    expects: unbiased, and every path carries the same weight. (The albedo is left out: the
-//!    links then do not depend on the diffuse colours, and recolouring a wall reuses them.)
+//!    `G`, rounded stochastically. A path from point `x` toward point `y` carries
+//!    `A_D A_S cos θ_x |cos θ_y| / (|x − y|² + r_y²) / n` for the `n` paths the pair expects
+//!    (`r_y` the aimed splat's radius, the near-contact limit of a disk): an unbiased estimate
+//!    of the pair's flux wherever the centroids misjudge it (a curved surface, a near pair).
+//!    The albedo is left out of the share: the links then do not depend on the diffuse
+//!    colours, and recolouring a wall reuses them.
 //! 2. **Paths**: each is a photon of the caustic tracer ([`crate::trace`] or its GPU twin) from
 //!    a point of `D` toward a point of `S`; it is kept where it first lands on the front of a
 //!    diffuse splat after ≥ 1 specular bounce, its weight tinted by the bounces (Fresnel, the
@@ -29,7 +32,7 @@ use std::num::NonZeroUsize;
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use pc_artifact::octree::class;
-use pc_artifact::specular::{FluxLink, GatherLink};
+use pc_artifact::specular::{FluxLink, GatherLink, SpecularView};
 use pc_artifact::vmap::VmapView;
 use pc_tree::rng::rand;
 use pc_tree::OctreeView;
@@ -43,6 +46,7 @@ pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
     let diffuse = |l: &emit::Leaf| !class::is_specular(l.class);
     let pairs = emit::leaf_pairs(leaves, v, &diffuse);
     let total: f64 = pairs.iter().map(|p| p.2 as f64).sum();
+    let area = |l: u32| leaves.leaves[l as usize].area;
     if total <= 0.0 || budget == 0 {
         return Vec::new();
     }
@@ -57,7 +61,8 @@ pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
                 source: Source::Area(p.0),
                 target: p.1,
                 photons: count,
-                power: [(p.2 as f64 / n) as f32; 3],
+                power: [(area(p.0) as f64 * area(p.1) as f64 / n) as f32; 3],
+                sample_geometry: true,
             })
         })
         .collect()
@@ -71,6 +76,19 @@ pub struct Links {
     pub flux: Vec<FluxLink>,
     pub gather_offsets: Vec<u32>,
     pub gather: Vec<GatherLink>,
+}
+
+impl Links {
+    /// The tables as the artifact's reader gives them.
+    pub fn view(&self) -> SpecularView<'_> {
+        SpecularView {
+            senders: &self.senders,
+            flux_offsets: &self.flux_offsets,
+            flux: &self.flux,
+            gather_offsets: &self.gather_offsets,
+            gather: &self.gather,
+        }
+    }
 }
 
 /// A receiving octree leaf: its diffuse splats' area, centroid, mean normal and extent.

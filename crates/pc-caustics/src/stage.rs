@@ -17,8 +17,8 @@ use pc_tree::TraversalStats;
 use rayon::prelude::*;
 
 use crate::emit::{self, Aim, Leaves};
-use crate::links;
 use crate::error::CausticsError;
+use crate::links;
 use crate::trace::{Fate, Tracer};
 
 pub const STAGE: &str = "pc-caustics";
@@ -179,7 +179,10 @@ pub fn run(
                 trace_all(&tracer, &aims, &advance),
                 trace_all(&tracer, &spec_aims, &advance),
             );
-            Ok((both, format!("CPU ({} threads)", rayon::current_num_threads())))
+            Ok((
+                both,
+                format!("CPU ({} threads)", rayon::current_num_threads()),
+            ))
         },
     )?;
     timings.push(("trace".to_string(), t.elapsed().as_secs_f64()));
@@ -189,7 +192,14 @@ pub fn run(
         Some(r) => r,
         None => {
             progress.phase("specular links");
-            let l = links::build(&view, &materials, &leaves, &spec_aims, &spec, p.specular_gather);
+            let l = links::build(
+                &view,
+                &materials,
+                &leaves,
+                &spec_aims,
+                &spec,
+                p.specular_gather,
+            );
             let m = SpecularMeta {
                 key: spec_key.to_string(),
                 paths: spec.traced,
@@ -295,10 +305,7 @@ pub fn specular_key(
     p: &CausticsParams,
     materials: &[pc_artifact::octree::MaterialRecord],
 ) -> Key {
-    let shape = CausticsParams {
-        photons: 0,
-        ..*p
-    };
+    let shape = CausticsParams { photons: 0, ..*p };
     let mut h = KeyHasher::new();
     h.update_str("specular links")
         .update_key(&photons_key(octree, &Key::default(), &shape, materials))
@@ -369,13 +376,18 @@ impl Stage for CausticsStage {
     fn summary(&self, s: &Summary, _seconds: f64) -> String {
         let m = &s.meta;
         format!(
-            "pc-caustics: wrote {} ({} photons stored of {} traced, {} hidden, {} lost; {:.2} M photons/s) in {:.2} s on {}",
+            "pc-caustics: wrote {} ({} photons stored of {} traced, {} hidden, {} lost; specular links: {} of {} paths kept{}, {} flux and {} gather links; {:.2} M paths/s) in {:.2} s on {}",
             s.path.display(),
             m.stored,
             m.traced,
             m.occluded,
             m.lost,
-            m.traced as f64 / trace_seconds(m).max(1e-9) / 1e6,
+            m.specular.stored,
+            m.specular.paths,
+            if m.specular.reused { ", reused" } else { "" },
+            m.specular.flux_links,
+            m.specular.gather_links,
+            paths_traced(m) as f64 / trace_seconds(m).max(1e-9) / 1e6,
             s.seconds,
             m.device
         )
@@ -390,12 +402,27 @@ impl Stage for CausticsStage {
             "stored": m.stored,
             "occluded": m.occluded,
             "lost": m.lost,
+            "specular_paths": m.specular.paths,
+            "specular_stored": m.specular.stored,
+            "specular_reused": m.specular.reused,
+            "specular_flux_links": m.specular.flux_links,
+            "specular_gather_links": m.specular.gather_links,
             "trace_seconds": trace_s,
             "total_seconds": s.seconds,
-            "photons_per_s": (m.traced as f64 / trace_s.max(1e-9)).round(),
+            "paths_per_s": (paths_traced(m) as f64 / trace_s.max(1e-9)).round(),
             "device": m.device,
         })
     }
+}
+
+/// Photons and specular-link paths traced in the tracing phase (a reused link set traced none).
+fn paths_traced(m: &PhotonsMeta) -> u64 {
+    m.traced
+        + if m.specular.reused {
+            0
+        } else {
+            m.specular.paths
+        }
 }
 
 /// The tracing phase's seconds.

@@ -75,6 +75,12 @@ impl Tracer<'_> {
         // The first hit must be the aimed surface: overlapping disks of the same surface lie
         // within about a radius of the aim point along the ray.
         let first_min = dist - 2.0 * target.radius;
+        let mut power = Vec3::from(aim.power);
+        if aim.sample_geometry {
+            let ce = emitter_normal.map_or(1.0, |n| n.dot(dir));
+            let ct = Vec3::from(target.normal).dot(dir).abs();
+            power *= ce * ct / (dist * dist + 0.1 * target.radius * target.radius);
+        }
         self.trace(
             Ray {
                 origin,
@@ -82,7 +88,7 @@ impl Tracer<'_> {
                 t_min,
                 t_max: f32::INFINITY,
             },
-            Vec3::from(aim.power),
+            power,
             id,
             first_min,
             stats,

@@ -65,7 +65,10 @@ impl<'a> SpecularTransfer<'a> {
         }
         match self.of {
             None => Some(i),
-            Some(of) => of.get(i).map(|&e| e as usize).filter(|&e| e < self.element_area.len()),
+            Some(of) => of
+                .get(i)
+                .map(|&e| e as usize)
+                .filter(|&e| e < self.element_area.len()),
         }
     }
 

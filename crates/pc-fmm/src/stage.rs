@@ -244,7 +244,10 @@ pub fn run(
     let basis = Basis::new(p.order as usize);
     let mut op = operator(backend, &basis, s_tree, s_pts, &plan)?;
     // Light through mirrors and glass between diffuse splats: pc-caustics' specular links.
-    let links = photons.as_ref().map(|f| f.view().specular).unwrap_or_default();
+    let links = photons
+        .as_ref()
+        .map(|f| f.view().specular)
+        .unwrap_or_default();
     if let Some(transfer) = SpecularTransfer::new(links, &pts, clusters.as_ref()) {
         op = Box::new(WithSpecular {
             inner: op,

@@ -78,13 +78,29 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
         lit,
         deposit.len()
     );
+    let sp = &meta.specular;
     let _ = writeln!(
         s,
-        "parameters  budget {}, max bounces {}, self-hit {}, seed {}; {} point lights",
+        "specular    {} links paths kept of {} traced ({} hidden, {} lost){}; {} senders, {} bins, {} flux and {} gather links",
+        sp.stored,
+        sp.paths,
+        sp.occluded,
+        sp.lost,
+        if sp.reused { ", reused" } else { "" },
+        sp.senders,
+        sp.bins,
+        sp.flux_links,
+        sp.gather_links
+    );
+    let _ = writeln!(
+        s,
+        "parameters  budget {}, max bounces {}, self-hit {}, seed {}, specular paths {}, gather {}; {} point lights",
         meta.params.photons,
         meta.params.max_bounces,
         meta.params.self_hit,
         meta.params.seed,
+        meta.params.specular_paths,
+        meta.params.specular_gather,
         meta.lights.len()
     );
     let _ = writeln!(s, "device      {}", meta.device);

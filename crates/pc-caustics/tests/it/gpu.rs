@@ -147,5 +147,33 @@ fn gpu_photons_match_the_cpu_twin() {
             .collect();
         assert_eq!(traced.photons, stored);
         assert_eq!(traced.traced, n as u64);
+
+        // The specular links' paths: the same tracer, power scaled by each path's geometry.
+        let on_gpu = gpu.fates(&ctx, su.link_aims).unwrap();
+        let mut id = 0u32;
+        let (mut same_fate, mut both, mut same_power, mut n) = (0usize, 0usize, 0usize, 0usize);
+        for a in su.link_aims {
+            assert!(a.sample_geometry);
+            for _ in 0..a.photons {
+                let c = t.photon(a, id, &mut st);
+                let g = on_gpu[id as usize];
+                same_fate += (std::mem::discriminant(&c) == std::mem::discriminant(&g)) as usize;
+                if let (Fate::Stored(a), Fate::Stored(b)) = (c, g) {
+                    both += 1;
+                    let (pa, pb) = (Vec3::from(a.power), Vec3::from(b.power));
+                    same_power +=
+                        ((pa - pb).abs().max_element() <= 1e-4 * pa.max_element()) as usize;
+                }
+                id += 1;
+                n += 1;
+            }
+        }
+        eprintln!("{n} link paths: {same_fate} same fate, {same_power} of {both} stored with the same power");
+        assert!(both > 1_000, "{both} link paths stored on both");
+        assert!(same_fate as f64 > 0.99 * n as f64, "{same_fate} of {n}");
+        assert!(
+            same_power as f64 > 0.98 * both as f64,
+            "{same_power} of {both}"
+        );
     });
 }

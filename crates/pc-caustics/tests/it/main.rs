@@ -60,6 +60,8 @@ pub struct Setup<'a> {
     pub view: &'a OctreeView<'a>,
     pub leaves: &'a Leaves,
     pub aims: &'a [Aim],
+    /// Aims of the specular links (from the diffuse leaves, per-sample geometry).
+    pub link_aims: &'a [Aim],
     pub tracer: &'a Tracer<'a>,
     pub plan: &'a emit::Plan,
 }
@@ -136,6 +138,7 @@ pub fn with_setup<R>(
     let light = PointLight::new(light.0.into(), light.1.into());
     let plan = emit::plan(&view, materials, &leaves, &[light], &input);
     let aims = emit::aims(&plan, budget, 3);
+    let link_aims = pc_caustics::links::aims(&leaves, &input, budget / 8, 3);
     let accel = Accel::new(&view);
     let tracer = Tracer {
         view: &view,
@@ -150,6 +153,7 @@ pub fn with_setup<R>(
         view: &view,
         leaves: &leaves,
         aims: &aims,
+        link_aims: &link_aims,
         tracer: &tracer,
         plan: &plan,
     })

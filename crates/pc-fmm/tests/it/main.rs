@@ -17,6 +17,7 @@ use rand_pcg::Pcg64;
 pub use pc_testkit::Soa;
 
 mod gpu;
+mod specular;
 
 /// An octree with its V-map links.
 pub struct Scene {
