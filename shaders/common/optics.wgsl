@@ -92,11 +92,15 @@ fn shading_normal(j: u32, x: vec3<f32>) -> vec3<f32> {
     if any(info.normal != vec3<f32>(0.0)) {
         n = field_normal(info, x);
     }
-    if dot(n, ns) <= 0.0 {
+    // A field that turns more than FIELD_MAX_TURN away from the splat blends across a sharp
+    // edge (twin of optics.rs).
+    if dot(n, ns) < FIELD_MIN_COS {
         n = ns;
     }
     return n;
 }
+
+const FIELD_MIN_COS: f32 = 0.9;
 
 struct Bounce {
     dir: vec3<f32>,

@@ -9,16 +9,20 @@
 //!    of diffuse splats, stored as its data-pool range);
 //! 2. **flux**: `Φ_b = Σ w ⊙ L̄_s` over the links `(s, w)` of bin `b`, the flux that arrives
 //!    in bin `b` (an octree leaf of diffuse splats) from the senders through specular chains;
-//! 3. **gather**: `T_i = Σ g Φ_b` over the links `(b, g)` of splat `i`, the density estimate
-//!    of the irradiance over π at splat `i` (a kernel over the nearby bins of its surface).
+//! 3. **smooth**: `E_b = Σ g Φ_b'` over the links `(b', g)` of bin `b`, the density estimate of
+//!    the irradiance over π in bin `b` (a kernel over the nearby bins of its surface);
+//! 4. **gather**: `T_i = Σ w E_b` over the links `(b, w)` of splat `i`, an interpolation
+//!    between the bins around it (weights summing to one).
 //!
 //! | section               | element          | what |
 //! |-----------------------|------------------|------|
 //! | `spec_senders`        | `[u32; 2]`       | per sender: its splats `[lo, hi)` in the data pool |
 //! | `spec_flux_offsets`   | `u32`            | CSR row starts, one per bin plus one (empty: no links) |
 //! | `spec_flux`           | [`FluxLink`]     | per bin: the senders whose light reaches it, and the weight |
+//! | `spec_smooth_offsets` | `u32`            | CSR row starts, one per bin plus one (empty: no links) |
+//! | `spec_smooth`         | [`GatherLink`]   | per bin: the bins of its density estimate, and their weights |
 //! | `spec_gather_offsets` | `u32`            | CSR row starts, one per data-pool splat plus one (empty: no links) |
-//! | `spec_gather`         | [`GatherLink`]   | per splat: the bins of its density estimate, and their weights |
+//! | `spec_gather`         | [`GatherLink`]   | per splat: the bins it interpolates, and their weights |
 
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
@@ -29,6 +33,8 @@ pub mod sections {
     pub const SENDERS: &str = "spec_senders";
     pub const FLUX_OFFSETS: &str = "spec_flux_offsets";
     pub const FLUX: &str = "spec_flux";
+    pub const SMOOTH_OFFSETS: &str = "spec_smooth_offsets";
+    pub const SMOOTH: &str = "spec_smooth";
     pub const GATHER_OFFSETS: &str = "spec_gather_offsets";
     pub const GATHER: &str = "spec_gather";
 }
@@ -42,7 +48,8 @@ pub struct FluxLink {
     pub weight: [f32; 3],
 }
 
-/// One bin of a splat's density estimate: `T_i += weight · Φ_bin` (1 / area).
+/// One bin of a density estimate (`E_b += weight · Φ_bin`, 1 / area) or of a splat's
+/// interpolation (`T_i += weight · E_bin`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GatherLink {
@@ -68,6 +75,7 @@ pub struct SpecularMeta {
     pub senders: u64,
     pub bins: u64,
     pub flux_links: u64,
+    pub smooth_links: u64,
     pub gather_links: u64,
     /// Whether the links were copied from the previous artifact (same key).
     pub reused: bool,
@@ -80,6 +88,8 @@ pub struct SpecularView<'a> {
     pub senders: &'a [[u32; 2]],
     pub flux_offsets: &'a [u32],
     pub flux: &'a [FluxLink],
+    pub smooth_offsets: &'a [u32],
+    pub smooth: &'a [GatherLink],
     pub gather_offsets: &'a [u32],
     pub gather: &'a [GatherLink],
 }
@@ -94,6 +104,8 @@ impl<'a> SpecularView<'a> {
             senders: a.section(sections::SENDERS)?,
             flux_offsets: a.section(sections::FLUX_OFFSETS)?,
             flux: a.section(sections::FLUX)?,
+            smooth_offsets: a.section(sections::SMOOTH_OFFSETS)?,
+            smooth: a.section(sections::SMOOTH)?,
             gather_offsets: a.section(sections::GATHER_OFFSETS)?,
             gather: a.section(sections::GATHER)?,
         })
@@ -112,6 +124,11 @@ impl<'a> SpecularView<'a> {
     /// The flux links of bin `b`.
     pub fn flux_of(&self, b: usize) -> &'a [FluxLink] {
         &self.flux[self.flux_offsets[b] as usize..self.flux_offsets[b + 1] as usize]
+    }
+
+    /// The smoothing links of bin `b`.
+    pub fn smooth_of(&self, b: usize) -> &'a [GatherLink] {
+        &self.smooth[self.smooth_offsets[b] as usize..self.smooth_offsets[b + 1] as usize]
     }
 
     /// The gather links of splat `i`.
@@ -133,6 +150,11 @@ impl<'a> SpecularView<'a> {
         let bins = self.bins();
         if !csr(self.flux_offsets, bins, self.flux.len()) {
             return Err("specular flux offsets are not a CSR index over the flux links".into());
+        }
+        if !csr(self.smooth_offsets, bins, self.smooth.len())
+            || (self.smooth_offsets.is_empty() != self.flux_offsets.is_empty())
+        {
+            return Err("specular smoothing offsets are not a CSR index over the bins".into());
         }
         if !csr(self.gather_offsets, splats, self.gather.len()) {
             return Err(format!(
@@ -157,6 +179,7 @@ impl<'a> SpecularView<'a> {
         if self
             .gather
             .iter()
+            .chain(self.smooth)
             .any(|g| g.bin as usize >= bins || !weight_ok(g.weight))
         {
             return Err(
@@ -178,10 +201,17 @@ mod tests {
         go: &'a [u32],
         gather: &'a [GatherLink],
     ) -> SpecularView<'a> {
+        let smooth: &'static [GatherLink] = &[GatherLink {
+            bin: 0,
+            weight: 1.0,
+        }];
+        let so: &'static [u32] = if fo.is_empty() { &[] } else { &[0, 1] };
         SpecularView {
             senders,
             flux_offsets: fo,
             flux,
+            smooth_offsets: so,
+            smooth: if fo.is_empty() { &[] } else { smooth },
             gather_offsets: go,
             gather,
         }

@@ -3,15 +3,17 @@
 //! seed's two-pass split (§8.1) leaves out. They depend on the geometry alone, not on the
 //! lights, so pc-fmm applies them in every product of the solve and a moved light reuses them.
 //!
-//! 1. **Aims** ([`aims`]): every (diffuse leaf `D`, specular leaf `S`) pair that meets under a
-//!    V-map link ([`emit::leaf_pairs`]) has the flux per unit radiance of `D`,
-//!    `G = A_D cos θ_D · A_S |cos θ_S| / d²`. The budget of paths is shared in proportion to
-//!    `G`, rounded stochastically. A path from point `x` toward point `y` carries
-//!    `A_D A_S cos θ_x |cos θ_y| / (|x − y|² + r_y²) / n` for the `n` paths the pair expects
-//!    (`r_y` the aimed splat's radius, the near-contact limit of a disk): an unbiased estimate
-//!    of the pair's flux wherever the centroids misjudge it (a curved surface, a near pair).
-//!    The albedo is left out of the share: the links then do not depend on the diffuse
-//!    colours, and recolouring a wall reuses them.
+//! 1. **Aims** ([`aims`]): the budget of paths is shared among the V-map's links from a node's
+//!    diffuse splats `X` to another's specular splats `Y` in proportion to their flux factor
+//!    `A_X cos θ_X · A_Y |cos θ_Y| / d²` (from the parts' centroids and mean normals, bounded
+//!    near contact), rounded stochastically; each path draws its source and target leaves by
+//!    area. A path from point `x` toward point `y` carries
+//!    `A_X A_Y cos θ_x |cos θ_y| / (|x − y|² + 0.1 r_y²) / n` for the `n` paths the link
+//!    expects (`r_y` the aimed splat's radius): an unbiased estimate of the flux wherever the
+//!    centroids misjudge it (a curved surface, a near pair), with a floor at contact. The
+//!    albedo is left out of the share: the links then do not depend on the diffuse colours,
+//!    and recolouring a wall reuses them. (Pairing every leaf under a link, as the emitters'
+//!    photons do, made 253M pairs on a 1M-splat scene.)
 //! 2. **Paths**: each is a photon of the caustic tracer ([`crate::trace`] or its GPU twin) from
 //!    a point of `D` toward a point of `S`; it is kept where it first lands on the front of a
 //!    diffuse splat after ≥ 1 specular bounce, its weight tinted by the bounces (Fresnel, the
@@ -19,13 +21,14 @@
 //!    has its own aims.
 //! 3. **Bins and flux** ([`build`]): the receiving octree leaf of each kept path is its bin; the
 //!    bin's flux row sums the weights per sender leaf, so that `Φ_b = Σ w ⊙ L̄_D`.
-//! 4. **Gather**: every diffuse splat estimates its irradiance from the bins of its own surface
-//!    (normals within 45°, centroids near its plane) within a radius `h`: the kernel
-//!    `K = 1 − d²/h²` over the bins' centroids, and the ratio estimator `E = Σ K Φ / Σ K A`
-//!    (flux over area, both kernel-weighted: no loss at a surface's border). `h` is the
-//!    radius around the splat's bin that holds `caustics.specular_gather` paths, at least
-//!    twice the bin's extent. Stored per splat as `g = K / (π Σ K A)`, so `T_i = Σ g Φ_b` is
-//!    the irradiance over π, the operator's units.
+//! 4. **Smooth**: every bin estimates its irradiance from the bins of its own surface (normals
+//!    within 45°, centroids near its plane) within a radius `h`: the kernel `K = 1 − d²/h²`
+//!    over the bins' centroids, and the ratio estimator `E = Σ K Φ / Σ K A` (flux over area,
+//!    both kernel-weighted: no loss at a surface's border). `h` is the radius that holds
+//!    `caustics.specular_gather` paths, at least twice the bin's extent. Stored as
+//!    `g = K / (π Σ K A)`, so `E_b / π = Σ g Φ_b'`, the operator's units.
+//! 5. **Gather**: every diffuse splat interpolates the bins of its surface within twice its own
+//!    bin's extent (weights `K`, normalised), so the estimate has no steps at bin borders.
 
 use std::num::NonZeroUsize;
 
@@ -41,31 +44,139 @@ use rayon::prelude::*;
 use crate::emit::{self, Aim, Leaves, Source};
 use crate::stage::Traced;
 
+/// Prefix sums over the leaves (in data-pool order) of one class group: area, and area times
+/// centroid and normal, so that any node's part of that group is summed in O(1).
+struct Prefix {
+    area: Vec<f64>,
+    centroid: Vec<[f64; 3]>,
+    normal: Vec<[f64; 3]>,
+}
+
+impl Prefix {
+    fn new(leaves: &Leaves, member: &dyn Fn(&emit::Leaf) -> bool) -> Prefix {
+        let n = leaves.leaves.len();
+        let mut p = Prefix {
+            area: vec![0.0; n + 1],
+            centroid: vec![[0.0; 3]; n + 1],
+            normal: vec![[0.0; 3]; n + 1],
+        };
+        for (i, l) in leaves.leaves.iter().enumerate() {
+            let a = if member(l) { l.area as f64 } else { 0.0 };
+            p.area[i + 1] = p.area[i] + a;
+            for k in 0..3 {
+                p.centroid[i + 1][k] = p.centroid[i][k] + a * l.centroid[k] as f64;
+                p.normal[i + 1][k] = p.normal[i][k] + a * l.normal[k] as f64;
+            }
+        }
+        p
+    }
+
+    /// Area, centroid and mean normal of the group's leaves `r`.
+    fn part(&self, r: &std::ops::Range<usize>) -> (f64, Vec3, Vec3) {
+        let a = self.area[r.end] - self.area[r.start];
+        if a <= 0.0 {
+            return (0.0, Vec3::ZERO, Vec3::ZERO);
+        }
+        let d = |t: &[[f64; 3]]| {
+            Vec3::new(
+                (t[r.end][0] - t[r.start][0]) as f32,
+                (t[r.end][1] - t[r.start][1]) as f32,
+                (t[r.end][2] - t[r.start][2]) as f32,
+            )
+        };
+        (
+            a,
+            d(&self.centroid) / a as f32,
+            d(&self.normal).normalize_or_zero(),
+        )
+    }
+
+    /// The leaf of `r` at area fraction `u` ∈ [0, 1) of the group's area there.
+    fn pick(&self, r: &std::ops::Range<usize>, u: f64) -> u32 {
+        let t = self.area[r.start] + u * (self.area[r.end] - self.area[r.start]);
+        let i = self.area[r.start + 1..=r.end].partition_point(|&c| c <= t);
+        (r.start + i.min(r.len() - 1)) as u32
+    }
+}
+
+/// The smallest cosine a node pair's share counts with: a node whose mean normal turns away
+/// may still hold leaves that face the other (a curved or noisy surface).
+const MIN_SHARE_COS: f32 = 0.05;
+
 /// Paths from diffuse leaves to the specular leaves they see, `budget` of them in expectation.
+///
+/// The budget is shared among the V-map's links (node `X`, node `Y`) with diffuse splats in
+/// `X` and specular ones in `Y`, in proportion to `A_X A_Y cos θ_X |cos θ_Y| / (d² + (A_X +
+/// A_Y) / π)` between the two parts' centroids and mean normals (cosines at least
+/// [`MIN_SHARE_COS`]), rounded stochastically. Each path then draws its source leaf in `X` and
+/// its target leaf in `Y` by area and carries `A_X A_Y / n` (`n` the link's expected paths)
+/// times its own points' geometry ([`Aim::sample_geometry`]): unbiased for every leaf pair.
 pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
-    let diffuse = |l: &emit::Leaf| !class::is_specular(l.class);
-    let pairs = emit::leaf_pairs(leaves, v, &diffuse);
-    let total: f64 = pairs.iter().map(|p| p.2 as f64).sum();
-    let area = |l: u32| leaves.leaves[l as usize].area;
+    let diffuse = Prefix::new(leaves, &|l| !class::is_specular(l.class));
+    let specular = Prefix::new(leaves, &|l| class::is_specular(l.class));
+    // (X's leaves, Y's leaves, areas, share) of every diffuse → specular link.
+    let mut shares: Vec<(std::ops::Range<usize>, std::ops::Range<usize>, f64, f64)> = Vec::new();
+    for x in 0..v.node_range.len() {
+        let row = v.links_of(x);
+        if row.is_empty() {
+            continue;
+        }
+        let [xlo, xhi] = v.node_range[x];
+        let xr = leaves.within(xlo, xhi);
+        let (ax, cx, nx) = diffuse.part(&xr);
+        if ax <= 0.0 {
+            continue;
+        }
+        for link in row.iter().filter(|k| k.fraction > 0.0) {
+            let [ylo, yhi] = v.node_range[link.slot() as usize];
+            let yr = leaves.within(ylo, yhi);
+            let (ay, cy, ny) = specular.part(&yr);
+            if ay <= 0.0 {
+                continue;
+            }
+            let d = cy - cx;
+            let r2 = d.length_squared() as f64;
+            let dir = d.normalize_or_zero();
+            let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
+            let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
+            let share = ax * ay * cos_x * cos_y / (r2 + (ax + ay) / std::f64::consts::PI);
+            shares.push((xr.clone(), yr, ax * ay, share));
+        }
+    }
+    let total: f64 = shares.iter().map(|s| s.3).sum();
     if total <= 0.0 || budget == 0 {
         return Vec::new();
     }
-    pairs
-        .iter()
-        .enumerate()
-        .filter_map(|(i, p)| {
-            let n = budget as f64 * p.2 as f64 / total;
-            let u = rand(seed, 0x5bec_0001, i as u32, 0) as f64;
-            let count = (n.floor() + (u < n.fract()) as u32 as f64) as u32;
-            (count > 0).then(|| Aim {
-                source: Source::Area(p.0),
-                target: p.1,
-                photons: count,
-                power: [(area(p.0) as f64 * area(p.1) as f64 / n) as f32; 3],
-                sample_geometry: true,
-            })
-        })
-        .collect()
+    let mut out: Vec<Aim> = Vec::new();
+    let mut id = 0u32;
+    for (i, (xr, yr, area, share)) in shares.iter().enumerate() {
+        let n = budget as f64 * share / total;
+        let u = rand(seed, 0x5bec_0001, i as u32, 0) as f64;
+        let count = (n.floor() + (u < n.fract()) as u32 as f64) as u32;
+        let power = [(area / n) as f32; 3];
+        for _ in 0..count {
+            let source = diffuse.pick(xr, rand(seed, 0x5bec_0002, id, 0) as f64);
+            let target = specular.pick(yr, rand(seed, 0x5bec_0002, id, 1) as f64);
+            id = id.wrapping_add(1);
+            match out.last_mut() {
+                Some(a)
+                    if a.source == Source::Area(source)
+                        && a.target == target
+                        && a.power == power =>
+                {
+                    a.photons += 1
+                }
+                _ => out.push(Aim {
+                    source: Source::Area(source),
+                    target,
+                    photons: 1,
+                    power,
+                    sample_geometry: true,
+                }),
+            }
+        }
+    }
+    out
 }
 
 /// The links' tables, as the artifact stores them ([`pc_artifact::specular`]).
@@ -74,6 +185,8 @@ pub struct Links {
     pub senders: Vec<[u32; 2]>,
     pub flux_offsets: Vec<u32>,
     pub flux: Vec<FluxLink>,
+    pub smooth_offsets: Vec<u32>,
+    pub smooth: Vec<GatherLink>,
     pub gather_offsets: Vec<u32>,
     pub gather: Vec<GatherLink>,
 }
@@ -85,6 +198,8 @@ impl Links {
             senders: &self.senders,
             flux_offsets: &self.flux_offsets,
             flux: &self.flux,
+            smooth_offsets: &self.smooth_offsets,
+            smooth: &self.smooth,
             gather_offsets: &self.gather_offsets,
             gather: &self.gather,
         }
@@ -161,9 +276,9 @@ pub fn build(
     for b in 0..bins.len() {
         out.flux_offsets[b + 1] += out.flux_offsets[b];
     }
-    let (offsets, g) = gather_links(view, &bins, &diffuse, &leaf_of, gather);
-    out.gather_offsets = offsets;
-    out.gather = g;
+    let [smooth, interpolate] = gather_links(view, &bins, &diffuse, &leaf_of, gather);
+    (out.smooth_offsets, out.smooth) = smooth;
+    (out.gather_offsets, out.gather) = interpolate;
     out
 }
 
@@ -212,14 +327,29 @@ fn same_surface(x: Vec3, n: Vec3, c: &Bin, h: f32) -> bool {
         && n.dot(c.centroid - x).abs() <= PLANE_TOLERANCE * h
 }
 
-/// The gather rows of every splat (CSR over the data pool).
+/// CSR rows from per-row lists.
+fn csr(rows: Vec<Vec<GatherLink>>) -> (Vec<u32>, Vec<GatherLink>) {
+    let mut offsets = Vec::with_capacity(rows.len() + 1);
+    offsets.push(0u32);
+    let mut all = Vec::with_capacity(rows.iter().map(Vec::len).sum());
+    for r in rows {
+        all.extend(r);
+        offsets.push(all.len() as u32);
+    }
+    (offsets, all)
+}
+
+/// The density estimate of every bin (the smoothing rows: `E_b = Σ g Φ_b'`, irradiance over π)
+/// and every splat's interpolation between the bins of its surface around it (the gather
+/// rows: `T_i = Σ w E_b`, weights summing to one). Two sparse maps rather than one kernel per
+/// splat: on a 1M-splat scene the kernel held about 90 bins per splat.
 fn gather_links(
     view: &OctreeView,
     bins: &[Bin],
     diffuse: &(dyn Fn(usize) -> bool + Sync),
     leaf_of: &(dyn Fn(u32) -> usize + Sync),
     gather: u32,
-) -> (Vec<u32>, Vec<GatherLink>) {
+) -> [(Vec<u32>, Vec<GatherLink>); 2] {
     let used: Vec<u32> = (0..bins.len() as u32)
         .filter(|&b| bins[b as usize].area > 0.0)
         .collect();
@@ -229,12 +359,27 @@ fn gather_links(
         .collect();
     let tree: ImmutableKdTree<f32, 3> =
         ImmutableKdTree::new_from_slice(&points).expect("kd-tree over at most u32::MAX bins");
-    // The kernel radius of each bin: the distance that holds `gather` paths of its surface.
-    let radius: Vec<f32> = bins
+    // Kernel-weighted visit of the bins of the surface at (x, n) within h.
+    let around = |x: Vec3, n: Vec3, h: f32, f: &mut dyn FnMut(u32, &Bin, f32)| {
+        let q: [f32; 3] = x.into();
+        tree.query(&q)
+            .within::<SquaredEuclidean<f32>>(h * h)
+            .unsorted()
+            .visit(|it| {
+                let b = used[it.item as usize];
+                let c = &bins[b as usize];
+                let k = 1.0 - it.distance / (h * h);
+                if k > 0.0 && same_surface(x, n, c, h) {
+                    f(b, c, k);
+                }
+            });
+    };
+    // The density estimate of each bin: the radius that holds `gather` paths of its surface.
+    let smooth: Vec<Vec<GatherLink>> = bins
         .par_iter()
         .map(|b| {
             if b.area <= 0.0 {
-                return 0.0;
+                return Vec::new();
             }
             let k = NonZeroUsize::new(RADIUS_CANDIDATES.min(used.len())).unwrap();
             let q: [f32; 3] = b.centroid.into();
@@ -243,8 +388,7 @@ fn gather_links(
                 .nearest_n::<SquaredEuclidean<f32>>(k)
                 .execute();
             found.sort_by(|a, b| a.distance.total_cmp(&b.distance));
-            let mut paths = 0u32;
-            let mut reach = 0.0f32;
+            let (mut paths, mut reach) = (0u32, 0.0f32);
             for f in &found {
                 let c = &bins[used[f.item as usize] as usize];
                 let d = f.distance.sqrt();
@@ -257,56 +401,50 @@ fn gather_links(
                     break;
                 }
             }
-            reach.max(2.0 * b.extent)
+            let h = reach.max(2.0 * b.extent);
+            let (mut norm, mut row) = (0.0f64, Vec::new());
+            around(b.centroid, b.normal, h, &mut |i, c, k| {
+                norm += (k * c.area) as f64;
+                if c.paths > 0 {
+                    row.push(GatherLink { bin: i, weight: k });
+                }
+            });
+            if norm <= 0.0 {
+                return Vec::new();
+            }
+            let scale = (1.0 / (std::f64::consts::PI * norm)) as f32;
+            row.sort_unstable_by_key(|g| g.bin);
+            row.iter_mut().for_each(|g| g.weight *= scale);
+            row
         })
         .collect();
-    let rows: Vec<Vec<GatherLink>> = (0..view.splats.len())
+    // Each splat between the bins of its surface within twice its own bin's extent.
+    let interpolate: Vec<Vec<GatherLink>> = (0..view.splats.len())
         .into_par_iter()
         .map(|i| {
             if !diffuse(i) {
                 return Vec::new();
             }
             let s = &view.splats[i];
-            let (x, n) = (Vec3::from(s.position), Vec3::from(s.normal));
-            let h = radius[leaf_of(i as u32)];
+            let own = leaf_of(i as u32);
+            let h = 2.0 * bins[own].extent;
             if h <= 0.0 {
                 return Vec::new();
             }
-            let q: [f32; 3] = x.into();
-            let mut norm = 0.0f64;
-            let mut row = Vec::new();
-            tree.query(&q)
-                .within::<SquaredEuclidean<f32>>(h * h)
-                .unsorted()
-                .visit(|f| {
-                    let b = used[f.item as usize];
-                    let c = &bins[b as usize];
-                    let k = 1.0 - f.distance / (h * h);
-                    if k <= 0.0 || !same_surface(x, n, c, h) {
-                        return;
-                    }
-                    norm += (k * c.area) as f64;
-                    if c.paths > 0 {
-                        row.push(GatherLink { bin: b, weight: k });
-                    }
-                });
+            let (mut norm, mut row) = (0.0f32, Vec::new());
+            around(s.position.into(), s.normal.into(), h, &mut |b, _, k| {
+                norm += k;
+                if !smooth[b as usize].is_empty() {
+                    row.push(GatherLink { bin: b, weight: k });
+                }
+            });
             if norm <= 0.0 {
                 return Vec::new();
             }
-            let scale = (1.0 / (std::f64::consts::PI * norm)) as f32;
             row.sort_unstable_by_key(|g| g.bin);
-            for g in &mut row {
-                g.weight *= scale;
-            }
+            row.iter_mut().for_each(|g| g.weight /= norm);
             row
         })
         .collect();
-    let mut offsets = Vec::with_capacity(rows.len() + 1);
-    offsets.push(0u32);
-    let mut all = Vec::with_capacity(rows.iter().map(Vec::len).sum());
-    for r in rows {
-        all.extend(r);
-        offsets.push(all.len() as u32);
-    }
-    (offsets, all)
+    [csr(smooth), csr(interpolate)]
 }

@@ -214,6 +214,7 @@ pub fn run(
     spec_meta.senders = links.senders.len() as u64;
     spec_meta.bins = links.flux_offsets.len().saturating_sub(1) as u64;
     spec_meta.flux_links = links.flux.len() as u64;
+    spec_meta.smooth_links = links.smooth.len() as u64;
     spec_meta.gather_links = links.gather.len() as u64;
     spec_meta.seconds = t.elapsed().as_secs_f64();
     timings.push(("specular links".to_string(), spec_meta.seconds));
@@ -242,6 +243,8 @@ pub fn run(
     w.section(spec::sections::SENDERS, &links.senders)?;
     w.section(spec::sections::FLUX_OFFSETS, &links.flux_offsets)?;
     w.section(spec::sections::FLUX, &links.flux)?;
+    w.section(spec::sections::SMOOTH_OFFSETS, &links.smooth_offsets)?;
+    w.section(spec::sections::SMOOTH, &links.smooth)?;
     w.section(spec::sections::GATHER_OFFSETS, &links.gather_offsets)?;
     w.section(spec::sections::GATHER, &links.gather)?;
     w.metadata(&meta)?;
@@ -326,6 +329,8 @@ fn reusable(path: &Path, key: &Key, splats: usize) -> Option<(links::Links, Spec
         senders: s.senders.to_vec(),
         flux_offsets: s.flux_offsets.to_vec(),
         flux: s.flux.to_vec(),
+        smooth_offsets: s.smooth_offsets.to_vec(),
+        smooth: s.smooth.to_vec(),
         gather_offsets: s.gather_offsets.to_vec(),
         gather: s.gather.to_vec(),
     };

@@ -3,9 +3,9 @@
 //! product of the transport operator as a sparse term, so the solve includes it at every
 //! bounce (`L = E + ρ ∘ (T + S)(L − Lₑ)`).
 //!
-//! `S` is three sparse maps traced by pc-caustics ([`pc_artifact::specular`]): the senders'
-//! area-weighted mean radiance, the flux each bin receives from them, and each splat's density
-//! estimate over the bins. It acts on the reflected radiance only, as `T` does: the lights'
+//! `S` is four sparse maps traced by pc-caustics ([`pc_artifact::specular`]): the senders'
+//! area-weighted mean radiance, the flux each bin receives from them, each bin's density
+//! estimate over the bins around it, and each splat's interpolation between those. It acts on the reflected radiance only, as `T` does: the lights'
 //! own emission through mirrors and glass is the caustic photon map's (no light counted
 //! twice). It runs on the CPU after the FMM's product on either device: it is a few sparse
 //! passes, small beside the product.
@@ -102,10 +102,19 @@ impl<'a> SpecularTransfer<'a> {
                     .sum()
             })
             .collect();
+        let density: Vec<Vec3> = (0..l.bins())
+            .into_par_iter()
+            .map(|b| {
+                l.smooth_of(b)
+                    .iter()
+                    .map(|g| g.weight * flux[g.bin as usize])
+                    .sum()
+            })
+            .collect();
         let gathered = |i: usize| -> Vec3 {
             l.gather_of(i)
                 .iter()
-                .map(|g| g.weight * flux[g.bin as usize])
+                .map(|g| g.weight * density[g.bin as usize])
                 .sum()
         };
         match self.of {

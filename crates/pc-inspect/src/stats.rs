@@ -81,7 +81,7 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
     let sp = &meta.specular;
     let _ = writeln!(
         s,
-        "specular    {} links paths kept of {} traced ({} hidden, {} lost){}; {} senders, {} bins, {} flux and {} gather links",
+        "specular    {} links paths kept of {} traced ({} hidden, {} lost){}; {} senders, {} bins, {} flux, {} smoothing and {} gather links",
         sp.stored,
         sp.paths,
         sp.occluded,
@@ -90,6 +90,7 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
         sp.senders,
         sp.bins,
         sp.flux_links,
+        sp.smooth_links,
         sp.gather_links
     );
     let _ = writeln!(

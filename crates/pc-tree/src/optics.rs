@@ -39,9 +39,16 @@ pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
     0.5 * (rs * rs + rp * rp)
 }
 
+/// The field normal is used only within this cosine (about 26°) of the splat's own normal: a
+/// leaf that straddles a sharp edge (a mirror box's front and top faces) fits one field to
+/// both faces, and its blended normal made the edge reflect the light where it is black
+/// (issue 21); a smooth surface's field turns far less within a leaf. WGSL twin:
+/// `FIELD_MIN_COS` in shaders/common/optics.wgsl.
+pub const FIELD_MIN_COS: f32 = 0.9;
+
 /// The normal at point `x` of specular splat `splat`: the normal field of the leaf that owns the
 /// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field or the
-/// field disagrees with the splat's side.
+/// field turns more than [`FIELD_MIN_COS`] away from it (a sharp edge, or the other side).
 #[inline]
 pub fn shading_normal(view: &OctreeView, splat: u32, x: Vec3) -> Vec3 {
     let ns = Vec3::from(view.splats[splat as usize].normal);
@@ -51,7 +58,7 @@ pub fn shading_normal(view: &OctreeView, splat: u32, x: Vec3) -> Vec3 {
     } else {
         ns
     };
-    if n.dot(ns) <= 0.0 {
+    if n.dot(ns) < FIELD_MIN_COS {
         ns
     } else {
         n
