@@ -49,3 +49,12 @@ impl Artifact {
         }
     }
 }
+
+/// Whether `offsets` is a CSR index of `rows` rows over `len` entries: one start per row plus
+/// one, from 0, non-decreasing, ending at `len`.
+pub(crate) fn is_csr(offsets: &[u32], rows: usize, len: usize) -> bool {
+    offsets.len() == rows + 1
+        && offsets.first() == Some(&0)
+        && offsets.windows(2).all(|w| w[0] <= w[1])
+        && offsets.last().map(|&x| x as usize) == Some(len)
+}

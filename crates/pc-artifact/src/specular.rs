@@ -140,12 +140,9 @@ impl<'a> SpecularView<'a> {
     /// (empty or complete), senders within the pool, bins and senders that exist, finite
     /// non-negative weights.
     pub fn check(&self, splats: usize) -> Result<(), String> {
+        // Empty, or complete.
         let csr = |o: &[u32], rows: usize, len: usize| {
-            (o.is_empty() && len == 0)
-                || (o.len() == rows + 1
-                    && o.first() == Some(&0)
-                    && o.windows(2).all(|w| w[0] <= w[1])
-                    && o.last().map(|&x| x as usize) == Some(len))
+            (o.is_empty() && len == 0) || crate::reader::is_csr(o, rows, len)
         };
         let bins = self.bins();
         if !csr(self.flux_offsets, bins, self.flux.len()) {

@@ -146,12 +146,7 @@ impl<'a> VmapView<'a> {
     /// (0, 1], splat ranges within `splats` (when known).
     fn check(&self, lights: usize, splats: Option<usize>) -> Result<(), String> {
         let nodes = self.node_range.len();
-        let csr = |o: &[u32], rows: usize, len: usize| {
-            o.len() == rows + 1
-                && o.first() == Some(&0)
-                && o.windows(2).all(|w| w[0] <= w[1])
-                && o.last().map(|&x| x as usize) == Some(len)
-        };
+        let csr = crate::reader::is_csr;
         if !csr(self.link_offsets, nodes, self.links.len()) {
             return Err("link offsets are not a CSR index over the links".into());
         }

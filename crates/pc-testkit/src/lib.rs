@@ -2,6 +2,8 @@
 //! jittered grids on rectangles and boxes or as Fibonacci spheres. Deterministic for a given RNG.
 //! It depends on nothing of pcgi, so even pc-octree's own tests can use it.
 
+pub mod material;
+
 use glam::Vec3;
 use rand::Rng;
 use rand_pcg::Pcg64;

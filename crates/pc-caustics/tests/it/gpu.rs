@@ -42,7 +42,11 @@ fn scene() -> (Soa, Vec<MaterialRecord>, (Vec3, Vec3)) {
         ..Default::default()
     };
     let light = (Vec3::new(0.3, 0.2, 2.5), Vec3::splat(30.0));
-    (s, vec![diffuse(), glass(1.5), mirror(0.8), emitter], light)
+    (
+        s,
+        vec![diffuse(0.5), glass(1.5), mirror(0.8), emitter],
+        light,
+    )
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! ball focuses a distant light at its paraxial focus nR / (2(n − 1)).
 
 use glam::Vec3;
-use pc_artifact::octree::{class, MaterialRecord};
+use pc_artifact::octree::MaterialRecord;
 use pc_artifact::params::VmapParams;
 use pc_artifact::vmap::Link;
 use pc_artifact::vmap::VmapView;
@@ -21,32 +21,7 @@ use rand_pcg::Pcg64;
 
 mod gpu;
 
-fn diffuse() -> MaterialRecord {
-    MaterialRecord {
-        color: [0.5; 3],
-        class: class::DIFFUSE,
-        ior: 1.0,
-        ..Default::default()
-    }
-}
-
-fn mirror(r: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [r; 3],
-        class: class::MIRROR,
-        ior: 1.0,
-        ..Default::default()
-    }
-}
-
-fn glass(ior: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [1.0; 3],
-        class: class::DIELECTRIC,
-        ior,
-        ..Default::default()
-    }
-}
+pub(crate) use pc_testkit::material::{diffuse, glass, mirror};
 
 /// Octree, V-map and photons of `soa` under one point light.
 struct Run {
@@ -181,7 +156,7 @@ fn mirror_scene() -> (Soa, Vec<MaterialRecord>, (Vec3, Vec3)) {
         &mut rng,
     ); // receiver, normal -z
     let light = (Vec3::new(0.0, 0.0, 1.0), Vec3::splat(10.0));
-    (s, vec![diffuse(), mirror(0.9)], light)
+    (s, vec![diffuse(0.5), mirror(0.9)], light)
 }
 
 #[test]
@@ -271,7 +246,7 @@ fn no_energy_is_created() {
     );
     let r = run(
         &g,
-        &[diffuse(), glass(1.5)],
+        &[diffuse(0.5), glass(1.5)],
         (Vec3::new(0.0, 0.0, 10.0), Vec3::splat(100.0)),
         400_000,
     );
@@ -306,7 +281,7 @@ fn a_glass_ball_focuses_a_distant_light_at_its_paraxial_focus() {
     );
     let dist = 20.0 * radius;
     let light = (Vec3::new(0.0, 0.0, dist), Vec3::splat(1e3));
-    let r = run(&s, &[diffuse(), glass(n)], light, 600_000_000);
+    let r = run(&s, &[diffuse(0.5), glass(n)], light, 600_000_000);
     let photons: Vec<_> = r.traced.photons.iter().filter(|p| p.bounces == 2).collect();
     assert!(photons.len() > 200_000, "{} photons", photons.len());
     // The disk must be small: with spherical aberration every ray of entry height h crosses

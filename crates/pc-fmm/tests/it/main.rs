@@ -2,7 +2,7 @@
 //! the order, the closed-sphere furnace, CPU against GPU.
 
 use glam::Vec3;
-use pc_artifact::octree::{class, MaterialRecord};
+use pc_artifact::octree::MaterialRecord;
 use pc_artifact::params::VmapParams;
 use pc_artifact::vmap::Link;
 use pc_fmm::cpu::{direct, PhaseTimes};
@@ -27,24 +27,7 @@ pub struct Scene {
     pub materials: Vec<MaterialRecord>,
 }
 
-pub fn diffuse(albedo: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [albedo; 3],
-        class: class::DIFFUSE,
-        ior: 1.0,
-        ..Default::default()
-    }
-}
-
-pub fn emitter(radiance: f32, albedo: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [albedo; 3],
-        class: class::EMITTER,
-        radiance: [radiance; 3],
-        ior: 1.0,
-        ..Default::default()
-    }
-}
+pub use pc_testkit::material::{diffuse, emitter};
 
 pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
     let albedo = soa.ones();

@@ -17,25 +17,9 @@ use pc_vmap::build::vnodes;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
+use pc_testkit::material::{glass, mirror};
+
 use crate::{diffuse, scene, tree_and_plan, Scene, Soa};
-
-fn mirror() -> MaterialRecord {
-    MaterialRecord {
-        color: [1.0; 3],
-        class: class::MIRROR,
-        ior: 1.0,
-        ..Default::default()
-    }
-}
-
-fn glass() -> MaterialRecord {
-    MaterialRecord {
-        color: [1.0; 3],
-        class: class::DIELECTRIC,
-        ior: 1.5,
-        ..Default::default()
-    }
-}
 
 /// The specular links of a scene: `budget` paths, estimates of `gather` paths.
 fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
@@ -127,30 +111,47 @@ fn furnace_error(sc: &Scene, l: &[f32], want: f32) -> (f32, f64) {
     (worst, mean)
 }
 
-#[test]
-fn a_furnace_with_mirror_caps_stays_a_furnace() {
+/// A furnace of ρ 0.5 and unit emission: the (worst, mean) deviation of its diffuse splats from
+/// `E / (1 − ρ)` without and with the specular links, and the links.
+fn furnace(soa: &Soa, specular: MaterialRecord) -> ((f32, f64), (f32, f64), Links) {
+    let rho = 0.5;
+    let sc = scene(soa, vec![diffuse(rho), specular], 16);
+    let want = 1.0 / (1.0 - rho);
+    let without = solve_with(&sc, None, &|_| 1.0, rho);
+    let links = links_of(&sc, 400_000, 4000);
+    let with = solve_with(&sc, Some(&links), &|_| 1.0, rho);
+    (
+        furnace_error(&sc, &without, want),
+        furnace_error(&sc, &with, want),
+        links,
+    )
+}
+
+/// The inward unit sphere of 8,000 splats.
+fn inward_sphere() -> Soa {
     let mut soa = Soa::default();
     soa.sphere(Vec3::ZERO, 1.0, 8000, 0);
+    for n in soa.n.iter_mut() {
+        *n = -*n;
+    }
+    soa
+}
+
+#[test]
+fn a_furnace_with_mirror_caps_stays_a_furnace() {
+    let mut soa = inward_sphere();
     for k in 0..soa.len() {
-        soa.n[k] = -soa.n[k];
         if soa.p[k].y.abs() > 0.7 {
             soa.m[k] = 1;
         }
     }
-    let rho = 0.5;
-    let sc = scene(&soa, vec![diffuse(rho), mirror()], 16);
-    let want = 1.0 / (1.0 - rho);
-    let without = solve_with(&sc, None, &|_| 1.0, rho);
-    let (w0, m0) = furnace_error(&sc, &without, want);
-    let links = links_of(&sc, 400_000, 4000);
-    let with = solve_with(&sc, Some(&links), &|_| 1.0, rho);
-    let (w1, m1) = furnace_error(&sc, &with, want);
+    let ((_, m0), (w1, m1), links) = furnace(&soa, mirror(1.0));
     println!(
-        "mirror caps: without links mean {m0:+.4} worst {w0:.4}; with {} flux and {} gather links mean {m1:+.4} worst {w1:.4}",
+        "mirror caps: without links mean {m0:+.4}; with {} flux and {} gather links mean {m1:+.4} worst {w1:.4}",
         links.flux.len(),
         links.gather.len()
     );
-    // The mean: the links carry what the caps reflect (within the 0.4 % that the caps' border
+    // The mean: the links carry what the caps reflect (within the 0.3 % that the caps' border
     // counts twice, where mirror and diffuse disks overlap); the worst splat: the estimate's
     // noise (about 1/√ of the gathered paths) on top.
     assert!(m0 < -0.05, "without the links the mirrors lose light: {m0}");
@@ -160,20 +161,9 @@ fn a_furnace_with_mirror_caps_stays_a_furnace() {
 
 #[test]
 fn a_furnace_with_a_glass_ball_inside_stays_a_furnace() {
-    let mut soa = Soa::default();
-    soa.sphere(Vec3::ZERO, 1.0, 8000, 0);
-    for n in soa.n.iter_mut() {
-        *n = -*n;
-    }
+    let mut soa = inward_sphere();
     soa.sphere(Vec3::new(0.1, -0.2, 0.05), 0.35, 3000, 1);
-    let rho = 0.5;
-    let sc = scene(&soa, vec![diffuse(rho), glass()], 16);
-    let want = 1.0 / (1.0 - rho);
-    let without = solve_with(&sc, None, &|_| 1.0, rho);
-    let (w0, m0) = furnace_error(&sc, &without, want);
-    let links = links_of(&sc, 400_000, 4000);
-    let with = solve_with(&sc, Some(&links), &|_| 1.0, rho);
-    let (w1, m1) = furnace_error(&sc, &with, want);
+    let ((w0, m0), (w1, m1), _) = furnace(&soa, glass(1.5));
     println!(
         "glass ball: without links mean {m0:+.4} worst {w0:.4}; with mean {m1:+.4} worst {w1:.4}"
     );
@@ -213,7 +203,7 @@ fn a_mirror_wall_is_the_doubled_room_without_it() {
         }
     };
     let rho = 0.6;
-    let real = scene(&build(false), vec![diffuse(rho), mirror()], 16);
+    let real = scene(&build(false), vec![diffuse(rho), mirror(1.0)], 16);
     let unfolded = scene(&build(true), vec![diffuse(rho)], 16);
     let links = links_of(&real, 400_000, 2000);
     let with = solve_with(&real, Some(&links), &lamp, rho);

@@ -41,23 +41,11 @@ impl BuildSoa for Soa {
     }
 }
 
-pub fn diffuse(albedo: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [albedo; 3],
-        class: class::DIFFUSE,
-        ior: 1.0,
-        ..Default::default()
-    }
-}
+pub use pc_testkit::material::diffuse;
 
+/// An emitter that reflects nothing.
 pub fn emitter(radiance: f32) -> MaterialRecord {
-    MaterialRecord {
-        color: [0.0; 3],
-        class: class::EMITTER,
-        radiance: [radiance; 3],
-        ior: 1.0,
-        ..Default::default()
-    }
+    pc_testkit::material::emitter(radiance, 0.0)
 }
 
 pub fn camera(origin: Vec3, target: Vec3, up: Vec3, fov: f32, w: u32, h: u32) -> Camera {
