@@ -136,11 +136,12 @@ fn reference_cornell_render_matches_mitsuba_within_3_percent() {
 
 /// cornell-mirror-glass: a mirror box and a glass sphere, light through both onto diffuse
 /// surfaces (the specular links and the caustic photons). Issue 21 asks for every region within
-/// 3 %; pcgi reaches 0.4-4 % except the glass sphere's caustic (7-9 % dark), so this test holds
-/// every region within 10 % and the ones the seed's split lost (ceiling 40 %, the mirror's view
-/// of the red wall 39 %) within 10 % too.
+/// 3 %. With the default seed every region is within 2.5 %, but the glass sphere's caustic moves
+/// by ±2 % with the photons' seed (1.4, 4.1, 4.9 % for seeds 0-2), so the test holds every
+/// region within 5 %; the seed's split lost 40 % of the ceiling and 39 % of the mirror's view of
+/// the red wall.
 #[test]
-fn reference_mirror_glass_render_is_within_10_percent() {
+fn reference_mirror_glass_render_is_within_5_percent() {
     let dir = reference_dir()
         .parent()
         .unwrap()
@@ -157,7 +158,7 @@ fn reference_mirror_glass_render_is_within_10_percent() {
     assert_eq!(report.regions.len(), 15, "{}", report.table());
     for r in &report.regions {
         assert!(
-            r.error() < 0.10,
+            r.error() < 0.05,
             "region `{}` is {:.2} % off Mitsuba's reference:\n{}",
             r.name,
             100.0 * r.error(),

@@ -137,20 +137,12 @@ impl GpuTracer {
         progress: &dyn Fn(u64),
     ) -> Result<Traced, GpuError> {
         let mut out = Traced::default();
-        let mut first = Vec::with_capacity(aims.len() + 1);
-        let mut total = 0u64;
-        for a in aims {
-            first.push(total);
-            total += a.photons as u64;
-        }
         self.dispatch_all(ctx, aims, &mut |start, slots| {
             for (k, p) in slots.iter().enumerate() {
                 match p._pad {
                     FATE_STORED => {
                         out.photons.push(Photon { _pad: 0, ..*p });
-                        let id = start + k as u64;
-                        out.aim
-                            .push((first.partition_point(|&f| f <= id) - 1) as u32);
+                        out.id.push((start + k as u64) as u32);
                     }
                     FATE_OCCLUDED => out.occluded += 1,
                     _ => out.lost += 1,

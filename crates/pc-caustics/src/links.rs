@@ -20,7 +20,8 @@
 //!    mirror's reflectance). A path whose aim point is hidden is dropped: the surface in front
 //!    has its own aims.
 //! 3. **Bins and flux** ([`build`]): the receiving octree leaf of each kept path is its bin; the
-//!    bin's flux row sums the weights per sender leaf, so that `Φ_b = Σ w ⊙ L̄_D`.
+//!    bin's flux row sums the weights per sender, the splat the path left, so that
+//!    `Φ_b = Σ w ⊙ L_s`.
 //! 4. **Smooth**: every bin estimates its irradiance from the bins of its own surface (normals
 //!    within 45°, centroids near its plane) within a radius `h`: the kernel `K = 1 − d²/h²`
 //!    over the bins' centroids, and the ratio estimator `E = Σ K Φ / Σ K A` (flux over area,
@@ -225,6 +226,7 @@ pub fn build(
     aims: &[Aim],
     traced: &Traced,
     gather: u32,
+    seed: u32,
 ) -> Links {
     if traced.photons.is_empty() {
         return Links::default();
@@ -232,14 +234,29 @@ pub fn build(
     let diffuse = |j: usize| !class::is_specular(materials[view.splats[j].material as usize].class);
     let mut bins = bins(view, leaves, &diffuse);
     let leaf_of = |splat: u32| leaves.leaves.partition_point(|l| l.lo <= splat) - 1;
-    // Flux rows: (bin, sender leaf, weight), merged per pair.
+    // The splat each kept path left: the tracer's own draw (`Tracer::photon`, random number 0 of
+    // its id), so that the sender's radiance is the splat's, not its leaf's mean (a ball lens
+    // images a bright spot on the floor; a leaf's mean would spread it first).
+    let mut first = Vec::with_capacity(aims.len() + 1);
+    let mut total = 0u64;
+    for a in aims {
+        first.push(total);
+        total += a.photons as u64;
+    }
+    // Flux rows: (bin, sender splat, weight), merged per pair.
     let mut rows: Vec<(u32, u32, Vec3)> = traced
         .photons
         .iter()
-        .zip(&traced.aim)
-        .filter_map(|(p, &a)| match aims[a as usize].source {
-            Source::Area(d) => Some((leaf_of(p.splat) as u32, d, Vec3::from(p.power))),
-            Source::Point(_) => None,
+        .zip(&traced.id)
+        .filter_map(|(p, &id)| {
+            let a = first.partition_point(|&f| f <= id as u64) - 1;
+            match aims[a].source {
+                Source::Area(d) => {
+                    let j = leaves.pick(view, d, rand(seed, id, 0, 0));
+                    Some((leaf_of(p.splat) as u32, j, Vec3::from(p.power)))
+                }
+                Source::Point(_) => None,
+            }
         })
         .collect();
     for r in &rows {
@@ -253,16 +270,13 @@ pub fn build(
             _ => merged.push(r),
         }
     }
-    // Senders: the leaves that send, numbered in order.
-    let mut sender_leaves: Vec<u32> = merged.iter().map(|r| r.1).collect();
-    sender_leaves.sort_unstable();
-    sender_leaves.dedup();
-    let sender_of = |leaf: u32| sender_leaves.binary_search(&leaf).unwrap() as u32;
+    // Senders: the splats that send, numbered in order.
+    let mut sender_splats: Vec<u32> = merged.iter().map(|r| r.1).collect();
+    sender_splats.sort_unstable();
+    sender_splats.dedup();
+    let sender_of = |j: u32| sender_splats.binary_search(&j).unwrap() as u32;
     let mut out = Links {
-        senders: sender_leaves
-            .iter()
-            .map(|&l| [leaves.leaves[l as usize].lo, leaves.leaves[l as usize].hi])
-            .collect(),
+        senders: sender_splats.iter().map(|&j| [j, j + 1]).collect(),
         flux_offsets: vec![0; bins.len() + 1],
         ..Default::default()
     };

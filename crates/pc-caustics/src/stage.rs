@@ -35,8 +35,8 @@ pub struct Summary {
 #[derive(Debug, Default)]
 pub struct Traced {
     pub photons: Vec<Photon>,
-    /// The index of the aim each stored photon was traced for.
-    pub aim: Vec<u32>,
+    /// The id of each stored photon (its aim: the last whose first id is not above it).
+    pub id: Vec<u32>,
     pub traced: u64,
     pub occluded: u64,
     pub lost: u64,
@@ -68,7 +68,7 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
                 match tracer.photon(&aims[a], id as u32, &mut st) {
                     Fate::Stored(p) => {
                         out.photons.push(p);
-                        out.aim.push(a as u32);
+                        out.id.push(id as u32);
                     }
                     Fate::Occluded => out.occluded += 1,
                     Fate::Lost | Fate::Absorbed => out.lost += 1,
@@ -81,7 +81,7 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
     let mut out = Traced::default();
     for c in chunks {
         out.photons.extend(c.photons);
-        out.aim.extend(c.aim);
+        out.id.extend(c.id);
         out.traced += c.traced;
         out.occluded += c.occluded;
         out.lost += c.lost;
@@ -199,6 +199,7 @@ pub fn run(
                 &spec_aims,
                 &spec,
                 p.specular_gather,
+                p.seed,
             );
             let m = SpecularMeta {
                 key: spec_key.to_string(),

@@ -46,11 +46,11 @@ fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
         materials: &sc.materials,
         leaves: &leaves,
         max_bounces: 8,
-        self_hit: 0.5,
+        self_hit: pc_artifact::params::CausticsParams::default().self_hit,
         seed: 5,
     };
     let traced = trace_all(&tracer, &aims, &|_| {});
-    links::build(&view, &sc.materials, &leaves, &aims, &traced, gather)
+    links::build(&view, &sc.materials, &leaves, &aims, &traced, gather, 5)
 }
 
 /// The classic solve `L = E + ρ (T + S) L` (all of L transported, emission in the source):
