@@ -80,17 +80,23 @@ fn reference_cornell_octree_areas_match_the_surface() {
 
 /// The whole chain on the reference Cornell box's points (pc-octree, pc-vmap, pc-fmm,
 /// pc-raytrace with the stage defaults), compared with Mitsuba's render over the regions of
+/// Render the scene of the reference folder `dir` with pcgi's defaults (`pc-compare
+/// --write-config`'s config) in `out`; the image's path.
+fn render_reference(dir: &std::path::Path, out: &std::path::Path) -> PathBuf {
+    let cfg = out.join("reference.toml");
+    let text = pc_raytrace::reference::config_toml(dir).unwrap();
+    std::fs::write(&cfg, text).unwrap();
+    run("pc-run", args!["--config", cfg, "--quiet"]).success();
+    out.join("image.exr")
+}
+
 /// cornell.stats.json: every region's mean within 3 % (issue 5's target; the light bounces
 /// without limit there, so the radiosity solve must converge to match).
 #[test]
 fn reference_cornell_render_matches_mitsuba_within_3_percent() {
     let dir = reference_dir();
     let tmp = temp_dir();
-    let cfg = tmp.path().join("cornell.toml");
-    let text = pc_raytrace::reference::config_toml(&dir).unwrap();
-    std::fs::write(&cfg, text).unwrap();
-    run("pc-run", args!["--config", cfg, "--quiet"]).success();
-    let image = tmp.path().join("image.exr");
+    let image = render_reference(&dir, tmp.path());
     // The validation command (`cargo xtask compare IMAGE REFERENCE --regions FILE` runs it).
     let diff = tmp.path().join("diff.png");
     let out = run(
@@ -148,11 +154,7 @@ fn reference_mirror_glass_render_is_within_5_percent() {
         .join("cornell-mirror-glass");
     assert!(dir.is_dir(), "no reference at {}", dir.display());
     let tmp = temp_dir();
-    let cfg = tmp.path().join("cornell-mirror-glass.toml");
-    let text = pc_raytrace::reference::config_toml(&dir).unwrap();
-    std::fs::write(&cfg, text).unwrap();
-    run("pc-run", args!["--config", cfg, "--quiet"]).success();
-    let ours = pc_raytrace::image::read_exr(&tmp.path().join("image.exr")).unwrap();
+    let ours = pc_raytrace::image::read_exr(&render_reference(&dir, tmp.path())).unwrap();
     let (report, _) = pc_raytrace::reference::compare(&ours, &dir).unwrap();
     println!("{}", report.table());
     assert_eq!(report.regions.len(), 15, "{}", report.table());

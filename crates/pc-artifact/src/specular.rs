@@ -5,18 +5,15 @@
 //! The transfer is a product of three sparse maps, applied by pc-fmm to the reflected
 //! radiance `L` of every splat in each product of the solve:
 //!
-//! 1. **senders**: `L̄_s`, the area-weighted mean of `L` over a sender's splats (an octree leaf
-//!    of diffuse splats, stored as its data-pool range);
-//! 2. **flux**: `Φ_b = Σ w ⊙ L̄_s` over the links `(s, w)` of bin `b`, the flux that arrives
-//!    in bin `b` (an octree leaf of diffuse splats) from the senders through specular chains;
-//! 3. **smooth**: `E_b = Σ g Φ_b'` over the links `(b', g)` of bin `b`, the density estimate of
+//! 1. **flux**: `Φ_b = Σ w ⊙ L_s` over the links `(s, w)` of bin `b`, the flux that arrives in
+//!    bin `b` (an octree leaf of diffuse splats) through specular chains from sending splats `s`;
+//! 2. **smooth**: `E_b = Σ g Φ_b'` over the links `(b', g)` of bin `b`, the density estimate of
 //!    the irradiance over π in bin `b` (a kernel over the nearby bins of its surface);
-//! 4. **gather**: `T_i = Σ w E_b` over the links `(b, w)` of splat `i`, an interpolation
+//! 3. **gather**: `T_i = Σ w E_b` over the links `(b, w)` of splat `i`, an interpolation
 //!    between the bins around it (weights summing to one).
 //!
 //! | section               | element          | what |
 //! |-----------------------|------------------|------|
-//! | `spec_senders`        | `[u32; 2]`       | per sender: its splats `[lo, hi)` in the data pool |
 //! | `spec_flux_offsets`   | `u32`            | CSR row starts, one per bin plus one (empty: no links) |
 //! | `spec_flux`           | [`FluxLink`]     | per bin: the senders whose light reaches it, and the weight |
 //! | `spec_smooth_offsets` | `u32`            | CSR row starts, one per bin plus one (empty: no links) |
@@ -30,7 +27,6 @@ use serde::{Deserialize, Serialize};
 use crate::{Artifact, ArtifactError};
 
 pub mod sections {
-    pub const SENDERS: &str = "spec_senders";
     pub const FLUX_OFFSETS: &str = "spec_flux_offsets";
     pub const FLUX: &str = "spec_flux";
     pub const SMOOTH_OFFSETS: &str = "spec_smooth_offsets";
@@ -39,8 +35,8 @@ pub mod sections {
     pub const GATHER: &str = "spec_gather";
 }
 
-/// Flux into a bin per unit reflected radiance of a sender (area · sr, RGB: the specular
-/// chains' tint): `Φ_b += weight ⊙ L̄_sender`.
+/// Flux into a bin per unit reflected radiance of the sending splat (area · sr, RGB: the
+/// specular chains' tint): `Φ_b += weight ⊙ L_sender`; `sender` is a data-pool index.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct FluxLink {
@@ -72,7 +68,6 @@ pub struct SpecularMeta {
     pub occluded: u64,
     /// Paths that left the scene, hit a back face or reached the bounce limit.
     pub lost: u64,
-    pub senders: u64,
     pub bins: u64,
     pub flux_links: u64,
     pub smooth_links: u64,
@@ -85,7 +80,6 @@ pub struct SpecularMeta {
 /// The specular links' sections, checked.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SpecularView<'a> {
-    pub senders: &'a [[u32; 2]],
     pub flux_offsets: &'a [u32],
     pub flux: &'a [FluxLink],
     pub smooth_offsets: &'a [u32],
@@ -97,11 +91,10 @@ pub struct SpecularView<'a> {
 impl<'a> SpecularView<'a> {
     /// The sections of `a`; an artifact written before the links existed has none: no links.
     pub fn sections(a: &'a Artifact) -> Result<SpecularView<'a>, ArtifactError> {
-        if !a.has_section(sections::SENDERS) {
+        if !a.has_section(sections::FLUX_OFFSETS) {
             return Ok(SpecularView::default());
         }
         Ok(SpecularView {
-            senders: a.section(sections::SENDERS)?,
             flux_offsets: a.section(sections::FLUX_OFFSETS)?,
             flux: a.section(sections::FLUX)?,
             smooth_offsets: a.section(sections::SMOOTH_OFFSETS)?,
@@ -137,7 +130,7 @@ impl<'a> SpecularView<'a> {
     }
 
     /// The structure every reader relies on, for a data pool of `splats` splats: CSR indices
-    /// (empty or complete), senders within the pool, bins and senders that exist, finite
+    /// (empty or complete), senders within the pool, bins that exist, finite
     /// non-negative weights.
     pub fn check(&self, splats: usize) -> Result<(), String> {
         // Empty, or complete.
@@ -158,17 +151,12 @@ impl<'a> SpecularView<'a> {
                 "specular gather offsets are not a CSR index over the gather links of {splats} splats"
             ));
         }
-        if self
-            .senders
-            .iter()
-            .any(|r| r[0] > r[1] || r[1] as usize > splats)
-        {
-            return Err("a specular sender's splat range lies outside the data pool".into());
-        }
         let weight_ok = |w: f32| w.is_finite() && w >= 0.0;
-        if self.flux.iter().any(|l| {
-            l.sender as usize >= self.senders.len() || !l.weight.iter().all(|&w| weight_ok(w))
-        }) {
+        if self
+            .flux
+            .iter()
+            .any(|l| l.sender as usize >= splats || !l.weight.iter().all(|&w| weight_ok(w)))
+        {
             return Err(
                 "a specular flux link names a sender that does not exist or has a weight that is not finite and non-negative".into(),
             );
@@ -192,7 +180,6 @@ mod tests {
     use super::*;
 
     fn view<'a>(
-        senders: &'a [[u32; 2]],
         fo: &'a [u32],
         flux: &'a [FluxLink],
         go: &'a [u32],
@@ -204,7 +191,6 @@ mod tests {
         }];
         let so: &'static [u32] = if fo.is_empty() { &[] } else { &[0, 1] };
         SpecularView {
-            senders,
             flux_offsets: fo,
             flux,
             smooth_offsets: so,
@@ -216,9 +202,8 @@ mod tests {
 
     #[test]
     fn the_check_names_what_is_wrong() {
-        let senders = [[0, 2]];
         let flux = [FluxLink {
-            sender: 0,
+            sender: 2,
             weight: [1.0; 3],
         }];
         let gather = [GatherLink {
@@ -226,34 +211,27 @@ mod tests {
             weight: 2.0,
         }];
         let go = [0, 1, 1, 1];
-        assert!(view(&senders, &[0, 1], &flux, &go, &gather)
-            .check(3)
-            .is_ok());
-        assert!(view(&[], &[], &[], &[], &[]).check(3).is_ok());
-        let e = view(&senders, &[0, 1], &flux, &go, &gather)
-            .check(4)
-            .unwrap_err();
+        assert!(view(&[0, 1], &flux, &go, &gather).check(3).is_ok());
+        assert!(view(&[], &[], &[], &[]).check(3).is_ok());
+        let e = view(&[0, 1], &flux, &go, &gather).check(4).unwrap_err();
         assert!(e.contains("gather offsets"), "{e}");
-        let far = [[0, 9]];
-        let e = view(&far, &[0, 1], &flux, &go, &gather)
-            .check(3)
-            .unwrap_err();
-        assert!(e.contains("sender's splat range"), "{e}");
+        let far = [FluxLink {
+            sender: 3,
+            weight: [1.0; 3],
+        }];
+        let e = view(&[0, 1], &far, &go, &gather).check(3).unwrap_err();
+        assert!(e.contains("names a sender that does not exist"), "{e}");
         let nan = [FluxLink {
             sender: 0,
             weight: [f32::NAN, 0.0, 0.0],
         }];
-        let e = view(&senders, &[0, 1], &nan, &go, &gather)
-            .check(3)
-            .unwrap_err();
+        let e = view(&[0, 1], &nan, &go, &gather).check(3).unwrap_err();
         assert!(e.contains("flux link"), "{e}");
         let bad_bin = [GatherLink {
             bin: 1,
             weight: 1.0,
         }];
-        let e = view(&senders, &[0, 1], &flux, &go, &bad_bin)
-            .check(3)
-            .unwrap_err();
+        let e = view(&[0, 1], &flux, &go, &bad_bin).check(3).unwrap_err();
         assert!(e.contains("gather link"), "{e}");
         assert_eq!(std::mem::size_of::<FluxLink>(), 16);
         assert_eq!(std::mem::size_of::<GatherLink>(), 8);

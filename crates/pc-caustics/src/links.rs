@@ -183,7 +183,6 @@ pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
 /// The links' tables, as the artifact stores them ([`pc_artifact::specular`]).
 #[derive(Clone, Debug, Default)]
 pub struct Links {
-    pub senders: Vec<[u32; 2]>,
     pub flux_offsets: Vec<u32>,
     pub flux: Vec<FluxLink>,
     pub smooth_offsets: Vec<u32>,
@@ -196,7 +195,6 @@ impl Links {
     /// The tables as the artifact's reader gives them.
     pub fn view(&self) -> SpecularView<'_> {
         SpecularView {
-            senders: &self.senders,
             flux_offsets: &self.flux_offsets,
             flux: &self.flux,
             smooth_offsets: &self.smooth_offsets,
@@ -270,20 +268,14 @@ pub fn build(
             _ => merged.push(r),
         }
     }
-    // Senders: the splats that send, numbered in order.
-    let mut sender_splats: Vec<u32> = merged.iter().map(|r| r.1).collect();
-    sender_splats.sort_unstable();
-    sender_splats.dedup();
-    let sender_of = |j: u32| sender_splats.binary_search(&j).unwrap() as u32;
     let mut out = Links {
-        senders: sender_splats.iter().map(|&j| [j, j + 1]).collect(),
         flux_offsets: vec![0; bins.len() + 1],
         ..Default::default()
     };
     for r in &merged {
         out.flux_offsets[r.0 as usize + 1] += 1;
         out.flux.push(FluxLink {
-            sender: sender_of(r.1),
+            sender: r.1,
             weight: r.2.into(),
         });
     }

@@ -212,7 +212,6 @@ pub fn run(
             (l, m)
         }
     };
-    spec_meta.senders = links.senders.len() as u64;
     spec_meta.bins = links.flux_offsets.len().saturating_sub(1) as u64;
     spec_meta.flux_links = links.flux.len() as u64;
     spec_meta.smooth_links = links.smooth.len() as u64;
@@ -241,7 +240,6 @@ pub fn run(
     let mut w = ArtifactWriter::create(out, ArtifactKind::Photons, STAGE, STAGE_VERSION, key)?;
     w.section(sections::PHOTONS, &traced.photons)?;
     w.section(sections::DEPOSIT, &deposit)?;
-    w.section(spec::sections::SENDERS, &links.senders)?;
     w.section(spec::sections::FLUX_OFFSETS, &links.flux_offsets)?;
     w.section(spec::sections::FLUX, &links.flux)?;
     w.section(spec::sections::SMOOTH_OFFSETS, &links.smooth_offsets)?;
@@ -327,7 +325,6 @@ fn reusable(path: &Path, key: &Key, splats: usize) -> Option<(links::Links, Spec
     }
     let s = v.specular;
     let links = links::Links {
-        senders: s.senders.to_vec(),
         flux_offsets: s.flux_offsets.to_vec(),
         flux: s.flux.to_vec(),
         smooth_offsets: s.smooth_offsets.to_vec(),

@@ -3,9 +3,9 @@
 //! product of the transport operator as a sparse term, so the solve includes it at every
 //! bounce (`L = E + ρ ∘ (T + S)(L − Lₑ)`).
 //!
-//! `S` is four sparse maps traced by pc-caustics ([`pc_artifact::specular`]): the senders'
-//! area-weighted mean radiance, the flux each bin receives from them, each bin's density
-//! estimate over the bins around it, and each splat's interpolation between those. It acts on the reflected radiance only, as `T` does: the lights'
+//! `S` is three sparse maps traced by pc-caustics ([`pc_artifact::specular`]): the flux each
+//! bin receives from the sending splats, each bin's density estimate over the bins around it,
+//! and each splat's interpolation between those. It acts on the reflected radiance only, as `T` does: the lights'
 //! own emission through mirrors and glass is the caustic photon map's (no light counted
 //! twice). It runs on the CPU after the FMM's product on either device: it is a few sparse
 //! passes, small beside the product.
@@ -75,30 +75,16 @@ impl<'a> SpecularTransfer<'a> {
     /// `out += S radiance` (reflected radiance of the unknowns).
     pub fn add(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) {
         let l = &self.links;
-        let mean: Vec<Vec3> = l
-            .senders
-            .par_iter()
-            .map(|&[lo, hi]| {
-                let (mut sum, mut area) = (Vec3::ZERO, 0.0f32);
-                for j in lo as usize..hi as usize {
-                    if let Some(u) = self.unknown(j) {
-                        sum += self.pts.area[j] * Vec3::from(radiance[u]);
-                        area += self.pts.area[j];
-                    }
-                }
-                if area > 0.0 {
-                    sum / area
-                } else {
-                    Vec3::ZERO
-                }
-            })
-            .collect();
+        let sent = |j: u32| {
+            self.unknown(j as usize)
+                .map_or(Vec3::ZERO, |u| Vec3::from(radiance[u]))
+        };
         let flux: Vec<Vec3> = (0..l.bins())
             .into_par_iter()
             .map(|b| {
                 l.flux_of(b)
                     .iter()
-                    .map(|f| Vec3::from(f.weight) * mean[f.sender as usize])
+                    .map(|f| Vec3::from(f.weight) * sent(f.sender))
                     .sum()
             })
             .collect();

@@ -81,13 +81,12 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
     let sp = &meta.specular;
     let _ = writeln!(
         s,
-        "specular    {} links paths kept of {} traced ({} hidden, {} lost){}; {} senders, {} bins, {} flux, {} smoothing and {} gather links",
+        "specular    {} links paths kept of {} traced ({} hidden, {} lost){}; {} bins, {} flux, {} smoothing and {} gather links",
         sp.stored,
         sp.paths,
         sp.occluded,
         sp.lost,
         if sp.reused { ", reused" } else { "" },
-        sp.senders,
         sp.bins,
         sp.flux_links,
         sp.smooth_links,
