@@ -520,3 +520,55 @@ fn case_13_messages_name_the_path_and_the_problem() {
     assert!(help.stdout.starts_with("Relative RMSE"), "{}", help.stdout);
     assert!(!help.stdout.contains("Stage 5"), "{}", help.stdout);
 }
+
+/// A stage whose memory runs out (here a 20 MB address space; on a real scan, a 100M-point
+/// octree under `ulimit -v` ended in a bare `memory allocation of 1600000000 bytes failed` and
+/// SIGABRT) says so with its name and exits with code 2, and the output published before is
+/// intact; the next run with memory succeeds and leaves no temporary file.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_stage_out_of_memory_says_so_and_keeps_what_was_published() {
+    let dir = temp_dir();
+    // 100k points: the build itself needs more than the limit (3,000 fit in it).
+    let cfg = pcgi_tests::sampled_cornell(dir.path(), 100_000, false, "");
+    pc_octree(args!["--quiet", "--config", &cfg]).success();
+    let out = dir.path().join("out").join("octree.pcgi");
+    let before = std::fs::read(&out).unwrap();
+    let o = pcgi_tests::run_with_memory_limit(
+        &bin("pc-octree"),
+        args![
+            "--quiet",
+            "--config",
+            &cfg,
+            "--set",
+            "octree.area_samples=40"
+        ],
+        20 << 20,
+    );
+    assert_eq!(o.code, Some(2), "{o:?}");
+    assert!(
+        o.stderr
+            .starts_with("pc-octree: error: out of memory: the system refused ")
+            && o.stderr.contains("nothing was published"),
+        "{o:?}"
+    );
+    assert_eq!(o.stderr.lines().count(), 1, "one message: {o:?}");
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        before,
+        "the published octree changed"
+    );
+    pc_octree(args![
+        "--quiet",
+        "--config",
+        &cfg,
+        "--set",
+        "octree.area_samples=40"
+    ])
+    .success();
+    let stray: Vec<_> = files_under(dir.path())
+        .into_iter()
+        .filter(|p| p.to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(stray.is_empty(), "temporary files left: {stray:?}");
+}

@@ -210,6 +210,32 @@ where
     I: IntoIterator<Item = S>,
     S: AsRef<std::ffi::OsStr>,
 {
+    run_with_rlimit(bin, args, libc::RLIMIT_FSIZE, limit)
+}
+
+/// Run `bin` with `args` as a process whose address space may grow to `limit` bytes at most
+/// (`RLIMIT_AS`): allocations past it fail, as on a machine without overcommit.
+#[cfg(unix)]
+pub fn run_with_memory_limit<I, S>(bin: &Path, args: I, limit: u64) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    run_with_rlimit(bin, args, libc::RLIMIT_AS, limit)
+}
+
+/// `setrlimit`'s resource type (glibc names it; elsewhere an int).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+type Resource = libc::__rlimit_resource_t;
+#[cfg(all(unix, not(all(target_os = "linux", target_env = "gnu"))))]
+type Resource = libc::c_int;
+
+#[cfg(unix)]
+fn run_with_rlimit<I, S>(bin: &Path, args: I, resource: Resource, limit: u64) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
     use std::os::unix::process::CommandExt;
     let args: Vec<std::ffi::OsString> = args.into_iter().map(|a| a.as_ref().into()).collect();
     let mut cmd = Command::new(bin);
@@ -221,7 +247,7 @@ where
                 rlim_cur: limit as libc::rlim_t,
                 rlim_max: limit as libc::rlim_t,
             };
-            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+            if libc::setrlimit(resource, &lim) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
             libc::signal(libc::SIGXFSZ, libc::SIG_IGN);

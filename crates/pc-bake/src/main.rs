@@ -7,6 +7,8 @@ use clap::Parser;
 use pc_bake::stage::BakeStage;
 use pc_stage::StageArgs;
 
+pc_stage::report_oom!("pc-bake");
+
 /// The lit cloud: every splat with its radiance (radiosity plus the caustic estimate),
 /// tone-mapped to color, with the linear values as extra fields, in the models' own
 /// (georeferenced) coordinates, as PLY, LAS or LAZ (by the extension of bake.file).

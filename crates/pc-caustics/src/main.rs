@@ -8,6 +8,8 @@ use pc_caustics::stage::CausticsStage;
 use pc_config::Backend;
 use pc_stage::StageArgs;
 
+pc_stage::report_oom!("pc-caustics");
+
 /// Caustic photon map: photons from the lights aimed at the specular leaves they see, traced
 /// through the octree, stored on diffuse splats with a kd-tree (seed §8.5.2 to §8.5.7).
 #[derive(Parser)]

@@ -8,6 +8,8 @@ use pc_config::Backend;
 use pc_fmm::stage::{FmmStage, Inputs};
 use pc_stage::StageArgs;
 
+pc_stage::report_oom!("pc-fmm");
+
 /// Radiosity of every diffuse splat by the Fast Multipole Method over the V-map's links.
 #[derive(Parser)]
 #[command(name = "pc-fmm", version, about)]

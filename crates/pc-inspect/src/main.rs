@@ -9,6 +9,8 @@ use pc_artifact::octree::OctreeFile;
 use pc_inspect::{Opened, View};
 use pc_stage::say;
 
+pc_stage::report_oom!("pc-inspect");
+
 /// Look inside a pcgi artifact (octree, vmap, photons, radiosity).
 #[derive(Parser)]
 #[command(name = "pc-inspect", version, about)]

@@ -7,6 +7,8 @@ use clap::Parser;
 use pc_octree::stage::OctreeStage;
 use pc_stage::StageArgs;
 
+pc_stage::report_oom!("pc-octree");
+
 /// Build the adaptive octree (node pool, begin/end table, data pool) of the scene's splats.
 #[derive(Parser)]
 #[command(name = "pc-octree", version, about)]

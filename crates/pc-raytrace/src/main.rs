@@ -9,6 +9,8 @@ use pc_raytrace::stage::{Inputs, RaytraceStage};
 use pc_raytrace::walkthrough::Orbit;
 use pc_stage::StageArgs;
 
+pc_stage::report_oom!("pc-raytrace");
+
 /// Ray trace the octree (primary and specular rays, diffuse shading, supersampling).
 #[derive(Parser)]
 #[command(name = "pc-raytrace", version, about)]

@@ -9,6 +9,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+pc_stage::report_oom!("pc-sample");
+
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum SceneArg {
     /// Cornell box (open at z = +1), ceiling light, two boxes; `--with-specular` adds glass and mirror spheres.

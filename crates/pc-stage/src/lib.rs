@@ -10,6 +10,7 @@ pub mod args;
 pub mod device;
 pub mod input;
 pub mod lock;
+pub mod oom;
 pub mod progress;
 pub mod stage;
 

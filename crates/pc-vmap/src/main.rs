@@ -8,6 +8,8 @@ use pc_config::Backend;
 use pc_stage::StageArgs;
 use pc_vmap::stage::VmapStage;
 
+pc_stage::report_oom!("pc-vmap");
+
 /// View-independent visibility links between octree nodes, and the nodes each light sees.
 #[derive(Parser)]
 #[command(name = "pc-vmap", version, about)]

@@ -8,6 +8,8 @@ use anyhow::Context;
 use clap::Parser;
 use pc_raytrace::image::{read_exr, write_diff_png};
 
+pc_stage::report_oom!("pc-compare");
+
 /// Relative RMSE, per-pixel relative error and region means of a render against a reference
 /// render, and the difference image: `pc-compare IMAGE.exr REFERENCE.exr [--regions FILE]`, or `pc-compare IMAGE.exr
 /// --reference DIR` for a reference folder (an EXR and its *.stats.json, as in
