@@ -183,7 +183,7 @@ fn a_failure_while_writing_keeps_the_old_artifact() {
     // The disk fills up during the write (files may grow to 4 KiB): the failure comes after the
     // build, at the write, the latest point where an in-place writer would already have done
     // damage.
-    let err = pcgi_tests::run_with_file_limit(
+    let err = pcgi_tests::run_limited(
         &pcgi_tests::bin("pc-octree"),
         args![
             "--config",
@@ -192,7 +192,7 @@ fn a_failure_while_writing_keeps_the_old_artifact() {
             "--set",
             "octree.max_leaf_points=2"
         ],
-        4096,
+        pcgi_tests::Limit::FileSize(4096),
     )
     .error(&["octree.pcgi.", ".tmp"]);
     assert!(

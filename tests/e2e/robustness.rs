@@ -534,7 +534,7 @@ fn a_stage_out_of_memory_says_so_and_keeps_what_was_published() {
     pc_octree(args!["--quiet", "--config", &cfg]).success();
     let out = dir.path().join("out").join("octree.pcgi");
     let before = std::fs::read(&out).unwrap();
-    let o = pcgi_tests::run_with_memory_limit(
+    let o = pcgi_tests::run_limited(
         &bin("pc-octree"),
         args![
             "--quiet",
@@ -543,7 +543,7 @@ fn a_stage_out_of_memory_says_so_and_keeps_what_was_published() {
             "--set",
             "octree.area_samples=40"
         ],
-        20 << 20,
+        pcgi_tests::Limit::AddressSpace(20 << 20),
     );
     assert_eq!(o.code, Some(2), "{o:?}");
     assert!(

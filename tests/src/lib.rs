@@ -201,27 +201,16 @@ where
     capture(cmd, bin, &args)
 }
 
-/// Run `bin` with `args` as a process whose files may grow to `limit` bytes at most
-/// (`RLIMIT_FSIZE`, with `SIGXFSZ` ignored so a write past it fails with EFBIG, "File too
-/// large"): what a full disk looks like to a writer.
+/// A resource limit for [`run_limited`].
 #[cfg(unix)]
-pub fn run_with_file_limit<I, S>(bin: &Path, args: I, limit: u64) -> Output
-where
-    I: IntoIterator<Item = S>,
-    S: AsRef<std::ffi::OsStr>,
-{
-    run_with_rlimit(bin, args, libc::RLIMIT_FSIZE, limit)
-}
-
-/// Run `bin` with `args` as a process whose address space may grow to `limit` bytes at most
-/// (`RLIMIT_AS`): allocations past it fail, as on a machine without overcommit.
-#[cfg(unix)]
-pub fn run_with_memory_limit<I, S>(bin: &Path, args: I, limit: u64) -> Output
-where
-    I: IntoIterator<Item = S>,
-    S: AsRef<std::ffi::OsStr>,
-{
-    run_with_rlimit(bin, args, libc::RLIMIT_AS, limit)
+#[derive(Clone, Copy, Debug)]
+pub enum Limit {
+    /// Files may grow to this many bytes (`RLIMIT_FSIZE`, with `SIGXFSZ` ignored so a write
+    /// past it fails with EFBIG, "File too large"): what a full disk looks like to a writer.
+    FileSize(u64),
+    /// The address space may grow to this many bytes (`RLIMIT_AS`): allocations past it fail,
+    /// as on a machine without overcommit.
+    AddressSpace(u64),
 }
 
 /// `setrlimit`'s resource type (glibc names it; elsewhere an int).
@@ -230,12 +219,17 @@ type Resource = libc::__rlimit_resource_t;
 #[cfg(all(unix, not(all(target_os = "linux", target_env = "gnu"))))]
 type Resource = libc::c_int;
 
+/// Run `bin` with `args` as a process under `limit`.
 #[cfg(unix)]
-fn run_with_rlimit<I, S>(bin: &Path, args: I, resource: Resource, limit: u64) -> Output
+pub fn run_limited<I, S>(bin: &Path, args: I, limit: Limit) -> Output
 where
     I: IntoIterator<Item = S>,
     S: AsRef<std::ffi::OsStr>,
 {
+    let (resource, limit): (Resource, u64) = match limit {
+        Limit::FileSize(n) => (libc::RLIMIT_FSIZE, n),
+        Limit::AddressSpace(n) => (libc::RLIMIT_AS, n),
+    };
     use std::os::unix::process::CommandExt;
     let args: Vec<std::ffi::OsString> = args.into_iter().map(|a| a.as_ref().into()).collect();
     let mut cmd = Command::new(bin);
