@@ -14,19 +14,29 @@ struct Leaf {
 }
 
 // Photons first .. first + count of one aim (twin of emit::Aim): from a point light at `origin`
-// (source_leaf == INVALID) or from a splat of emitter leaf `source_leaf`, towards a splat of
-// specular leaf `target`, each carrying `power` (times the sampled points' cos θ_s |cos θ_t| /
-// (d² + r_t²) when `sample_geometry` is 1).
+// (source_leaf == INVALID) or from a splat of emitter leaf `source_leaf`, each carrying `power`.
+// `sampling` is emit::Sampling: SAMPLING_WHOLE and SAMPLING_AREA aim at a splat of specular leaf
+// `target_leaf` (SAMPLING_AREA scales the power by link_weight of the two points);
+// SAMPLING_DIRECTION draws a direction by cosine and keeps the photon if its first hit is a
+// specular splat of [lo, hi), scaled by link_weight there.
 struct Aim {
     origin: vec3<f32>,
     source_leaf: u32,
     power: vec3<f32>,
     target_leaf: u32,
     first: u32,
-    sample_geometry: u32,
+    sampling: u32,
+    k: f32,
+    lo: u32,
+    hi: u32,
     _pad1: u32,
     _pad2: u32,
+    _pad3: u32,
 }
+
+const SAMPLING_WHOLE: u32 = 0u;
+const SAMPLING_AREA: u32 = 1u;
+const SAMPLING_DIRECTION: u32 = 2u;
 
 struct PhotonParams {
     seed: u32,
@@ -54,6 +64,8 @@ const FATE_OCCLUDED: u32 = 1u;
 const FATE_LOST: u32 = 2u;
 const FATE_ABSORBED: u32 = 3u;
 const F32_MAX: f32 = 3.40282347e38;
+// Where a ray leaving a splat starts, in its radii (twin of trace::LEAVE_EPS).
+const LEAVE_EPS: f32 = 1e-3;
 // Random-number dimensions of a photon: 0..5 for the emission, then one per bounce.
 const DIM_BOUNCE: u32 = 8u;
 
@@ -87,6 +99,15 @@ fn pick(l: u32, u: f32) -> u32 {
     return leaf.hi - 1u;
 }
 
+// A specular-link path's geometry under the balance heuristic (twin of emit::link_weight).
+fn link_weight(cos_s: f32, cos_t: f32, d: f32, k: f32) -> f32 {
+    let g = cos_s * cos_t;
+    if g <= 0.0 {
+        return 0.0;
+    }
+    return g / (d * d + k * g);
+}
+
 fn fate(f: u32) -> PhotonOut {
     return PhotonOut(vec3<f32>(0.0), INVALID, vec3<f32>(0.0), 0u, vec3<f32>(0.0), f);
 }
@@ -110,42 +131,73 @@ fn photon(id: u32) -> PhotonOut {
     // Start: the light's position, or a point on an emitter splat drawn by area.
     var origin = aim.origin;
     var t_min = 0.0;
+    var skip = 0.0;
     var emitter_normal = vec3<f32>(0.0);
     if aim.source_leaf != INVALID {
         let s = splats[pick(aim.source_leaf, r(id, 0u))];
         origin = disk_point(s, r(id, 1u), r(id, 2u));
-        t_min = params.self_hit * s.radius;
+        t_min = LEAVE_EPS * s.radius;
+        skip = params.self_hit * s.radius;
         emitter_normal = s.normal;
     }
-    // Aim: a point on a splat of the target leaf, drawn by area.
-    let target_splat = splats[pick(aim.target_leaf, r(id, 3u))];
-    let to = disk_point(target_splat, r(id, 4u), r(id, 5u)) - origin;
-    let dist = length(to);
-    if dist <= t_min {
-        return fate(FATE_OCCLUDED);
-    }
-    var rd = to / dist;
-    if aim.source_leaf != INVALID && dot(emitter_normal, rd) <= 0.0 {
-        return fate(FATE_OCCLUDED);
-    }
-    let first_min = dist - 2.0 * target_splat.radius;
-    var ro = origin;
+    var rd: vec3<f32>;
+    var first_min = 0.0;
+    var cos_s = 0.0;
     var power = aim.power;
-    if aim.sample_geometry != 0u {
-        let ct = abs(dot(target_splat.normal, rd));
-        let ce = select(1.0, dot(emitter_normal, rd), aim.source_leaf != INVALID);
-        power = power * (ce * ct / (dist * dist + 0.1 * target_splat.radius * target_splat.radius));
+    if aim.sampling == SAMPLING_DIRECTION {
+        // A direction by cosine about the source splat; its first hit decides.
+        if aim.source_leaf == INVALID {
+            return fate(FATE_LOST);
+        }
+        rd = cosine_dir(emitter_normal, r(id, 3u), r(id, 4u));
+        cos_s = dot(emitter_normal, rd);
+    } else {
+        // Aim: a point on a splat of the target leaf, drawn by area.
+        let target_splat = splats[pick(aim.target_leaf, r(id, 3u))];
+        let to = disk_point(target_splat, r(id, 4u), r(id, 5u)) - origin;
+        let dist = length(to);
+        if dist <= t_min {
+            return fate(FATE_OCCLUDED);
+        }
+        rd = to / dist;
+        if aim.source_leaf != INVALID && dot(emitter_normal, rd) <= 0.0 {
+            return fate(FATE_OCCLUDED);
+        }
+        if aim.sampling == SAMPLING_AREA {
+            let ct = abs(dot(target_splat.normal, rd));
+            let ce = select(1.0, dot(emitter_normal, rd), aim.source_leaf != INVALID);
+            power = power * link_weight(ce, ct, dist, aim.k);
+        }
+        // The first hit must be the aimed surface: overlapping disks of the same surface lie
+        // within about a radius of the aim point along the ray.
+        first_min = dist - 2.0 * target_splat.radius;
     }
+    var ro = origin;
+    var leaving_normal = emitter_normal;
     var bounces = 0u;
     loop {
-        let hit = trace(ro, rd, t_min, F32_MAX, false);
+        // Leaving a surface (an emitter splat or a specular bounce): the surface-aware Δ rule.
+        var hit: Hit;
+        if skip > 0.0 {
+            hit = trace_leaving(ro, rd, leaving_normal, t_min, skip);
+        } else {
+            hit = trace(ro, rd, t_min, F32_MAX, false);
+        }
         if !hit.found {
             return fate(FATE_LOST);
         }
         let s = splats[hit.splat];
         let m = materials[s.material];
-        if bounces == 0u && hit.t < first_min {
-            return fate(FATE_OCCLUDED);
+        if bounces == 0u {
+            if aim.sampling == SAMPLING_DIRECTION {
+                let specular = m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC;
+                if hit.splat < aim.lo || hit.splat >= aim.hi || !specular {
+                    return fate(FATE_OCCLUDED);
+                }
+                power = power * link_weight(cos_s, abs(dot(rd, s.normal)), hit.t, aim.k);
+            } else if hit.t < first_min {
+                return fate(FATE_OCCLUDED);
+            }
         }
         let x = ro + rd * hit.t;
         if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
@@ -159,7 +211,9 @@ fn photon(id: u32) -> PhotonOut {
             bounces = bounces + 1u;
             ro = x;
             rd = b.dir;
-            t_min = params.self_hit * s.radius;
+            t_min = LEAVE_EPS * s.radius;
+            skip = params.self_hit * s.radius;
+            leaving_normal = s.normal;
             continue;
         }
         if bounces == 0u {

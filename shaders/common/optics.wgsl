@@ -53,6 +53,17 @@ fn disk_point(s: Splat, u1: f32, u2: f32) -> vec3<f32> {
     return fold_into_clip(s, s.position + (tu * cos(phi) + tv * sin(phi)) * r);
 }
 
+// A direction about the unit normal n with density cos θ / π for (u1, u2) uniform in [0, 1)²
+// (twin of pc_tree::cosine_dir).
+fn cosine_dir(n: vec3<f32>, u1: f32, u2: f32) -> vec3<f32> {
+    let tu = tangent_frame_u(n);
+    let tv = cross(n, tu);
+    let r = sqrt(u1);
+    let phi = 2.0 * PI * u2;
+    let z = sqrt(max(1.0 - u1, 0.0));
+    return normalize(tu * (r * cos(phi)) + tv * (r * sin(phi)) + n * z);
+}
+
 fn field_normal(info: NodeInfo, x: vec3<f32>) -> vec3<f32> {
     let n = info.normal;
     let u = tangent_frame_u(n);

@@ -237,9 +237,10 @@ pub struct CausticsParams {
     pub photons: u32,
     /// Most specular bounces a photon makes before it is dropped. 1..=64.
     pub max_bounces: u32,
-    /// Self-hit distance Δ (§8.5.6) in radii of the splat a photon leaves. [0, 100]. 0.1, not
-    /// the renderer's 0.5: a photon leaving a glass ball that rests on the floor met the floor
-    /// within half a radius of its exit and passed through it (docs/caustics.md, "Tracing").
+    /// Self-hit distance Δ (§8.5.6) in radii of the splat a photon leaves. [0, 100]. It skips
+    /// only splats facing like the one left; other surfaces count from 10⁻³ radii on, so a
+    /// photon leaving a glass ball that rests on the floor still meets the floor
+    /// (`pc_tree::first_hit_leaving`, docs/caustics.md "Tracing").
     pub self_hit: f32,
     /// Seed of the photons' random numbers.
     pub seed: u32,
@@ -259,7 +260,7 @@ impl Default for CausticsParams {
         CausticsParams {
             photons: 1_000_000,
             max_bounces: 8,
-            self_hit: 0.1,
+            self_hit: 0.5,
             seed: 0,
             specular_paths: 1_000_000,
             specular_gather: 400,

@@ -45,10 +45,36 @@ pub struct Aim {
     pub photons: u32,
     /// Power of each (W, RGB).
     pub power: [f32; 3],
-    /// The power is per unit of the sampled points' geometry, `cos θ_s |cos θ_t| / (d² + r_t²)`
-    /// (source point, aim point, the aimed splat's radius), not the pair's whole: unbiased
-    /// where the leaves' centroids misjudge it (the specular links, [`crate::links`]).
-    pub sample_geometry: bool,
+    /// How the power follows each photon's own points.
+    pub sampling: Sampling,
+}
+
+/// How a photon of an [`Aim`] is drawn and weighted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Sampling {
+    /// Aim point by area on the target leaf; `power` is the pair's whole (the lights).
+    Whole,
+    /// Aim point by area on the target leaf; the photon carries `power` times
+    /// [`link_weight`] of its two points (a specular link's area strategy, [`crate::links`]).
+    Area { k: f32 },
+    /// Direction by cosine about the source splat's normal; the photon counts only if its first
+    /// hit is a specular splat of the data-pool range `[lo, hi)` (the link's target node), and
+    /// carries `power` times [`link_weight`] of its two points (the link's direction strategy).
+    Direction { k: f32, lo: u32, hi: u32 },
+}
+
+/// A specular-link path's geometry under the two strategies' balance heuristic:
+/// `c_s c_t / (d² + k c_s c_t)`, for the cosines at the source and target points and their
+/// distance `d`. `k` = 0 is the bare point-to-point geometry; `k` > 0 bounds it by `1 / k`
+/// where the points touch (docs/caustics.md "Specular links"). WGSL twin: `link_weight` in
+/// shaders/caustics/photons.wgsl.
+#[inline]
+pub fn link_weight(cos_s: f32, cos_t: f32, d: f32, k: f32) -> f32 {
+    let g = cos_s * cos_t;
+    if g <= 0.0 {
+        return 0.0;
+    }
+    g / (d * d + k * g)
 }
 
 /// One octree leaf's own splats, and their aggregate.
@@ -115,6 +141,13 @@ impl Leaves {
         let a = self.leaves.partition_point(|l| l.lo < lo);
         let b = self.leaves.partition_point(|l| l.lo < hi);
         a..b
+    }
+
+    /// The index of the leaf that owns `splat`.
+    pub fn leaf_of(&self, splat: u32) -> usize {
+        self.leaves
+            .partition_point(|l| l.lo <= splat)
+            .saturating_sub(1)
     }
 
     /// A splat of leaf `l` drawn in proportion to area, for `u` ∈ [0, 1).
@@ -300,7 +333,7 @@ pub fn aims(plan: &Plan, budget: u32, seed: u32) -> Vec<Aim> {
                 target,
                 photons: count,
                 power: (p / n as f32).into(),
-                sample_geometry: false,
+                sampling: Sampling::Whole,
             })
         })
         .collect()

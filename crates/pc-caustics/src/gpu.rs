@@ -13,7 +13,7 @@ use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::OctreeView;
 
-use crate::emit::{Aim, Leaves, Source};
+use crate::emit::{Aim, Leaves, Sampling, Source};
 use crate::stage::Traced;
 use crate::trace::Fate;
 
@@ -44,8 +44,11 @@ struct GpuAim {
     power: [f32; 3],
     target_leaf: u32,
     first: u32,
-    sample_geometry: u32,
-    _pad: [u32; 2],
+    sampling: u32,
+    k: f32,
+    lo: u32,
+    hi: u32,
+    _pad: [u32; 3],
 }
 
 /// WGSL `PhotonParams`.
@@ -183,14 +186,22 @@ impl GpuTracer {
                 Source::Point(p) => (p.into(), u32::MAX),
                 Source::Area(e) => ([0.0; 3], e),
             };
+            let (sampling, k, lo, hi) = match a.sampling {
+                Sampling::Whole => (0, 0.0, 0, 0),
+                Sampling::Area { k } => (1, k, 0, 0),
+                Sampling::Direction { k, lo, hi } => (2, k, lo, hi),
+            };
             ga.push(GpuAim {
                 origin,
                 source_leaf,
                 power: a.power,
                 target_leaf: a.target,
                 first: total as u32,
-                sample_geometry: a.sample_geometry as u32,
-                _pad: [0; 2],
+                sampling,
+                k,
+                lo,
+                hi,
+                _pad: [0; 3],
             });
             total += a.photons as u64;
         }
@@ -264,6 +275,8 @@ mod tests {
         };
         assert_eq!(off("Aim", "power"), std::mem::offset_of!(GpuAim, power));
         assert_eq!(off("Aim", "first"), std::mem::offset_of!(GpuAim, first));
+        assert_eq!(off("Aim", "k"), std::mem::offset_of!(GpuAim, k));
+        assert_eq!(off("Aim", "hi"), std::mem::offset_of!(GpuAim, hi));
         assert_eq!(
             off("PhotonParams", "id_offset"),
             std::mem::offset_of!(GpuParams, id_offset)

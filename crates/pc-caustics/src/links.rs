@@ -6,11 +6,12 @@
 //! 1. **Aims** ([`aims`]): the budget of paths is shared among the V-map's links from a node's
 //!    diffuse splats `X` to another's specular splats `Y` in proportion to their flux factor
 //!    `A_X cos θ_X · A_Y |cos θ_Y| / d²` (from the parts' centroids and mean normals, bounded
-//!    near contact), rounded stochastically; each path draws its source and target leaves by
-//!    area. A path from point `x` toward point `y` carries
-//!    `A_X A_Y cos θ_x |cos θ_y| / (|x − y|² + 0.1 r_y²) / n` for the `n` paths the link
-//!    expects (`r_y` the aimed splat's radius): an unbiased estimate of the flux wherever the
-//!    centroids misjudge it (a curved surface, a near pair), with a floor at contact. The
+//!    near contact), rounded stochastically. Each link's paths follow two strategies: by area
+//!    (a source and an aim point drawn by area on the two parts) and by direction (a source by
+//!    area, a direction by cosine, kept if it first meets the link's specular part). Every path
+//!    carries the balance heuristic's weight of its own points' geometry ([`aims`]): an unbiased
+//!    estimate of the flux wherever the centroids misjudge it (a curved surface, a near pair),
+//!    and bounded where the parts touch (the glass ball on the floor). The
 //!    albedo is left out of the share: the links then do not depend on the diffuse colours,
 //!    and recolouring a wall reuses them. (Pairing every leaf under a link, as the emitters'
 //!    photons do, made 253M pairs on a 1M-splat scene.)
@@ -39,11 +40,12 @@ use pc_artifact::octree::class;
 use pc_artifact::specular::{FluxLink, GatherLink, SpecularView};
 use pc_artifact::vmap::VmapView;
 use pc_tree::rng::rand;
-use pc_tree::OctreeView;
+use pc_tree::{cosine_dir, disk_point, first_hit_leaving, OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
 
-use crate::emit::{self, Aim, Leaves, Source};
+use crate::emit::{self, Aim, Leaves, Sampling, Source};
 use crate::stage::Traced;
+use crate::trace::LEAVE_EPS;
 
 /// Prefix sums over the leaves (in data-pool order) of one class group: area, and area times
 /// centroid and normal, so that any node's part of that group is summed in O(1).
@@ -104,19 +106,107 @@ impl Prefix {
 /// may still hold leaves that face the other (a curved or noisy surface).
 const MIN_SHARE_COS: f32 = 0.05;
 
+/// The share of a link's paths that draw their direction by cosine rather than their aim point
+/// by area: half on near-field links (parts that may touch), and on far links in proportion
+/// to the parts' estimated form factor `F̂`, up to half at [`DIRECTION_FULL_AT`].
+fn direction_share(near: bool, form_factor: f64) -> f64 {
+    if near {
+        0.5
+    } else {
+        0.5 * (form_factor / DIRECTION_FULL_AT).min(1.0)
+    }
+}
+
+/// The estimated form factor from which a far link draws half its paths by direction.
+const DIRECTION_FULL_AT: f64 = 0.2;
+
+/// The most a near link's path may weigh, in multiples of the mean path's weight: a near link
+/// draws at least `π A_X / (MAX_WEIGHT · mean)` paths by direction, which bounds its paths'
+/// weights by `π A_X / n_D`.
+const MAX_WEIGHT: f64 = 64.0;
+
+/// Rays of a near link's pilot estimate.
+const PILOT_RAYS: u32 = 16;
+
+/// The share of `PILOT_RAYS` cosine-distributed rays from points of the link's diffuse part
+/// (drawn by area) whose first hit is a specular splat of its target node: an estimate of the
+/// form factor from `X` to `Y`'s specular part, visibility included.
+fn pilot_form_factor(
+    view: &OctreeView,
+    leaves: &Leaves,
+    diffuse: &Prefix,
+    l: &LinkPlan,
+    self_hit: f32,
+    seed: u32,
+    link: u32,
+) -> f64 {
+    let mut stats = TraversalStats::default();
+    let mut hits = 0;
+    for k in 0..PILOT_RAYS {
+        let u = |d: u32| rand(seed, 0x5bec_0003, link.wrapping_mul(PILOT_RAYS) + k, d);
+        let leaf = diffuse.pick(&l.x, u(0) as f64);
+        let j = leaves.pick(view, leaf, u(1));
+        let s = &view.splats[j as usize];
+        let ray = Ray {
+            origin: disk_point(s, u(2), u(3)),
+            dir: cosine_dir(s.normal, u(4), u(5)),
+            t_min: LEAVE_EPS * s.radius,
+            t_max: f32::INFINITY,
+        };
+        let walk = |r: &Ray| pc_tree::intersect(view, r, &mut stats);
+        let skip = self_hit * s.radius;
+        if let Some(hit) = first_hit_leaving(view.splats, &ray, s.normal.into(), skip, walk) {
+            let within = (l.y_splats[0]..l.y_splats[1]).contains(&hit.splat);
+            let specular = class::is_specular(leaves.leaves[leaves.leaf_of(hit.splat)].class);
+            hits += (within && specular) as u32;
+        }
+    }
+    hits as f64 / PILOT_RAYS as f64
+}
+
+/// One diffuse → specular link: its parts' leaves and areas, and its paths by each strategy.
+struct LinkPlan {
+    x: std::ops::Range<usize>,
+    y: std::ops::Range<usize>,
+    /// The target node's data-pool range.
+    y_splats: [u32; 2],
+    ax: f64,
+    ay: f64,
+    share: f64,
+    near: bool,
+    /// The share of its paths drawn by direction.
+    direction: f64,
+}
+
 /// Paths from diffuse leaves to the specular leaves they see, `budget` of them in expectation.
 ///
 /// The budget is shared among the V-map's links (node `X`, node `Y`) with diffuse splats in
 /// `X` and specular ones in `Y`, in proportion to `A_X A_Y cos θ_X |cos θ_Y| / (d² + (A_X +
 /// A_Y) / π)` between the two parts' centroids and mean normals (cosines at least
-/// [`MIN_SHARE_COS`]), rounded stochastically. Each path then draws its source leaf in `X` and
-/// its target leaf in `Y` by area and carries `A_X A_Y / n` (`n` the link's expected paths)
-/// times its own points' geometry ([`Aim::sample_geometry`]): unbiased for every leaf pair.
-pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
+/// [`MIN_SHARE_COS`]), rounded stochastically. A link's `n` paths follow two strategies
+/// (docs/caustics.md "Specular links"):
+/// * by area, `n_A` of them: a source leaf in `X` and a target leaf in `Y` drawn by area, the
+///   aim point on the target (density `1 / (A_X A_Y)` over the point pair);
+/// * by direction, `n_D = β n` of them ([`direction_share`]): a source leaf by area, then a
+///   direction by cosine about the source splat, kept if its first hit is a specular splat of
+///   `Y` (density `cos θ_x cos θ_y / (π A_X d²)`).
+///
+/// Every path carries the balance heuristic's weight `f / (n_A p_A + n_D p_D)` of the point
+/// pair's geometry `f = cos θ_x cos θ_y / d²`, which is `A_X A_Y / n_A ·`
+/// [`link_weight`](emit::link_weight)`(cos θ_x, cos θ_y, d, k)` with `k = n_D A_Y / (π n_A)`: unbiased for every
+/// point pair, and bounded by `π A_X / n_D` where the parts touch (a ball on a floor), where the
+/// area strategy alone has no bound.
+pub fn aims(
+    view: &OctreeView,
+    leaves: &Leaves,
+    v: &VmapView,
+    budget: u32,
+    self_hit: f32,
+    seed: u32,
+) -> Vec<Aim> {
     let diffuse = Prefix::new(leaves, &|l| !class::is_specular(l.class));
     let specular = Prefix::new(leaves, &|l| class::is_specular(l.class));
-    // (X's leaves, Y's leaves, areas, share) of every diffuse → specular link.
-    let mut shares: Vec<(std::ops::Range<usize>, std::ops::Range<usize>, f64, f64)> = Vec::new();
+    let mut plans: Vec<LinkPlan> = Vec::new();
     for x in 0..v.node_range.len() {
         let row = v.links_of(x);
         if row.is_empty() {
@@ -129,8 +219,8 @@ pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
             continue;
         }
         for link in row.iter().filter(|k| k.fraction > 0.0) {
-            let [ylo, yhi] = v.node_range[link.slot() as usize];
-            let yr = leaves.within(ylo, yhi);
+            let y_splats = v.node_range[link.slot() as usize];
+            let yr = leaves.within(y_splats[0], y_splats[1]);
             let (ay, cy, ny) = specular.part(&yr);
             if ay <= 0.0 {
                 continue;
@@ -140,41 +230,101 @@ pub fn aims(leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
             let dir = d.normalize_or_zero();
             let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
             let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
-            let share = ax * ay * cos_x * cos_y / (r2 + (ax + ay) / std::f64::consts::PI);
-            shares.push((xr.clone(), yr, ax * ay, share));
+            let bounded = r2 + (ax + ay) / std::f64::consts::PI;
+            let share = ax * ay * cos_x * cos_y / bounded;
+            plans.push(LinkPlan {
+                x: xr.clone(),
+                y: yr,
+                y_splats,
+                ax,
+                ay,
+                share,
+                near: link.is_near(),
+                direction: 0.0,
+            });
         }
     }
-    let total: f64 = shares.iter().map(|s| s.3).sum();
+    // Near links: the centroids say little about parts that touch (from the floor beside a
+    // ball's contact, the ball's centroid lies at a grazing angle, yet it fills most of the
+    // sky). Their share and strategy mix follow a pilot estimate of the form factor instead.
+    plans.par_iter_mut().enumerate().for_each(|(i, l)| {
+        let mut form_factor = l.share / (std::f64::consts::PI * l.ax);
+        if l.near {
+            let pilot = pilot_form_factor(view, leaves, &diffuse, l, self_hit, seed, i as u32);
+            form_factor = form_factor.max(pilot);
+            l.share = l.share.max(std::f64::consts::PI * l.ax * pilot);
+        }
+        l.direction = direction_share(l.near, form_factor);
+    });
+    let total: f64 = plans.iter().map(|s| s.share).sum();
     if total <= 0.0 || budget == 0 {
         return Vec::new();
     }
     let mut out: Vec<Aim> = Vec::new();
     let mut id = 0u32;
-    for (i, (xr, yr, area, share)) in shares.iter().enumerate() {
-        let n = budget as f64 * share / total;
-        let u = rand(seed, 0x5bec_0001, i as u32, 0) as f64;
-        let count = (n.floor() + (u < n.fract()) as u32 as f64) as u32;
-        let power = [(area / n) as f32; 3];
-        for _ in 0..count {
-            let source = diffuse.pick(xr, rand(seed, 0x5bec_0002, id, 0) as f64);
-            let target = specular.pick(yr, rand(seed, 0x5bec_0002, id, 1) as f64);
-            id = id.wrapping_add(1);
-            match out.last_mut() {
-                Some(a)
-                    if a.source == Source::Area(source)
-                        && a.target == target
-                        && a.power == power =>
-                {
-                    a.photons += 1
-                }
-                _ => out.push(Aim {
-                    source: Source::Area(source),
-                    target,
-                    photons: 1,
-                    power,
-                    sample_geometry: true,
-                }),
+    let mut push = |aim: Aim| match out.last_mut() {
+        Some(a)
+            if Aim {
+                photons: a.photons,
+                ..aim
+            } == *a =>
+        {
+            a.photons += 1
+        }
+        _ => out.push(aim),
+    };
+    // Expected paths by area and by direction. A near link draws at least enough paths by
+    // direction that none of its paths weighs more than MAX_WEIGHT times the mean; the counts
+    // are then scaled back to the budget.
+    let mean = total / budget as f64;
+    let mut counts: Vec<(f64, f64)> = plans
+        .iter()
+        .map(|l| {
+            let n = budget as f64 * l.share / total;
+            let mut n_dir = l.direction * n;
+            if l.near {
+                n_dir = n_dir.max(std::f64::consts::PI * l.ax / (MAX_WEIGHT * mean));
             }
+            ((1.0 - l.direction) * n, n_dir)
+        })
+        .collect();
+    let drawn: f64 = counts.iter().map(|c| c.0 + c.1).sum();
+    for c in &mut counts {
+        *c = (c.0 * budget as f64 / drawn, c.1 * budget as f64 / drawn);
+    }
+    for (i, (l, &(n_area, n_dir))) in plans.iter().zip(&counts).enumerate() {
+        let round = |m: f64, d: u32| {
+            let u = rand(seed, 0x5bec_0001, i as u32, d) as f64;
+            (m.floor() + (u < m.fract()) as u32 as f64) as u32
+        };
+        let power = [(l.ax * l.ay / n_area) as f32; 3];
+        let k = (n_dir * l.ay / (std::f64::consts::PI * n_area)) as f32;
+        for _ in 0..round(n_area, 0) {
+            let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
+            let target = specular.pick(&l.y, rand(seed, 0x5bec_0002, id, 1) as f64);
+            id = id.wrapping_add(1);
+            push(Aim {
+                source: Source::Area(source),
+                target,
+                photons: 1,
+                power,
+                sampling: Sampling::Area { k },
+            });
+        }
+        for _ in 0..round(n_dir, 1) {
+            let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
+            id = id.wrapping_add(1);
+            push(Aim {
+                source: Source::Area(source),
+                target: l.y.start as u32,
+                photons: 1,
+                power,
+                sampling: Sampling::Direction {
+                    k,
+                    lo: l.y_splats[0],
+                    hi: l.y_splats[1],
+                },
+            });
         }
     }
     out
@@ -231,7 +381,6 @@ pub fn build(
     }
     let diffuse = |j: usize| !class::is_specular(materials[view.splats[j].material as usize].class);
     let mut bins = bins(view, leaves, &diffuse);
-    let leaf_of = |splat: u32| leaves.leaves.partition_point(|l| l.lo <= splat) - 1;
     // The splat each kept path left: the tracer's own draw (`Tracer::photon`, random number 0 of
     // its id), so that the sender's radiance is the splat's, not its leaf's mean (a ball lens
     // images a bright spot on the floor; a leaf's mean would spread it first).
@@ -251,7 +400,7 @@ pub fn build(
             match aims[a].source {
                 Source::Area(d) => {
                     let j = leaves.pick(view, d, rand(seed, id, 0, 0));
-                    Some((leaf_of(p.splat) as u32, j, Vec3::from(p.power)))
+                    Some((leaves.leaf_of(p.splat) as u32, j, Vec3::from(p.power)))
                 }
                 Source::Point(_) => None,
             }
@@ -282,7 +431,7 @@ pub fn build(
     for b in 0..bins.len() {
         out.flux_offsets[b + 1] += out.flux_offsets[b];
     }
-    let [smooth, interpolate] = gather_links(view, &bins, &diffuse, &leaf_of, gather);
+    let [smooth, interpolate] = gather_links(view, &bins, &diffuse, &|j| leaves.leaf_of(j), gather);
     (out.smooth_offsets, out.smooth) = smooth;
     (out.gather_offsets, out.gather) = interpolate;
     out

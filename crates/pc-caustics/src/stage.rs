@@ -135,7 +135,14 @@ pub fn run(
     let reused = reusable(out, &spec_key, view.splats.len());
     let spec_aims = match reused {
         Some(_) => Vec::new(),
-        None => links::aims(&leaves, &vmap.view(), p.specular_paths, p.seed),
+        None => links::aims(
+            &view,
+            &leaves,
+            &vmap.view(),
+            p.specular_paths,
+            p.self_hit,
+            p.seed,
+        ),
     };
     let spec_total: u64 = spec_aims.iter().map(|a| a.photons as u64).sum();
     let start_tracing = || {

@@ -9,9 +9,24 @@ use pc_artifact::photons::Photon;
 use pc_tree::accel::Accel;
 use pc_tree::optics::specular_bounce;
 use pc_tree::rng::rand;
-use pc_tree::{disk_point, OctreeView, Ray, TraversalStats};
+use pc_tree::{cosine_dir, disk_point, first_hit_leaving, OctreeView, Ray, TraversalStats};
 
-use crate::emit::{Aim, Leaves, Source};
+use crate::emit::{link_weight, Aim, Leaves, Sampling, Source};
+
+/// What a photon's first hit must be.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum First {
+    /// At least this far: a nearer hit hid the aim point.
+    Beyond(f32),
+    /// A specular splat of the data-pool range `[lo, hi)`; the photon's power is then scaled by
+    /// [`link_weight`]`(cos_s, |cos θ| at the hit, the hit's distance, k)`.
+    Within {
+        lo: u32,
+        hi: u32,
+        cos_s: f32,
+        k: f32,
+    },
+}
 
 /// What became of a photon.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,6 +53,10 @@ pub struct Tracer<'a> {
     pub seed: u32,
 }
 
+/// Where a ray leaving a splat starts, in the splat's radii: past the rounding of its own
+/// plane. Other surfaces count from there; the origin's own from Δ ([`first_hit_leaving`]).
+pub const LEAVE_EPS: f32 = 1e-3;
+
 /// Random-number dimensions of photon `id`: 0..5 for the emission, then one per bounce.
 const DIM_BOUNCE: u32 = 8;
 
@@ -47,74 +66,103 @@ impl Tracer<'_> {
         let view = self.view;
         let r = |d: u32| rand(self.seed, id, 0, d);
         // Start: the light's position, or a point on an emitter splat drawn by area.
-        let (origin, t_min, emitter_normal) = match aim.source {
+        let (origin, radius, emitter_normal) = match aim.source {
             Source::Point(p) => (p, 0.0, None),
             Source::Area(e) => {
                 let j = self.leaves.pick(view, e, r(0));
                 let s = &view.splats[j as usize];
                 (
                     disk_point(s, r(1), r(2)),
-                    self.self_hit * s.radius,
+                    s.radius,
                     Some(Vec3::from(s.normal)),
                 )
             }
         };
-        // Aim: a point on a splat of the target leaf, drawn by area.
-        let j = self.leaves.pick(view, aim.target, r(3));
-        let target = &view.splats[j as usize];
-        let to = disk_point(target, r(4), r(5)) - origin;
-        let dist = to.length();
-        if dist <= t_min {
-            return Fate::Occluded;
-        }
-        let dir = to / dist;
-        if emitter_normal.is_some_and(|n| n.dot(dir) <= 0.0) {
-            // Behind the emitting splat: it sends nothing this way.
-            return Fate::Occluded;
-        }
-        // The first hit must be the aimed surface: overlapping disks of the same surface lie
-        // within about a radius of the aim point along the ray.
-        let first_min = dist - 2.0 * target.radius;
-        let mut power = Vec3::from(aim.power);
-        if aim.sample_geometry {
-            let ce = emitter_normal.map_or(1.0, |n| n.dot(dir));
-            let ct = Vec3::from(target.normal).dot(dir).abs();
-            power *= ce * ct / (dist * dist + 0.1 * target.radius * target.radius);
-        }
-        self.trace(
-            Ray {
-                origin,
-                dir,
-                t_min,
-                t_max: f32::INFINITY,
-            },
-            power,
-            id,
-            first_min,
-            stats,
-        )
+        let t_min = LEAVE_EPS * radius;
+        let (dir, first, power) = match aim.sampling {
+            Sampling::Direction { k, lo, hi } => {
+                // A direction by cosine about the source splat; its first hit decides. (The
+                // links give this strategy area sources only.)
+                let Some(n) = emitter_normal else {
+                    return Fate::Lost;
+                };
+                let dir = cosine_dir(n.into(), r(3), r(4));
+                let cos_s = n.dot(dir);
+                let first = First::Within { lo, hi, cos_s, k };
+                (dir, first, Vec3::from(aim.power))
+            }
+            Sampling::Whole | Sampling::Area { .. } => {
+                // Aim: a point on a splat of the target leaf, drawn by area.
+                let j = self.leaves.pick(view, aim.target, r(3));
+                let target = &view.splats[j as usize];
+                let to = disk_point(target, r(4), r(5)) - origin;
+                let dist = to.length();
+                if dist <= t_min {
+                    return Fate::Occluded;
+                }
+                let dir = to / dist;
+                if emitter_normal.is_some_and(|n| n.dot(dir) <= 0.0) {
+                    // Behind the emitting splat: it sends nothing this way.
+                    return Fate::Occluded;
+                }
+                let mut power = Vec3::from(aim.power);
+                if let Sampling::Area { k } = aim.sampling {
+                    let cos_s = emitter_normal.map_or(1.0, |n| n.dot(dir));
+                    let cos_t = Vec3::from(target.normal).dot(dir).abs();
+                    power *= link_weight(cos_s, cos_t, dist, k);
+                }
+                // The first hit must be the aimed surface: overlapping disks of the same
+                // surface lie within about a radius of the aim point along the ray.
+                (dir, First::Beyond(dist - 2.0 * target.radius), power)
+            }
+        };
+        let ray = Ray {
+            origin,
+            dir,
+            t_min,
+            t_max: f32::INFINITY,
+        };
+        let leaving = emitter_normal.map(|n| (n, self.self_hit * radius));
+        self.trace(ray, leaving, power, id, first, stats)
     }
 
-    /// Follow a photon from `ray` with `power`; hits before `first_min` on the first segment
-    /// mean its aim was hidden ([`Fate::Occluded`]).
+    /// Follow a photon from `ray` with `power`, leaving the surface `leaving` (its normal and
+    /// self-hit distance, [`first_hit_leaving`]) if any; a first hit that breaks `first` drops
+    /// it ([`Fate::Occluded`]).
     pub fn trace(
         &self,
         mut ray: Ray,
+        mut leaving: Option<(Vec3, f32)>,
         mut power: Vec3,
         id: u32,
-        first_min: f32,
+        first: First,
         stats: &mut TraversalStats,
     ) -> Fate {
         let view = self.view;
         let mut bounces = 0u32;
         loop {
-            let Some(hit) = self.accel.intersect(view, &ray, stats) else {
+            let walk = |r: &Ray| self.accel.intersect(view, r, stats);
+            let found = match leaving {
+                Some((n, skip)) => first_hit_leaving(view.splats, &ray, n, skip, walk),
+                None => self.accel.intersect(view, &ray, stats),
+            };
+            let Some(hit) = found else {
                 return Fate::Lost;
             };
             let s = &view.splats[hit.splat as usize];
             let m = &self.materials[s.material as usize];
-            if bounces == 0 && hit.t < first_min {
-                return Fate::Occluded;
+            if bounces == 0 {
+                match first {
+                    First::Beyond(t) if hit.t < t => return Fate::Occluded,
+                    First::Beyond(_) => {}
+                    First::Within { lo, hi, cos_s, k } => {
+                        if hit.splat < lo || hit.splat >= hi || !class::is_specular(m.class) {
+                            return Fate::Occluded;
+                        }
+                        let cos_t = ray.dir.dot(Vec3::from(s.normal)).abs();
+                        power *= link_weight(cos_s, cos_t, hit.t, k);
+                    }
+                }
             }
             let x = ray.origin + ray.dir * hit.t;
             if class::is_specular(m.class) {
@@ -128,9 +176,10 @@ impl Tracer<'_> {
                 ray = Ray {
                     origin: x,
                     dir: b.dir,
-                    t_min: self.self_hit * s.radius,
+                    t_min: LEAVE_EPS * s.radius,
                     t_max: f32::INFINITY,
                 };
+                leaving = Some((Vec3::from(s.normal), self.self_hit * s.radius));
                 continue;
             }
             if bounces == 0 {

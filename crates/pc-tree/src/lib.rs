@@ -18,7 +18,9 @@ pub mod optics;
 pub mod ray;
 pub mod rng;
 pub use pc_artifact::octree::{locate_normalized, Located, OctreeView};
-pub use ray::{covering, intersect, intersect_splat, occluded, Hit, Ray, TraversalStats};
+pub use ray::{
+    covering, first_hit_leaving, intersect, intersect_splat, occluded, Hit, Ray, TraversalStats,
+};
 
 /// Axis-aligned box of the cell at `depth` with integer coordinates `cell` in the root frame.
 pub fn cell_box(frame: &Frame, depth: u32, cell: [u32; 3]) -> (Vec3, Vec3) {
@@ -36,6 +38,18 @@ pub fn field_normal(info: &NodeInfo, x: Vec3) -> Vec3 {
     let (u, v) = (Vec3::from(u), Vec3::from(v));
     let d = x - Vec3::from(info.centroid);
     (n + u * (info.tilt[0] * d.dot(u)) + v * (info.tilt[1] * d.dot(v))).normalize_or(n)
+}
+
+/// A direction about the unit normal `n` with density `cos θ / π` (per steradian) for the
+/// random numbers `u1`, `u2` ∈ [0, 1). WGSL twin: `cosine_dir` in shaders/common/optics.wgsl.
+#[inline]
+pub fn cosine_dir(n: [f32; 3], u1: f32, u2: f32) -> Vec3 {
+    let (tu, tv) = tangent_frame(n);
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let z = (1.0 - u1).max(0.0).sqrt();
+    (Vec3::from(tu) * (r * phi.cos()) + Vec3::from(tv) * (r * phi.sin()) + Vec3::from(n) * z)
+        .normalize_or(Vec3::from(n))
 }
 
 /// A point uniform on splat `s`'s disk for the random numbers `u1`, `u2` ∈ [0, 1), folded into

@@ -259,3 +259,41 @@ pub fn covering(
         }
     }
 }
+
+/// Cosine above which a splat hit near a ray's origin counts as the surface the ray leaves
+/// ([`first_hit_leaving`]).
+pub const SAME_SURFACE_COS: f32 = 0.5;
+
+/// How many own-surface hits [`first_hit_leaving`] steps past before it falls back to the plain
+/// Δ rule.
+const MAX_OWN_HITS: u32 = 4;
+
+/// The surface-aware self-hit rule (docs/caustics.md "Tracing"): the nearest hit of `ray`
+/// (leaving a surface whose normal is `normal`) that is not that surface. Hits closer than
+/// `skip` (Δ times the origin splat's radius) are ignored only on splats that face like the
+/// origin (normals within 60°, [`SAME_SURFACE_COS`]); any other surface counts from `ray.t_min`
+/// on. The plain Δ rule also skips the other surface where two touch, a ball's underside over
+/// the floor it rests on, and so loses the light between them. `intersect` is the walk to
+/// use (the accelerated one or [`intersect`]). WGSL twin: `trace_leaving` in
+/// shaders/common/traverse.wgsl.
+pub fn first_hit_leaving(
+    splats: &[Splat],
+    ray: &Ray,
+    normal: Vec3,
+    skip: f32,
+    mut intersect: impl FnMut(&Ray) -> Option<Hit>,
+) -> Option<Hit> {
+    let mut r = *ray;
+    for _ in 0..MAX_OWN_HITS {
+        let hit = intersect(&r)?;
+        let own = Vec3::from(splats[hit.splat as usize].normal).dot(normal) > SAME_SURFACE_COS;
+        if hit.t >= skip || !own {
+            return Some(hit);
+        }
+        r.t_min = hit.t.max(r.t_min) * (1.0 + 1e-6) + f32::MIN_POSITIVE;
+    }
+    intersect(&Ray {
+        t_min: skip.max(r.t_min),
+        ..*ray
+    })
+}

@@ -3,6 +3,7 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
+use pc_caustics::emit::Sampling;
 use pc_caustics::gpu::GpuTracer;
 use pc_caustics::trace::Fate;
 use pc_testkit::Soa;
@@ -157,7 +158,10 @@ fn gpu_photons_match_the_cpu_twin() {
         let mut id = 0u32;
         let (mut same_fate, mut both, mut same_power, mut n) = (0usize, 0usize, 0usize, 0usize);
         for a in su.link_aims {
-            assert!(a.sample_geometry);
+            assert!(matches!(
+                a.sampling,
+                Sampling::Area { .. } | Sampling::Direction { .. }
+            ));
             for _ in 0..a.photons {
                 let c = t.photon(a, id, &mut st);
                 let g = on_gpu[id as usize];

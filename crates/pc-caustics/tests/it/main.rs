@@ -20,6 +20,7 @@ use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
 mod gpu;
+mod links;
 
 pub(crate) use pc_testkit::material::{diffuse, glass, mirror};
 
@@ -113,7 +114,7 @@ pub fn with_setup<R>(
     let light = PointLight::new(light.0.into(), light.1.into());
     let plan = emit::plan(&view, materials, &leaves, &[light], &input);
     let aims = emit::aims(&plan, budget, 3);
-    let link_aims = pc_caustics::links::aims(&leaves, &input, budget / 8, 3);
+    let link_aims = pc_caustics::links::aims(&view, &leaves, &input, budget / 8, 0.5, 3);
     let accel = Accel::new(&view);
     let tracer = Tracer {
         view: &view,

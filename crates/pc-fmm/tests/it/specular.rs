@@ -38,7 +38,8 @@ fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
         vnode: &vnode,
     };
     let leaves = Leaves::new(&view, &sc.materials);
-    let aims = links::aims(&leaves, &v, budget, 5);
+    let self_hit = pc_artifact::params::CausticsParams::default().self_hit;
+    let aims = links::aims(&view, &leaves, &v, budget, self_hit, 5);
     let accel = Accel::new(&view);
     let tracer = Tracer {
         view: &view,
@@ -46,7 +47,7 @@ fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
         materials: &sc.materials,
         leaves: &leaves,
         max_bounces: 8,
-        self_hit: pc_artifact::params::CausticsParams::default().self_hit,
+        self_hit,
         seed: 5,
     };
     let traced = trace_all(&tracer, &aims, &|_| {});
