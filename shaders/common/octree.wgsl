@@ -27,21 +27,52 @@ struct Splat {
     material: u32,
     albedo: vec3<f32>,
     source: u32,
-    // Border clip: the splat keeps the points x with dot(x - position, clip.xyz) <= clip.w.
+    // Border clip: the splat keeps the points x with dot(x - position, o_k) <= clip.w for its
+    // two clip lines (clip_lines; Splat::clip in pc-artifact).
     clip: vec4<f32>,
 }
 
-fn within_clip(s: Splat, x: vec3<f32>) -> bool {
-    return dot(x - s.position, s.clip.xyz) <= s.clip.w;
+// The unit outward normals of a splat's two clip lines (pc_artifact::octree::clip_lines):
+// |clip.xyz| = 1 / cos(phi), o = q^ cos(phi) +- (n x q^) sin(phi); zero for an interior splat.
+fn clip_lines(s: Splat) -> array<vec3<f32>, 2> {
+    let q = s.clip.xyz;
+    let s2 = dot(q, q);
+    if s2 == 0.0 {
+        return array<vec3<f32>, 2>(vec3<f32>(0.0), vec3<f32>(0.0));
+    }
+    let c = 1.0 / sqrt(s2);
+    let sn = sqrt(max(1.0 - c * c, 0.0));
+    let t = cross(s.normal, q);
+    let a = c * c;
+    let b = c * sn;
+    return array<vec3<f32>, 2>(q * a + t * b, q * a - t * b);
 }
 
-// A point of the splat's plane mirrored across the clip line when beyond it (Splat::fold_into_clip).
+fn within_clip(s: Splat, x: vec3<f32>) -> bool {
+    let o = clip_lines(s);
+    let d = x - s.position;
+    return dot(d, o[0]) <= s.clip.w && dot(d, o[1]) <= s.clip.w;
+}
+
+// A point of the splat's plane mirrored across the clip lines it lies beyond, repeated up to
+// three rounds (Splat::fold_into_clip).
 fn fold_into_clip(s: Splat, x: vec3<f32>) -> vec3<f32> {
-    let e = dot(x - s.position, s.clip.xyz) - s.clip.w;
-    if e <= 0.0 {
-        return x;
+    let o = clip_lines(s);
+    var y = x;
+    for (var round = 0u; round < 3u; round++) {
+        let e0 = dot(y - s.position, o[0]) - s.clip.w;
+        if e0 > 0.0 {
+            y = y - 2.0 * e0 * o[0];
+        }
+        let e1 = dot(y - s.position, o[1]) - s.clip.w;
+        if e1 > 0.0 {
+            y = y - 2.0 * e1 * o[1];
+        }
+        if e0 <= 0.0 && e1 <= 0.0 {
+            break;
+        }
     }
-    return x - 2.0 * e * s.clip.xyz;
+    return y;
 }
 
 struct NodeInfo {

@@ -131,11 +131,13 @@ pub struct Splat {
     pub albedo: [f32; 3],
     /// Index of the splat in the imported scene (models concatenated in config order).
     pub source: u32,
-    /// Border clip: the splat stands for the points x of its disk with
-    /// `(x − position) · clip.xyz ≤ clip.w`. At a surface's open border (a wall's edge, a box's
-    /// convex edge, the light's rim) `clip.xyz` is the unit outward direction in the splat's
-    /// plane and `clip.w` half the local sample spacing, so the disk no longer overhangs the
-    /// sampled surface; elsewhere it is all zero (the whole disk). docs/octree.md, "Splat area".
+    /// Border clip: the splat stands for the points x of its disk with `(x − position) · o_k ≤
+    /// clip.w` for its two clip lines o_1, o_2 ([`clip_lines`]). At a surface's open border (a
+    /// wall's edge, a box's convex edge, the light's rim) `clip.w` is half the local sample
+    /// spacing and `clip.xyz` points outward in the splat's plane: a unit vector on a straight
+    /// stretch (the two lines coincide), and at a corner the corner's apex over `clip.w`, of
+    /// length 1 / cos φ where ±φ turn the two lines' normals away from it. Elsewhere it is all
+    /// zero (the whole disk). docs/octree.md, "Borders".
     pub clip: [f32; 4],
 }
 
@@ -143,30 +145,96 @@ impl Splat {
     /// Whether the point `x` of the splat's plane lies on the splat's side of its border clip.
     #[inline]
     pub fn within_clip(&self, x: [f32; 3]) -> bool {
-        within_clip(self.position, self.clip, x)
+        within_clip(self.position, self.normal, self.clip, x)
     }
 
-    /// A point of the disk's plane mirrored across the clip line when it lies beyond it: a point
-    /// sampled on the disk lands on the splat's kept part (the cut-off cap mirrors inside the
-    /// disk, since the line is at least as far out as the centre).
+    /// A point of the disk's plane mirrored across the clip lines it lies beyond: a point
+    /// sampled on the disk lands on the splat's kept part (a cut-off cap mirrors inside the
+    /// disk, since each line is at least as far out as the centre). At a corner sharper than a
+    /// right angle one fold can push the point past the other line, so the folds repeat (three
+    /// rounds at most; the WGSL twin is `fold_into_clip` in shaders/common/octree.wgsl).
     #[inline]
     pub fn fold_into_clip(&self, x: [f32; 3]) -> [f32; 3] {
-        let c = self.position;
-        let e = (x[0] - c[0]) * self.clip[0]
-            + (x[1] - c[1]) * self.clip[1]
-            + (x[2] - c[2]) * self.clip[2]
-            - self.clip[3];
-        if e <= 0.0 {
-            return x;
+        let lines = clip_lines(self.normal, self.clip);
+        let (c, g) = (self.position, self.clip[3]);
+        let mut y = x;
+        for _ in 0..3 {
+            let mut moved = false;
+            for o in lines {
+                let e = dot3(sub3(y, c), o) - g;
+                if e > 0.0 {
+                    y = std::array::from_fn(|k| y[k] - 2.0 * e * o[k]);
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
         }
-        std::array::from_fn(|k| x[k] - 2.0 * e * self.clip[k])
+        y
     }
 }
 
-/// `(x − c) · clip.xyz ≤ clip.w`: the border clip test shared by every CPU intersection.
 #[inline(always)]
-pub fn within_clip(c: [f32; 3], clip: [f32; 4], x: [f32; 3]) -> bool {
-    (x[0] - c[0]) * clip[0] + (x[1] - c[1]) * clip[1] + (x[2] - c[2]) * clip[2] <= clip[3]
+fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline(always)]
+fn sub3(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// The unit outward normals of a splat's two clip lines, from its normal `n` and its `clip`
+/// (`Splat::clip`): `clip.xyz = q`, |q| = 1 / cos φ, o_{1,2} = q̂ cos φ ± (n × q̂) sin φ. Zero
+/// vectors for an interior splat (whose `clip.w` is zero too, so every point passes). The
+/// WGSL twin is `clip_lines` in shaders/common/octree.wgsl.
+#[inline(always)]
+pub fn clip_lines(n: [f32; 3], clip: [f32; 4]) -> [[f32; 3]; 2] {
+    let q = [clip[0], clip[1], clip[2]];
+    let s2 = dot3(q, q);
+    if s2 == 0.0 {
+        return [[0.0; 3]; 2];
+    }
+    let cos = 1.0 / s2.sqrt();
+    let sin = (1.0 - cos * cos).max(0.0).sqrt();
+    // q̂ cos φ = q cos² φ and (n × q̂) sin φ = (n × q) cos φ sin φ.
+    let t = [
+        n[1] * q[2] - n[2] * q[1],
+        n[2] * q[0] - n[0] * q[2],
+        n[0] * q[1] - n[1] * q[0],
+    ];
+    let (a, b) = (cos * cos, cos * sin);
+    [
+        std::array::from_fn(|k| q[k] * a + t[k] * b),
+        std::array::from_fn(|k| q[k] * a - t[k] * b),
+    ]
+}
+
+/// The `clip` of a border splat whose two clip lines have the unit outward normals `o1` and
+/// `o2` (in its plane; equal on a straight stretch) and the offset `gap`: the inverse of
+/// [`clip_lines`]. The lines turn at most [`MAX_CLIP_TURN`] away from their middle.
+pub fn encode_clip(o1: [f32; 3], o2: [f32; 3], gap: f32) -> [f32; 4] {
+    let m = [o1[0] + o2[0], o1[1] + o2[1], o1[2] + o2[2]];
+    let len = dot3(m, m).sqrt();
+    if len == 0.0 || !(gap > 0.0) {
+        return [0.0; 4];
+    }
+    let m = m.map(|x| x / len);
+    let cos = dot3(m, o1).clamp(MAX_CLIP_TURN.cos(), 1.0);
+    [m[0] / cos, m[1] / cos, m[2] / cos, gap]
+}
+
+/// The largest angle between a clip line's normal and the middle of the two (a corner of 10°).
+pub const MAX_CLIP_TURN: f32 = 85.0 * std::f32::consts::PI / 180.0;
+
+/// `(x − c) · o_k ≤ clip.w` for both clip lines ([`clip_lines`]) of the splat at `c` with
+/// normal `n`: the border clip test shared by every CPU intersection.
+#[inline(always)]
+pub fn within_clip(c: [f32; 3], n: [f32; 3], clip: [f32; 4], x: [f32; 3]) -> bool {
+    let [o1, o2] = clip_lines(n, clip);
+    let d = sub3(x, c);
+    dot3(d, o1) <= clip[3] && dot3(d, o2) <= clip[3]
 }
 
 /// Per node-pool slot: the average disk of Fig. 13 and the normal field of §8.5.5.
@@ -386,6 +454,19 @@ impl<'a> OctreeView<'a> {
         }) {
             return Err(format!(
                 "splat {i} has a non-finite value or a radius that is not positive"
+            ));
+        }
+        // A clip is zero, or points outward at most MAX_CLIP_TURN from both lines, with a
+        // positive offset (a looser bound for the rounding of the encoded length).
+        let max_len = 1.001 / MAX_CLIP_TURN.cos();
+        if let Some(i) = self.splats.iter().position(|s| {
+            let q2 = s.clip[0] * s.clip[0] + s.clip[1] * s.clip[1] + s.clip[2] * s.clip[2];
+            !(s.clip == [0.0; 4] || (q2 >= 0.998 && q2 <= max_len * max_len && s.clip[3] > 0.0))
+        }) {
+            return Err(format!(
+                "splat {i}'s border clip {:?} is neither zero nor an outward direction of length \
+                 1 to {max_len:.2} with a positive offset",
+                self.splats[i].clip
             ));
         }
         if let Some(i) = self.node_info.iter().position(|n| {

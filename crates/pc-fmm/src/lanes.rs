@@ -918,8 +918,8 @@ fn range_hit(d: &DiskLanes, lo: usize, hi: usize, ray: &pc_tree::Ray) -> bool {
         let (px, py, pz) = (ld(0), ld(1), ld(2));
         let (nx, ny, nz) = (ld(3), ld(4), ld(5));
         let r2 = ld(6);
-        let (kx, ky, kz, kw) = (ld(7), ld(8), ld(9), ld(10));
         let mut hit = [false; W];
+        let mut at = [[0.0f32; 3]; W];
         for l in 0..W {
             let denom = dir.x * nx[l] + dir.y * ny[l] + dir.z * nz[l];
             let (cx, cy, cz) = (px[l] - o.x, py[l] - o.y, pz[l] - o.z);
@@ -927,16 +927,25 @@ fn range_hit(d: &DiskLanes, lo: usize, hi: usize, ray: &pc_tree::Ray) -> bool {
             let (xx, xy, xz) = (o.x + dir.x * th, o.y + dir.y * th, o.z + dir.z * th);
             let (dx, dy, dz) = (xx - px[l], xy - py[l], xz - pz[l]);
             let inside = dx * dx + dy * dy + dz * dz <= r2[l];
-            let kept = dx * kx[l] + dy * ky[l] + dz * kz[l] <= kw[l];
+            at[l] = [xx, xy, xz];
             hit[l] = (denom.abs() >= 1e-8)
                 & (th >= ray.t_min)
                 & (th <= ray.t_max)
                 & inside
-                & kept
                 & (j0 + l < hi);
         }
-        if hit.iter().any(|&h| h) {
-            return true;
+        // The border clip only for the disks the ray meets (rare): the scalar test the octree
+        // walk uses, so the answer stays the walk's bit for bit.
+        for l in 0..W {
+            if hit[l] {
+                let j = j0 + l;
+                let c = [d.v[0][j], d.v[1][j], d.v[2][j]];
+                let n = [d.v[3][j], d.v[4][j], d.v[5][j]];
+                let clip = [d.v[7][j], d.v[8][j], d.v[9][j], d.v[10][j]];
+                if pc_artifact::octree::within_clip(c, n, clip, at[l]) {
+                    return true;
+                }
+            }
         }
         j0 += W;
     }

@@ -3,7 +3,7 @@
 //! docs/octree.md, "Splat area".
 
 use glam::Vec3;
-use pc_artifact::octree::{node, tangent_frame, Frame, Splat};
+use pc_artifact::octree::{encode_clip, node, tangent_frame, Frame, Splat, MAX_CLIP_TURN};
 use pc_tree::locate_normalized;
 
 use crate::refs::push_children_in_box;
@@ -30,9 +30,13 @@ const ALL_DIRS: u32 = u32::MAX >> (32 - BORDER_DIRS);
 enum Border {
     /// Same-surface neighbours lie out every way: the whole disk.
     Interior,
-    /// On a straight stretch of border, or a corner: up to half a spacing beyond the splat
-    /// along the outward direction (a, b) of its tangent frame.
-    Edge { a: f32, b: f32, gap: f32 },
+    /// On a straight stretch of border (the two lines coincide) or at a corner: up to half a
+    /// spacing beyond the splat along both outward directions `o1`, `o2` of its tangent frame.
+    Edge {
+        o1: (f32, f32),
+        o2: (f32, f32),
+        gap: f32,
+    },
     /// Open in several separate arcs (a strip one or two samples wide): up to half a spacing
     /// beyond the splat in every open direction (bit k of the mask).
     Open { mask: u32, gap: f32 },
@@ -104,17 +108,18 @@ pub fn splat_areas(
         .par_iter()
         .zip(splats)
         .map(|(b, s)| {
-            let (a, b, gap) = match *b {
+            let (o1, o2, gap) = match *b {
                 Border::Interior => return [0.0; 4],
-                Border::Edge { a, b, gap } => (a, b, gap),
+                Border::Edge { o1, o2, gap } => (o1, o2, gap),
                 Border::Open { mask, gap } => match longest_arc(mask) {
-                    Some(mid) => (mid.cos(), mid.sin(), gap),
+                    Some(mid) => ((mid.cos(), mid.sin()), (mid.cos(), mid.sin()), gap),
                     None => return [0.0; 4],
                 },
             };
             let (u, v) = tangent_frame(s.normal);
-            let d = (Vec3::from(u) * a + Vec3::from(v) * b).normalize_or_zero();
-            [d.x, d.y, d.z, gap]
+            let (u, v) = (Vec3::from(u), Vec3::from(v));
+            let world = |(a, b): (f32, f32)| (u * a + v * b).into();
+            encode_clip(world(o1), world(o2), gap)
         })
         .collect();
     (areas, clips)
@@ -325,10 +330,15 @@ impl AreaPass<'_> {
                 let s = &self.splats[i];
                 let (u, v) = tangent_frame(s.normal);
                 let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(s.position));
+                let offsets: Vec<(f32, f32)> = near
+                    .iter()
+                    .map(|&j| {
+                        let d = Vec3::from(self.splats[j as usize].position) - c;
+                        (d.dot(u), d.dot(v))
+                    })
+                    .collect();
                 let mut reach = [0.0f32; BORDER_DIRS];
-                for &j in near.iter() {
-                    let d = Vec3::from(self.splats[j as usize].position) - c;
-                    let (a, b) = (d.dot(u), d.dot(v));
+                for &(a, b) in &offsets {
                     for (hk, &(ck, sk)) in reach.iter_mut().zip(&self.dirs) {
                         *hk = hk.max(a * ck + b * sk);
                     }
@@ -339,7 +349,7 @@ impl AreaPass<'_> {
                     .enumerate()
                     .filter(|(_, &h)| h < g)
                     .fold(0u32, |m, (k, _)| m | 1 << k);
-                border_from_mask(mask, g)
+                border_from_mask(mask, g, &offsets)
             })
             .collect()
     }
@@ -349,7 +359,7 @@ impl AreaPass<'_> {
     fn accepts(&self, border: Border, p: f32, q: f32) -> bool {
         match border {
             Border::Interior => true,
-            Border::Edge { a, b, gap } => p * a + q * b <= gap,
+            Border::Edge { o1, o2, gap } => p * o1.0 + q * o1.1 <= gap && p * o2.0 + q * o2.1 <= gap,
             Border::Open { mask, gap } => (0..BORDER_DIRS)
                 .filter(|k| mask >> k & 1 != 0)
                 .all(|k| p * self.dirs[k].0 + q * self.dirs[k].1 <= gap),
@@ -435,24 +445,88 @@ fn longest_arc(mask: u32) -> Option<f32> {
     Some((best as f32 + (best_len as f32 - 1.0) * 0.5) * std::f32::consts::TAU / BORDER_DIRS as f32)
 }
 
-/// Border status from the mask of open directions (bit k: direction k is open).
-fn border_from_mask(mask: u32, gap: f32) -> Border {
+/// Border status from the mask of open directions (bit k: direction k is open) and the
+/// neighbours' offsets in the splat's tangent frame.
+///
+/// One run of open directions (an open direction whose predecessor is closed starts a run) is
+/// a stretch of border or a corner. Its two ends are found to a fraction of a degree by
+/// bisection between the last open and the first closed direction; each end is set by one
+/// neighbour, the next sample along the border that way, and the border there runs through
+/// the splat towards it, so its outward normal is perpendicular to that neighbour's offset.
+/// When the two normals differ by more than [`CORNER_TURN`] the splat sits at a corner and
+/// keeps both lines; otherwise the stretch is straight and a single line faces their bisector
+/// (which averages the jitter of the two neighbours instead of following each; the middle of
+/// the run would lean towards the nearer of the two).
+fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
     if mask == 0 {
         return Border::Interior;
     }
-    // One run of open directions (an open direction whose predecessor is closed starts a run):
-    // a stretch of border or a corner, whose outward direction is the run's middle.
     let starts = mask & !mask.rotate_left(1);
-    match longest_arc(mask) {
-        Some(mid) if starts.count_ones() == 1 => Border::Edge {
-            a: mid.cos(),
-            b: mid.sin(),
-            gap,
-        },
+    if starts.count_ones() != 1 || mask == ALL_DIRS {
         // Several runs (a strip one or two samples wide) or all open (an isolated splat).
-        _ => Border::Open { mask, gap },
+        return Border::Open { mask, gap };
+    }
+    let step = std::f32::consts::TAU / BORDER_DIRS as f32;
+    let first = starts.trailing_zeros() as usize;
+    let len = (0..BORDER_DIRS)
+        .take_while(|k| mask >> ((first + k) % BORDER_DIRS) & 1 != 0)
+        .count();
+    let reach = |t: f32| {
+        let (c, s) = (t.cos(), t.sin());
+        offsets
+            .iter()
+            .enumerate()
+            .map(|(j, &(a, b))| (a * c + b * s, j))
+            .fold((f32::NEG_INFINITY, usize::MAX), |m, x| if x.0 > m.0 { x } else { m })
+    };
+    // (open, closed) angle pairs, bisected to about 0.05°.
+    let bisect = |mut open: f32, mut closed: f32| {
+        for _ in 0..8 {
+            let mid = 0.5 * (open + closed);
+            if reach(mid).0 < gap {
+                open = mid;
+            } else {
+                closed = mid;
+            }
+        }
+        (open, reach(closed).1)
+    };
+    let start = first as f32 * step;
+    let end = start + (len - 1) as f32 * step;
+    let (a, ja) = bisect(start, start - step);
+    let (b, jb) = bisect(end, end + step);
+    let (Some(&pa), Some(&pb)) = (offsets.get(ja), offsets.get(jb)) else {
+        let middle = 0.5 * (a + b);
+        let o = (middle.cos(), middle.sin());
+        return Border::Edge { o1: o, o2: o, gap };
+    };
+    // Outward normals: the start's neighbour lies clockwise of the run, the end's
+    // counterclockwise, and the outward side is the run's.
+    let na = pa.1.atan2(pa.0) + std::f32::consts::FRAC_PI_2;
+    let nb = pb.1.atan2(pb.0) - std::f32::consts::FRAC_PI_2;
+    // The turn from na to nb, taken the run's way round (−π, π].
+    let turn = (nb - na + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU)
+        - std::f32::consts::PI;
+    if !(turn > CORNER_TURN) {
+        // A straight stretch: one line along the bisector of the two border directions.
+        let middle = na + 0.5 * turn;
+        let o = (middle.cos(), middle.sin());
+        return Border::Edge { o1: o, o2: o, gap };
+    }
+    let half = (0.5 * turn).min(MAX_CLIP_TURN);
+    let mid = na + 0.5 * turn;
+    Border::Edge {
+        o1: ((mid - half).cos(), (mid - half).sin()),
+        o2: ((mid + half).cos(), (mid + half).sin()),
+        gap,
     }
 }
+
+/// The least turn between a border's two outward normals (see [`border_from_mask`]) that
+/// makes a splat a corner with two clip lines: 40°, well above the jitter of a straight
+/// border row and well below a box's right angle.
+const CORNER_TURN: f32 = 40.0 * std::f32::consts::PI / 180.0;
+
 
 #[inline]
 fn covers(o: &Splat, x: Vec3, n: Vec3, material: u32) -> bool {

@@ -119,7 +119,7 @@ impl Accel {
             if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
                 let x = ray.origin + ray.dir * th;
                 if (x - c).length_squared() <= p.radius2
-                    && within_clip(p.position, p.clip, x.into())
+                    && within_clip(p.position, p.normal, p.clip, x.into())
                 {
                     best = Some(Hit {
                         t: th,

@@ -2,7 +2,7 @@
 //! location CPU vs brute force vs GPU, WGSL layouts, areas, normal fields, artifacts.
 
 use glam::Vec3;
-use pc_artifact::octree::{class, node, Frame, NodeInfo, Splat};
+use pc_artifact::octree::{class, clip_lines, node, Frame, NodeInfo, Splat};
 use pc_octree::{build, field_normal, BuildError, BuildInput, Octree, OctreeParams};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -519,6 +519,58 @@ fn splat_areas_stop_half_a_spacing_beyond_a_border() {
             assert!(disks > 2.5 * want, "{name}: the disks overlap");
         }
     }
+}
+
+#[test]
+fn corner_splats_keep_two_clip_lines() {
+    // A square sampled on an exact grid (spacing h, radius h): every border splat sits half a
+    // spacing inside the square's edge, so its clipped disk must end at the edge. A straight
+    // stretch needs one line; a corner needs two, and with the single diagonal line of the
+    // run's middle the corner disks overhung both edges by up to 0.37 h.
+    let (h, n) = (0.02f32, 40);
+    let half = 0.5 * h * n as f32;
+    let mut soa = Soa::default();
+    for i in 0..n {
+        for j in 0..n {
+            let at = |k: i32| -half + (k as f32 + 0.5) * h;
+            soa.push(Vec3::new(at(i), at(j), 0.0), Vec3::Z, h, 0);
+        }
+    }
+    let o = soa.build(&[class::DIFFUSE], OctreeParams::default()).unwrap();
+    let corners: Vec<&Splat> = o
+        .splats
+        .iter()
+        .filter(|s| s.clip[..3].iter().map(|x| x * x).sum::<f32>() > 1.01)
+        .collect();
+    assert_eq!(corners.len(), 4, "corner splats: {corners:?}");
+    for s in &corners {
+        let [o1, o2] = clip_lines(s.normal, s.clip);
+        let c = Vec3::from(s.position);
+        assert!((c.x.abs() - (half - 0.5 * h)).abs() < 1e-5 && (c.y.abs() - (half - 0.5 * h)).abs() < 1e-5);
+        // The two lines face the two edges (±x and ±y), whatever their order.
+        let (o1, o2) = (Vec3::from(o1), Vec3::from(o2));
+        let want = [Vec3::X * c.x.signum(), Vec3::Y * c.y.signum()];
+        let near = |a: Vec3, b: Vec3| a.angle_between(b) < 0.05;
+        assert!(
+            (near(o1, want[0]) && near(o2, want[1])) || (near(o1, want[1]) && near(o2, want[0])),
+            "corner at {c}: lines {o1}, {o2}"
+        );
+    }
+    // No kept point of any disk lies beyond the square (the clip offset is half a spacing).
+    let mut beyond = 0.0f32;
+    for s in &o.splats {
+        let c = Vec3::from(s.position);
+        for k in 0..400 {
+            let (r, a) = (((k as f32 + 0.5) / 400.0).sqrt() * s.radius, k as f32 * 2.399_963);
+            let x = c + Vec3::new(r * a.cos(), r * a.sin(), 0.0);
+            if s.within_clip(x.into()) {
+                beyond = beyond.max(x.x.abs().max(x.y.abs()) - half);
+            }
+            let y = Vec3::from(s.fold_into_clip(x.into()));
+            assert!(s.within_clip(y.into()) && (y - c).length() <= s.radius * 1.0001);
+        }
+    }
+    assert!(beyond < 0.03 * h, "a clipped disk reaches {beyond} beyond the square");
 }
 
 #[test]
