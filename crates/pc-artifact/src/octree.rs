@@ -217,7 +217,7 @@ pub fn clip_lines(n: [f32; 3], clip: [f32; 4]) -> [[f32; 3]; 2] {
 pub fn encode_clip(o1: [f32; 3], o2: [f32; 3], gap: f32) -> [f32; 4] {
     let m = [o1[0] + o2[0], o1[1] + o2[1], o1[2] + o2[2]];
     let len = dot3(m, m).sqrt();
-    if len == 0.0 || !(gap > 0.0) {
+    if len == 0.0 || gap.is_nan() || gap <= 0.0 {
         return [0.0; 4];
     }
     let m = m.map(|x| x / len);

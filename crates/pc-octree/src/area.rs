@@ -359,7 +359,9 @@ impl AreaPass<'_> {
     fn accepts(&self, border: Border, p: f32, q: f32) -> bool {
         match border {
             Border::Interior => true,
-            Border::Edge { o1, o2, gap } => p * o1.0 + q * o1.1 <= gap && p * o2.0 + q * o2.1 <= gap,
+            Border::Edge { o1, o2, gap } => {
+                p * o1.0 + q * o1.1 <= gap && p * o2.0 + q * o2.1 <= gap
+            }
             Border::Open { mask, gap } => (0..BORDER_DIRS)
                 .filter(|k| mask >> k & 1 != 0)
                 .all(|k| p * self.dirs[k].0 + q * self.dirs[k].1 <= gap),
@@ -477,7 +479,13 @@ fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
             .iter()
             .enumerate()
             .map(|(j, &(a, b))| (a * c + b * s, j))
-            .fold((f32::NEG_INFINITY, usize::MAX), |m, x| if x.0 > m.0 { x } else { m })
+            .fold((f32::NEG_INFINITY, usize::MAX), |m, x| {
+                if x.0 > m.0 {
+                    x
+                } else {
+                    m
+                }
+            })
     };
     // (open, closed) angle pairs, bisected to about 0.05°.
     let bisect = |mut open: f32, mut closed: f32| {
@@ -505,9 +513,9 @@ fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
     let na = pa.1.atan2(pa.0) + std::f32::consts::FRAC_PI_2;
     let nb = pb.1.atan2(pb.0) - std::f32::consts::FRAC_PI_2;
     // The turn from na to nb, taken the run's way round (−π, π].
-    let turn = (nb - na + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU)
-        - std::f32::consts::PI;
-    if !(turn > CORNER_TURN) {
+    let turn =
+        (nb - na + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
+    if turn.is_nan() || turn <= CORNER_TURN {
         // A straight stretch: one line along the bisector of the two border directions.
         let middle = na + 0.5 * turn;
         let o = (middle.cos(), middle.sin());
@@ -526,7 +534,6 @@ fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
 /// makes a splat a corner with two clip lines: 40°, well above the jitter of a straight
 /// border row and well below a box's right angle.
 const CORNER_TURN: f32 = 40.0 * std::f32::consts::PI / 180.0;
-
 
 #[inline]
 fn covers(o: &Splat, x: Vec3, n: Vec3, material: u32) -> bool {

@@ -73,7 +73,11 @@ pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
 }
 
 /// Non-empty children of an internal node.
-fn children<'v>(view: &OctreeView, vn: &'v [VNode], slot: u32) -> impl Iterator<Item = u32> + 'v {
+pub(crate) fn children<'v>(
+    view: &OctreeView,
+    vn: &'v [VNode],
+    slot: u32,
+) -> impl Iterator<Item = u32> + 'v {
     let w = view.nodes[slot as usize];
     let first = if node::is_leaf(w) || node::is_empty(w) {
         0
@@ -117,7 +121,7 @@ pub fn well_separated(a: &VNode, b: &VNode, theta: f32) -> bool {
 /// the disks: a disk's rim can overhang the surface (past a wall's edge, behind the floor at a
 /// corner), where rays would be blocked by the neighbouring surface's own overhang. Returns
 /// (data-pool index, point, normal, radius).
-fn sample(
+pub(crate) fn sample(
     view: &OctreeView,
     v: &VNode,
     seed: u32,
@@ -215,7 +219,7 @@ fn pair_rays(
 }
 
 /// Rays per batch handed to a caster (bounds the memory of a round).
-const RAYS_PER_BATCH: u64 = 1 << 22;
+pub(crate) const RAYS_PER_BATCH: u64 = 1 << 22;
 
 /// Rays `pair_rays` makes for a pair (an upper bound: back-facing samples are skipped).
 fn ray_count(vn: &[VNode], a: u32, b: u32, near: bool, p: &VmapParams) -> u32 {
@@ -237,6 +241,7 @@ fn decide(
     vn: &[VNode],
     p: &VmapParams,
     caster: &dyn Caster,
+    close: &[bool],
     tested: &[(u32, u32, bool)],
     links: &mut Links,
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
@@ -302,6 +307,14 @@ fn decide(
             links.far += 1;
         } else if va.vleaf && vb.vleaf {
             partial.push((a, b));
+        } else if let Some(x) = [a, b]
+            .into_iter()
+            .find(|&x| close[x as usize] && !vn[x as usize].vleaf)
+        {
+            // An occluder close to one of the two changes its splats' visibility sharply
+            // (crate::close): refine that one whatever the form factor.
+            let other = if x == a { b } else { a };
+            next.extend(children(view, vn, x).map(|c| (c.min(other), c.max(other))));
         } else if p.refine_form_factor > 0.0 && form_factors(view, va, vb, r) < p.refine_form_factor
         {
             // Too little light flows between the two to be worth resolving the shadow edge
@@ -413,6 +426,8 @@ pub struct Links {
     pub near: u64,
     pub pairs_tested: u64,
     pub rays: u64,
+    /// Nodes with an occluder close by ([`crate::close`]).
+    pub close: u64,
 }
 
 #[derive(Clone, Copy)]
@@ -478,6 +493,8 @@ pub fn build_links(
     if vn[0].count() == 0 {
         return Ok(links);
     }
+    let close = crate::close::close_occluders(view, vn, p, caster)?;
+    links.close = close.iter().filter(|&&c| c).count() as u64;
     let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
     let mut level = 0;
     while !frontier.is_empty() {
@@ -507,7 +524,15 @@ pub fn build_links(
                 budget += ray_count(vn, a, b, near, p) as u64;
                 last += 1;
             }
-            let (more, part) = decide(view, vn, p, caster, &tested[first..last], &mut links)?;
+            let (more, part) = decide(
+                view,
+                vn,
+                p,
+                caster,
+                &close,
+                &tested[first..last],
+                &mut links,
+            )?;
             next.extend(more);
             partial.extend(part);
             first = last;

@@ -2,5 +2,6 @@
 //! each point light sees (§8.5.3). See docs/vmap.md.
 
 pub mod build;
+pub mod close;
 pub mod error;
 pub mod stage;

@@ -536,7 +536,9 @@ fn corner_splats_keep_two_clip_lines() {
             soa.push(Vec3::new(at(i), at(j), 0.0), Vec3::Z, h, 0);
         }
     }
-    let o = soa.build(&[class::DIFFUSE], OctreeParams::default()).unwrap();
+    let o = soa
+        .build(&[class::DIFFUSE], OctreeParams::default())
+        .unwrap();
     let corners: Vec<&Splat> = o
         .splats
         .iter()
@@ -546,7 +548,10 @@ fn corner_splats_keep_two_clip_lines() {
     for s in &corners {
         let [o1, o2] = clip_lines(s.normal, s.clip);
         let c = Vec3::from(s.position);
-        assert!((c.x.abs() - (half - 0.5 * h)).abs() < 1e-5 && (c.y.abs() - (half - 0.5 * h)).abs() < 1e-5);
+        assert!(
+            (c.x.abs() - (half - 0.5 * h)).abs() < 1e-5
+                && (c.y.abs() - (half - 0.5 * h)).abs() < 1e-5
+        );
         // The two lines face the two edges (±x and ±y), whatever their order.
         let (o1, o2) = (Vec3::from(o1), Vec3::from(o2));
         let want = [Vec3::X * c.x.signum(), Vec3::Y * c.y.signum()];
@@ -561,7 +566,10 @@ fn corner_splats_keep_two_clip_lines() {
     for s in &o.splats {
         let c = Vec3::from(s.position);
         for k in 0..400 {
-            let (r, a) = (((k as f32 + 0.5) / 400.0).sqrt() * s.radius, k as f32 * 2.399_963);
+            let (r, a) = (
+                ((k as f32 + 0.5) / 400.0).sqrt() * s.radius,
+                k as f32 * 2.399_963,
+            );
             let x = c + Vec3::new(r * a.cos(), r * a.sin(), 0.0);
             if s.within_clip(x.into()) {
                 beyond = beyond.max(x.x.abs().max(x.y.abs()) - half);
@@ -570,7 +578,10 @@ fn corner_splats_keep_two_clip_lines() {
             assert!(s.within_clip(y.into()) && (y - c).length() <= s.radius * 1.0001);
         }
     }
-    assert!(beyond < 0.03 * h, "a clipped disk reaches {beyond} beyond the square");
+    assert!(
+        beyond < 0.03 * h,
+        "a clipped disk reaches {beyond} beyond the square"
+    );
 }
 
 #[test]

@@ -1,0 +1,144 @@
+//! Nodes with an occluder close by: a light hanging 1 cm under the ceiling, a ball resting on
+//! the floor. Inside such a node the visibility of its splats changes sharply (the ceiling above
+//! the light sees almost nothing, the ceiling beside it the whole room), so a partial link kept
+//! at its level by the importance criterion spreads one visible share over both: the ceiling
+//! above the reference Cornell light got a quarter of the light of the ceiling beside it, where
+//! the reference has almost none, and the visible surfaces lose what the hidden ones gain.
+//! docs/vmap.md, "Occluders close to a node".
+
+use pc_artifact::octree::tangent_frame;
+use pc_artifact::params::VmapParams;
+use pc_gpu::GpuError;
+use pc_tree::caster::Caster;
+use pc_tree::rng::{pcg, rand};
+use pc_tree::{OctreeView, Ray};
+use rayon::prelude::*;
+
+use crate::build::{children, sample, VNode, RAYS_PER_BATCH};
+use glam::Vec3;
+
+/// Probe rays per child of a node.
+const PROBES: u32 = 16;
+/// Least difference between two groups' blocked shares that marks a node.
+const STEP: f32 = 0.5;
+/// Least gap between two layers of a node, in node radii (the reference Cornell light hangs
+/// 1 cm under the ceiling: 0.25 radii of a 4 cm node).
+const LAYER_GAP: f32 = 0.1;
+
+/// Per node-pool slot: whether an occluder close to the node blocks the probes of some of its
+/// splats and not of others. Each child of an internal node casts [`PROBES`] rays from its
+/// splats (stratified along its range, cosine-distributed about the splat's normal) out to the
+/// node's radius; a node is marked when the shares of blocked probes differ by at least
+/// [`STEP`] between two children (an occluder beside part of the node) or between the back and
+/// the front half of the probes along the node's normal (two layers, such as a ceiling and the
+/// light 1 cm in front of it, which the octree separates only in cells under 1 cm). A wall
+/// beside a room's corner, whose probes meet the other wall, differs by less; a scene without
+/// close occluders marks nothing. Probes are cast like the V-map's rays (CPU or GPU).
+pub fn close_occluders(
+    view: &OctreeView,
+    vn: &[VNode],
+    p: &VmapParams,
+    caster: &dyn Caster,
+) -> Result<Vec<bool>, GpuError> {
+    let mut marked = vec![false; vn.len()];
+    let nodes: Vec<(u32, Vec<u32>)> = (0..vn.len() as u32)
+        .filter(|&a| !vn[a as usize].vleaf && vn[a as usize].count() > 0)
+        .map(|a| (a, children(view, vn, a).collect::<Vec<u32>>()))
+        .filter(|(_, kids)| kids.len() >= 2)
+        .collect();
+    let per_node = |kids: &[u32]| kids.len() as u64 * PROBES as u64;
+    let mut first = 0;
+    while first < nodes.len() {
+        let (mut last, mut budget) = (first, 0u64);
+        while last < nodes.len() && budget < RAYS_PER_BATCH {
+            budget += per_node(&nodes[last].1);
+            last += 1;
+        }
+        let batch = &nodes[first..last];
+        let rays: Vec<Ray> = batch
+            .par_iter()
+            .flat_map_iter(|(a, kids)| {
+                let reach = vn[*a as usize].radius;
+                kids.iter().flat_map(move |&c| {
+                    (0..PROBES).map(move |k| probe(view, &vn[c as usize], c, k, reach, p))
+                })
+            })
+            .collect();
+        let visible = caster.visible(&rays)?;
+        let mut at = 0;
+        for (a, kids) in batch {
+            let n = kids.len() * PROBES as usize;
+            let (probes, seen) = (&rays[at..at + n], &visible[at..at + n]);
+            at += n;
+            marked[*a as usize] =
+                step_between_children(seen) || step_between_layers(&vn[*a as usize], probes, seen);
+        }
+        first = last;
+    }
+    Ok(marked)
+}
+
+/// Whether the blocked shares of two children's probes (consecutive runs of [`PROBES`]) differ
+/// by at least [`STEP`].
+fn step_between_children(seen: &[bool]) -> bool {
+    let shares = seen
+        .chunks(PROBES as usize)
+        .map(|c| c.iter().filter(|&&v| !v).count() as f32 / c.len() as f32);
+    let (lo, hi) = shares.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), x| {
+        (lo.min(x), hi.max(x))
+    });
+    hi - lo >= STEP
+}
+
+/// Whether the blocked shares of the back and the front layer of the probes (their origins'
+/// heights along the node's normal, split at the widest gap) differ by at least [`STEP`]. Nodes
+/// whose normals span every direction have no normal and are left to the children's test.
+fn step_between_layers(v: &VNode, probes: &[Ray], seen: &[bool]) -> bool {
+    if v.cone_cos <= 0.0 || v.axis.length_squared() == 0.0 {
+        return false;
+    }
+    let mut h: Vec<(f32, bool)> = probes
+        .iter()
+        .zip(seen)
+        .map(|(r, &s)| ((r.origin - v.center).dot(v.axis), s))
+        .collect();
+    h.sort_by(|x, y| x.0.total_cmp(&y.0));
+    // Split at the widest gap between consecutive heights, with at least a quarter on each side;
+    // a single surface, flat or gently curved, has no gap wider than a few percent of the node.
+    let quarter = (h.len() / 4).max(1);
+    let Some((at, gap)) = (quarter..=h.len().saturating_sub(quarter))
+        .filter(|&i| i > 0 && i < h.len())
+        .map(|i| (i, h[i].0 - h[i - 1].0))
+        .max_by(|x, y| x.1.total_cmp(&y.1))
+    else {
+        return false;
+    };
+    if gap.is_nan() || gap <= LAYER_GAP * v.radius {
+        return false;
+    }
+    let (back, front) = h.split_at(at);
+    let blocked =
+        |x: &[(f32, bool)]| x.iter().filter(|p| !p.1).count() as f32 / x.len().max(1) as f32;
+    (blocked(back) - blocked(front)).abs() >= STEP
+}
+
+/// The k-th probe of child node `v` (slot `c`): from the centre of one of its splats, cosine-
+/// distributed about the splat's normal, out to `reach`.
+fn probe(view: &OctreeView, v: &VNode, c: u32, k: u32, reach: f32, p: &VmapParams) -> Ray {
+    let stream = pcg(c ^ 0x27d4_eb2f);
+    let (_, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, PROBES);
+    let (u1, u2) = (rand(p.seed, stream, k, 1), rand(p.seed, stream, k, 2));
+    let (tu, tv) = tangent_frame(n.into());
+    let (s, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
+    let dir = (Vec3::from(tu) * (s * phi.cos())
+        + Vec3::from(tv) * (s * phi.sin())
+        + n * (1.0 - u1).max(0.0).sqrt())
+    .normalize_or(n);
+    let t_min = p.self_hit * r;
+    Ray {
+        origin: x,
+        dir,
+        t_min,
+        t_max: reach.max(t_min),
+    }
+}
