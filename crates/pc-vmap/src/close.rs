@@ -25,15 +25,15 @@ const STEP: f32 = 0.5;
 /// 1 cm under the ceiling: 0.25 radii of a 4 cm node).
 const LAYER_GAP: f32 = 0.1;
 
-/// Per node-pool slot: whether an occluder close to the node blocks the probes of some of its
-/// splats and not of others. Each child of an internal node casts [`PROBES`] rays from its
-/// splats (stratified along its range, cosine-distributed about the splat's normal) out to the
-/// node's radius; a node is marked when the shares of blocked probes differ by at least
-/// [`STEP`] between two children (an occluder beside part of the node) or between the back and
-/// the front half of the probes along the node's normal (two layers, such as a ceiling and the
-/// light 1 cm in front of it, which the octree separates only in cells under 1 cm). A wall
-/// beside a room's corner, whose probes meet the other wall, differs by less; a scene without
-/// close occluders marks nothing. Probes are cast like the V-map's rays (CPU or GPU).
+/// Per node-pool slot: whether the node holds two layers, one occluding the other: a ceiling
+/// and the light 1 cm in front of it, which the octree separates only in cells under 1 cm.
+/// Each child of an internal node casts [`PROBES`] rays from its splats (stratified along its
+/// range, cosine-distributed about the splat's normal) out to the node's radius; the probes
+/// are split into a back and a front layer along the node's normal at the widest gap of their
+/// heights, and the node is marked when the layers' shares of blocked probes differ by at
+/// least [`STEP`]. (A second test, between the children's shares, marked room corners and
+/// contacts too and changed neither reference.) Probes are cast like the V-map's rays (CPU or
+/// GPU).
 pub fn close_occluders(
     view: &OctreeView,
     vn: &[VNode],
@@ -70,24 +70,11 @@ pub fn close_occluders(
             let n = kids.len() * PROBES as usize;
             let (probes, seen) = (&rays[at..at + n], &visible[at..at + n]);
             at += n;
-            marked[*a as usize] =
-                step_between_children(seen) || step_between_layers(&vn[*a as usize], probes, seen);
+            marked[*a as usize] = step_between_layers(&vn[*a as usize], probes, seen);
         }
         first = last;
     }
     Ok(marked)
-}
-
-/// Whether the blocked shares of two children's probes (consecutive runs of [`PROBES`]) differ
-/// by at least [`STEP`].
-fn step_between_children(seen: &[bool]) -> bool {
-    let shares = seen
-        .chunks(PROBES as usize)
-        .map(|c| c.iter().filter(|&&v| !v).count() as f32 / c.len() as f32);
-    let (lo, hi) = shares.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), x| {
-        (lo.min(x), hi.max(x))
-    });
-    hi - lo >= STEP
 }
 
 /// Whether the blocked shares of the back and the front layer of the probes (their origins'
