@@ -247,7 +247,8 @@ pub struct CausticsParams {
     /// Paths traced for the specular links (diffuse light through mirrors and glass onto
     /// diffuse surfaces, docs/caustics.md "Specular links"), shared among the (diffuse leaf,
     /// specular leaf) pairs the V-map links; 0: no links (the seed's §8.1 split, which loses
-    /// that light). 0..=100,000,000; each path is one chain of rays, like a photon.
+    /// that light). 0..=100,000,000; each path is one chain of rays, like a photon. 4M: with
+    /// 1M the ceiling of `cornell-mirror-glass` moved by ±3 % with the seed (BENCHMARKS.md).
     pub specular_paths: u32,
     /// Paths' worth of deposits each splat's estimate of that light gathers at least (the
     /// kernel widens until it holds them): the noise of the estimate is about 1/√ of it.
@@ -262,7 +263,7 @@ impl Default for CausticsParams {
             max_bounces: 8,
             self_hit: 0.5,
             seed: 0,
-            specular_paths: 1_000_000,
+            specular_paths: 4_000_000,
             specular_gather: 400,
         }
     }
