@@ -310,9 +310,13 @@ fn decide(
         } else if let Some(x) = [a, b]
             .into_iter()
             .find(|&x| close[x as usize] && !vn[x as usize].vleaf)
+            .filter(|_| {
+                let least = p.refine_form_factor * crate::close::REFINE_SHARE;
+                form_factors(view, va, vb, r) >= least
+            })
         {
             // An occluder close to one of the two changes its splats' visibility sharply
-            // (crate::close): refine that one whatever the form factor.
+            // (crate::close): refine that one down to a smaller form factor.
             let other = if x == a { b } else { a };
             next.extend(children(view, vn, x).map(|c| (c.min(other), c.max(other))));
         } else if p.refine_form_factor > 0.0 && form_factors(view, va, vb, r) < p.refine_form_factor

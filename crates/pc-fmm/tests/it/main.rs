@@ -16,6 +16,7 @@ use rand_pcg::Pcg64;
 
 pub use pc_testkit::Soa;
 
+mod contact;
 mod gpu;
 mod specular;
 

@@ -1,0 +1,168 @@
+//! The shadow under a ball resting on a floor: the emitters' direct light on the floor against
+//! the analytic occluded form factor.
+
+use glam::Vec3;
+use rand::SeedableRng;
+use rand_pcg::Pcg64;
+
+use crate::{diffuse, emitter, scene, tree_and_plan, Soa};
+use pc_fmm::solve;
+use pc_fmm::{tree, Basis, CpuFmm, CpuOperator};
+
+/// A floor (z = 0, radius 1.95) under an emitting hemisphere of radius 2 (inward), with a black
+/// ball of radius R = 0.3 resting on the floor at the origin. A floor point at distance r from
+/// the contact sees the dome everywhere but where the ball hides it, so its reflected direct
+/// light is `ρ Lₑ (1 − F)` with `F = R³ / (r² + R²)^{3/2}` (a sphere wholly above the
+/// horizon subtends `cos θ R² / d²`).
+/// The floor, the hemisphere (material 1) and the ball (material 2).
+fn ball_on_floor(radius: f32) -> Soa {
+    let mut rng = Pcg64::seed_from_u64(9);
+    let mut floor = Soa::default();
+    floor.rect(Vec3::ZERO, Vec3::X * 2.0, Vec3::Y * 2.0, 0.03, 0, &mut rng);
+    let mut sky = Soa::default();
+    sky.sphere(Vec3::ZERO, 2.0, 24_000, 1);
+    let mut ball = Soa::default();
+    ball.sphere(Vec3::Z * radius, radius, 4_000, 2);
+    let mut soa = Soa::default();
+    for i in 0..floor.len() {
+        if floor.p[i].truncate().length() < 1.95 {
+            soa.push(floor.p[i], floor.n[i], floor.r[i], 0);
+        }
+    }
+    for i in 0..sky.len() {
+        if sky.p[i].z > 0.0 {
+            soa.push(sky.p[i], -sky.n[i], sky.r[i], 1);
+        }
+    }
+    for i in 0..ball.len() {
+        soa.push(ball.p[i], ball.n[i], ball.r[i], 2);
+    }
+    soa
+}
+
+/// The worst error over rings around the contact of the floor's light `light` (per splat)
+/// against `ρ Lₑ (1 − F)`, in units of the open floor's `ρ Lₑ` (the shadow's depth; in the
+/// core the light is 3 % of that, so a relative error there is mostly noise).
+fn rings(view: &pc_tree::OctreeView, light: &[f32], radius: f32, rho_le: f64) -> f64 {
+    let rings = [0.0f32, 0.06, 0.1, 0.15, 0.25, 0.4, 0.7, 1.2];
+    let mut worst = 0.0f64;
+    for w in rings.windows(2) {
+        let (mut got, mut want, mut count) = (0.0f64, 0.0f64, 0);
+        for (i, s) in view.splats.iter().enumerate() {
+            let r = Vec3::from(s.position).truncate().length();
+            if s.material != 0 || r < w[0] || r >= w[1] {
+                continue;
+            }
+            let f = (radius as f64).powi(3) / ((r * r + radius * radius) as f64).powf(1.5);
+            got += light[i] as f64;
+            want += rho_le * (1.0 - f);
+            count += 1;
+        }
+        let rel = got / want - 1.0;
+        let depth = (got - want) / count as f64 / rho_le;
+        println!(
+            "r in [{:.2}, {:.2}): {count} splats, {:.4} against {:.4} ({:+.1} %, {:+.2} % of the open floor)",
+            w[0],
+            w[1],
+            got / count as f64,
+            want / count as f64,
+            rel * 100.0,
+            depth * 100.0
+        );
+        worst = worst.max(depth.abs());
+    }
+    worst
+}
+
+#[test]
+fn the_shadow_under_a_resting_ball_is_the_occluded_form_factor() {
+    let radius = 0.3f32;
+    let soa = ball_on_floor(radius);
+    let (le, rho) = (1.0f32, 0.5f32);
+    let sc = scene(&soa, vec![diffuse(rho), emitter(le, 0.0), diffuse(0.0)], 16);
+    let view = sc.octree.view();
+    let (_, pts) = tree::build(&view, &sc.materials);
+    let tester = pc_tree::caster::CpuCaster::new(&view);
+    let n = view.splats.len();
+    let mut sys = pc_fmm::System {
+        source: vec![[0.0; 3]; n],
+        emission: vec![[0.0; 3]; n],
+        albedo: vec![[0.0; 3]; n],
+    };
+    for (i, s) in view.splats.iter().enumerate() {
+        match s.material {
+            0 => sys.albedo[i] = [rho; 3],
+            1 => sys.emission[i] = [le; 3],
+            _ => {}
+        }
+    }
+    let how = pc_fmm::emitter::EmitterSampling {
+        samples: 1024,
+        probes: 0,
+        self_hit: 0.5,
+        shafts: false,
+    };
+    pc_fmm::emitter::emitter_direct(&view, &pts, &mut sys, how, &tester).unwrap();
+    let light: Vec<f32> = sys.source.iter().map(|l| l[0]).collect();
+    let worst = rings(&view, &light, radius, (rho * le) as f64);
+    assert!(
+        worst < 0.01,
+        "a ring is {:.2} % of the open floor off",
+        worst * 100.0
+    );
+}
+
+/// The same shadow through the FMM's transport and the V-map's links: the hemisphere a diffuse
+/// surface of radiance 1 (in the source term, not an emitter), the floor `ρ (T L)`.
+///
+/// Fails today (issue 21, "Contact shadows"): a link's visible fraction is one number for every
+/// splat of its V-map leaf, and the shadow changes from 3 % to 30 % of the open floor's light
+/// within the 0.24 m a leaf of 64 floor splats spans. Measured: +6.9 % of the open floor's light
+/// in the core (r < 6 cm: 0.047 against 0.013, +270 %), +3.8 % at 6-10 cm (+39 %); V-map leaves
+/// of 16 splats do no better. The emitters' direct light (the test above) is right there: its
+/// shadow rays leave each splat.
+#[test]
+#[ignore = "known failure: contact shadows through the V-map's links (issue 21); docs/fmm.md"]
+fn the_transport_keeps_the_shadow_under_a_resting_ball() {
+    let radius = 0.3f32;
+    let soa = ball_on_floor(radius);
+    let rho = 0.5f32;
+    let sc = scene(&soa, vec![diffuse(rho), diffuse(0.0), diffuse(0.0)], 16);
+    let view = sc.octree.view();
+    let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
+    let basis = Basis::new(4);
+    let mut op = CpuOperator {
+        fmm: CpuFmm::new(&basis, &t, &p, &plan),
+        times: Default::default(),
+        applications: 0,
+    };
+    let n = view.splats.len();
+    let mut sys = pc_fmm::System::zeros(n);
+    for (i, s) in view.splats.iter().enumerate() {
+        match s.material {
+            0 => sys.albedo[i] = [rho; 3],
+            1 => sys.source[i] = [1.0; 3],
+            _ => {}
+        }
+    }
+    let sol = solve::solve_gmres(
+        &mut op,
+        &sys,
+        &p,
+        solve::Gmres {
+            tolerance: 1e-6,
+            max_iterations: 50,
+            restart: solve::GMRES_RESTART,
+            relaxed: false,
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let light: Vec<f32> = sol.radiance.iter().map(|l| l[0]).collect();
+    let worst = rings(&view, &light, radius, rho as f64);
+    assert!(
+        worst < 0.01,
+        "a ring is {:.2} % of the open floor off",
+        worst * 100.0
+    );
+}
