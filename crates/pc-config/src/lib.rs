@@ -472,11 +472,12 @@ pub struct RaytraceConfig {
     pub exposure: f32,
     /// Write depth, normal, albedo and splat-id layers into the EXR.
     pub aovs: bool,
-    /// Radius of the caustic density estimate (§8.5.8), in scene units; 0 picks 1/100 of the
+    /// Radius of the caustic density estimate (§8.5.8), in scene units; 0 picks 1/200 of the
     /// root cube's edge.
     pub caustic_radius: f32,
-    /// With k > 0, the estimate takes the k nearest photons within `caustic_radius` and their
-    /// distance as the radius (k-nearest); 0: every photon within the fixed radius.
+    /// With k > 0, the estimate takes the k nearest photons within `caustic_radius` and the k-th
+    /// one's distance as the radius (`caustic_radius` where fewer lie within it: k-nearest);
+    /// 0: every photon within the fixed radius.
     pub caustic_k: u32,
     /// Seed of the sample pattern.
     pub seed: u32,

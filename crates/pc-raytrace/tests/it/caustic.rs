@@ -161,3 +161,34 @@ fn cpu_and_gpu_render_the_same_caustics() {
         .expect("k-nearest on the GPU is refused");
     assert!(err.to_string().contains("k-nearest"), "{err}");
 }
+
+/// The k-nearest estimate over a uniform photon density matches it where at least k photons lie
+/// within the radius, and where fewer do it divides by the search disk, not by the farthest
+/// photon found: one photon beside the point is not a bright spot.
+#[test]
+fn k_nearest_divides_by_the_search_disk_where_photons_are_sparse() {
+    let photon = |x: f32, z: f32| Photon {
+        position: [x, 0.0, z],
+        splat: 0,
+        dir: [0.0, -1.0, 0.0],
+        bounces: 1,
+        power: [1.0; 3],
+        _pad: 0,
+    };
+    let (x, n) = (Vec3::ZERO, Vec3::Y);
+    let r = 0.1f32;
+    // One photon 1 mm from the point.
+    let one = [photon(0.001, 0.0)];
+    let c = Caustics::new(&one, r, 50);
+    let e = c.irradiance(x, n).x;
+    let want = 1.0 / (std::f32::consts::PI * r * r);
+    assert!((e / want - 1.0).abs() < 1e-5, "{e} against {want}");
+    // A grid of 1 photon per mm²: k = 50 nearest give about 1 per mm² (= 1e6 per m²).
+    let grid: Vec<Photon> = (-100..=100)
+        .flat_map(|i| (-100..=100).map(move |j| (i, j)))
+        .map(|(i, j)| photon(i as f32 * 1e-3, j as f32 * 1e-3))
+        .collect();
+    let c = Caustics::new(&grid, r, 50);
+    let e = c.irradiance(x, n).x;
+    assert!((e / 1e6 - 1.0).abs() < 0.15, "{e} against 1e6");
+}
