@@ -188,9 +188,9 @@ fn photon(id: u32) -> PhotonOut {
         }
         let s = splats[hit.splat];
         let m = materials[s.material];
+        let specular = m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC;
         if bounces == 0u {
             if aim.sampling == SAMPLING_DIRECTION {
-                let specular = m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC;
                 if hit.splat < aim.lo || hit.splat >= aim.hi || !specular {
                     return fate(FATE_OCCLUDED);
                 }
@@ -200,7 +200,7 @@ fn photon(id: u32) -> PhotonOut {
             }
         }
         let x = ro + rd * hit.t;
-        if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
+        if specular {
             if bounces == params.max_bounces {
                 return fate(FATE_LOST);
             }

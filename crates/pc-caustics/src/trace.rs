@@ -151,12 +151,13 @@ impl Tracer<'_> {
             };
             let s = &view.splats[hit.splat as usize];
             let m = &self.materials[s.material as usize];
+            let specular = class::is_specular(m.class);
             if bounces == 0 {
                 match first {
                     First::Beyond(t) if hit.t < t => return Fate::Occluded,
                     First::Beyond(_) => {}
                     First::Within { lo, hi, cos_s, k } => {
-                        if hit.splat < lo || hit.splat >= hi || !class::is_specular(m.class) {
+                        if hit.splat < lo || hit.splat >= hi || !specular {
                             return Fate::Occluded;
                         }
                         let cos_t = ray.dir.dot(Vec3::from(s.normal)).abs();
@@ -165,7 +166,7 @@ impl Tracer<'_> {
                 }
             }
             let x = ray.origin + ray.dir * hit.t;
-            if class::is_specular(m.class) {
+            if specular {
                 if bounces == self.max_bounces {
                     return Fate::Lost;
                 }

@@ -5,9 +5,9 @@ use glam::Vec3;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
-use crate::{diffuse, emitter, scene, tree_and_plan, Soa};
-use pc_fmm::solve;
-use pc_fmm::{tree, Basis, CpuFmm, CpuOperator};
+use crate::specular::solve_system;
+use crate::{diffuse, emitter, scene, Soa};
+use pc_fmm::tree;
 
 /// A floor (z = 0, radius 1.95) under an emitting hemisphere of radius 2 (inward), with a black
 /// ball of radius R = 0.3 resting on the floor at the origin. A floor point at distance r from
@@ -83,12 +83,7 @@ fn the_shadow_under_a_resting_ball_is_the_occluded_form_factor() {
     let view = sc.octree.view();
     let (_, pts) = tree::build(&view, &sc.materials);
     let tester = pc_tree::caster::CpuCaster::new(&view);
-    let n = view.splats.len();
-    let mut sys = pc_fmm::System {
-        source: vec![[0.0; 3]; n],
-        emission: vec![[0.0; 3]; n],
-        albedo: vec![[0.0; 3]; n],
-    };
+    let mut sys = pc_fmm::System::zeros(view.splats.len());
     for (i, s) in view.splats.iter().enumerate() {
         match s.material {
             0 => sys.albedo[i] = [rho; 3],
@@ -129,36 +124,17 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
     let rho = 0.5f32;
     let sc = scene(&soa, vec![diffuse(rho), diffuse(0.0), diffuse(0.0)], 16);
     let view = sc.octree.view();
-    let (t, p, plan) = tree_and_plan(&sc, 0.5, 1e-4);
-    let basis = Basis::new(4);
-    let mut op = CpuOperator {
-        fmm: CpuFmm::new(&basis, &t, &p, &plan),
-        times: Default::default(),
-        applications: 0,
-    };
-    let n = view.splats.len();
-    let mut sys = pc_fmm::System::zeros(n);
-    for (i, s) in view.splats.iter().enumerate() {
-        match s.material {
-            0 => sys.albedo[i] = [rho; 3],
-            1 => sys.source[i] = [1.0; 3],
-            _ => {}
+    let light = solve_system(&sc, None, &|_| {
+        let mut sys = pc_fmm::System::zeros(view.splats.len());
+        for (i, s) in view.splats.iter().enumerate() {
+            match s.material {
+                0 => sys.albedo[i] = [rho; 3],
+                1 => sys.source[i] = [1.0; 3],
+                _ => {}
+            }
         }
-    }
-    let sol = solve::solve_gmres(
-        &mut op,
-        &sys,
-        &p,
-        solve::Gmres {
-            tolerance: 1e-6,
-            max_iterations: 50,
-            restart: solve::GMRES_RESTART,
-            relaxed: false,
-        },
-        &mut |_, _| {},
-    )
-    .unwrap();
-    let light: Vec<f32> = sol.radiance.iter().map(|l| l[0]).collect();
+        sys
+    });
     let worst = rings(&view, &light, radius, rho as f64);
     assert!(
         worst < 0.01,

@@ -477,12 +477,7 @@ fn emitter_direct_light_is_analytic_where_open_and_probing_keeps_the_shadows() {
     let (_, pts) = tree::build(&view, &sc.materials);
     let tester = pc_tree::caster::CpuCaster::new(&view);
     let base = || {
-        let n = view.splats.len();
-        let mut sys = pc_fmm::System {
-            source: vec![[0.0; 3]; n],
-            emission: vec![[0.0; 3]; n],
-            albedo: vec![[0.0; 3]; n],
-        };
+        let mut sys = pc_fmm::System::zeros(view.splats.len());
         for (i, s) in view.splats.iter().enumerate() {
             if s.material == 1 {
                 sys.emission[i] = [le; 3];

@@ -58,6 +58,26 @@ fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
 /// every non-specular splat emits `e[i]` and reflects `rho`.
 fn solve_with(sc: &Scene, links: Option<&Links>, e: &dyn Fn(Vec3) -> f32, rho: f32) -> Vec<f32> {
     let view = sc.octree.view();
+    solve_system(sc, links, &|p| {
+        let n = view.splats.len();
+        let mut sys = pc_fmm::System::zeros(n);
+        for i in 0..n {
+            if p.active[i] {
+                sys.source[i] = [e(Vec3::from(view.splats[i].position)); 3];
+                sys.albedo[i] = [rho; 3];
+            }
+        }
+        sys
+    })
+}
+
+/// GMRES on the system `system` builds over the scene's FMM points, with the specular links'
+/// transfer when given: the red channel of the radiance.
+pub(crate) fn solve_system(
+    sc: &Scene,
+    links: Option<&Links>,
+    system: &dyn Fn(&pc_fmm::tree::Points) -> pc_fmm::System,
+) -> Vec<f32> {
     let (t, p, plan) = tree_and_plan(sc, 0.5, 1e-4);
     let basis = Basis::new(4);
     let mut op: Box<dyn Operator> = Box::new(CpuOperator {
@@ -72,14 +92,7 @@ fn solve_with(sc: &Scene, links: Option<&Links>, e: &dyn Fn(Vec3) -> f32, rho: f
             transfer,
         });
     }
-    let n = view.splats.len();
-    let mut sys = pc_fmm::System::zeros(n);
-    for i in 0..n {
-        if p.active[i] {
-            sys.source[i] = [e(Vec3::from(view.splats[i].position)); 3];
-            sys.albedo[i] = [rho; 3];
-        }
-    }
+    let sys = system(&p);
     let sol = solve::solve_gmres(
         op.as_mut(),
         &sys,
