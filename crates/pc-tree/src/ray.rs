@@ -116,7 +116,7 @@ pub fn occluded(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> boo
 }
 
 fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
-    walk_with(view, ray, stats, |w, limit, stats| {
+    walk_with(view, view.nodes, ray, stats, |w, limit, stats| {
         let (range, refs) = view.leaf(w);
         let mut best: Option<Hit> = None;
         stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
@@ -138,12 +138,14 @@ fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> 
     })
 }
 
-/// The walk, with the test of one leaf's splats supplied by the caller (`test(node word,
-/// t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the packed
-/// layout of [`crate::accel::Accel`] shares the same traversal.
+/// The walk over `nodes` (the view's node pool, or [`crate::accel::Accel`]'s copy of it whose
+/// leaf words point elsewhere), with the test of one leaf's splats supplied by the caller
+/// (`test(node word, t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the
+/// packed layout shares the same traversal.
 #[inline(always)]
 pub(crate) fn walk_with(
     view: &OctreeView,
+    nodes: &[u32],
     ray: &Ray,
     stats: &mut TraversalStats,
     mut test: impl FnMut(u32, f32, &mut TraversalStats) -> Option<Hit>,
@@ -165,7 +167,7 @@ pub(crate) fn walk_with(
     let q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
     let mut qi = quantize(q);
     let mut path = [0u32; MAX_LEVELS + 1];
-    path[0] = view.nodes[0];
+    path[0] = nodes[0];
     let mut depth = 0usize; // the deepest valid entry of `path` for qi
     loop {
         stats.cells += 1;
@@ -176,7 +178,7 @@ pub(crate) fn walk_with(
             let child = ((qi[0] >> shift) & 1)
                 | (((qi[1] >> shift) & 1) << 1)
                 | (((qi[2] >> shift) & 1) << 2);
-            w = view.nodes[(node::ptr(w) + child) as usize];
+            w = nodes[(node::ptr(w) + child) as usize];
             depth += 1;
             path[depth] = w;
         }

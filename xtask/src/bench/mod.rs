@@ -1,4 +1,5 @@
-//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale]`:
+//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale]
+//! [--peer embree]`:
 //! the options and which benchmarks run; each benchmark is in its own module.
 
 mod caustics;
@@ -6,6 +7,7 @@ mod chain;
 mod fmm;
 mod harness;
 mod octree;
+mod peer;
 mod rays;
 mod scale;
 mod table;
@@ -23,6 +25,8 @@ struct Options {
     only: Option<String>,
     /// No `--sizes`: each benchmark picks its own default sizes.
     default_sizes: bool,
+    /// `--peer embree`: with `--only rays`, trace the same rays with Embree too.
+    peer: Option<String>,
 }
 
 impl Options {
@@ -33,6 +37,7 @@ impl Options {
             write: false,
             only: None,
             default_sizes: !args.iter().any(|a| a == "--sizes"),
+            peer: None,
         };
         let mut it = args.iter();
         while let Some(a) = it.next() {
@@ -52,6 +57,10 @@ impl Options {
                     }
                 }
                 "--write" => o.write = true,
+                "--peer" => match it.next().map(String::as_str) {
+                    Some("embree") => o.peer = Some("embree".into()),
+                    other => bail!("bench: --peer takes `embree`, not {other:?}"),
+                },
                 "--only" => {
                     o.only = Some(
                         it.next()
@@ -79,7 +88,17 @@ impl Options {
 pub(crate) fn bench(args: &[String]) -> Result<()> {
     let o = Options::parse(args)?;
     let (runs, write) = (o.runs, o.write);
+    if o.peer.is_some() && o.only.as_deref() != Some("rays") {
+        bail!("bench: --peer embree goes with --only rays");
+    }
     match o.only.as_deref() {
+        Some("rays") if o.peer.is_some() => {
+            let bin = build_release(&["pc-sample", "pc-octree", "pc-raybench"])?;
+            match peer::build_harness()? {
+                Some(harness) => peer::bench(&bin, &harness, &o.sizes, runs, write),
+                None => octree_or_rays("rays", &o.sizes, runs, write),
+            }
+        }
         Some("caustics") => caustics::bench(&o.sizes_or(&[1_000_000]), runs, write),
         Some("chain") => chain::bench(&o.sizes_or(&[1_000_000]), write),
         Some("fmm") => fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write),

@@ -42,6 +42,11 @@ struct Args {
     /// Write the results here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Also write the disks, both ray sets and this traversal's first hits as raw little-endian
+    /// arrays into this folder, for a peer ray tracer to trace the same rays (`cargo xtask bench
+    /// --only rays --peer embree`; the layout is in xtask/peer/embree_rays.c).
+    #[arg(long, value_name = "DIR")]
+    dump: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -65,11 +70,16 @@ fn cpu_rate(view: &OctreeView, accel: &pc_tree::accel::Accel, rays: &[Ray]) -> (
     (rays.len() as f64 / t.elapsed().as_secs_f64(), hits)
 }
 
-/// Mean cells visited and splats tested per ray (a separate, uncounted-time pass).
-fn work(view: &OctreeView, rays: &[Ray]) -> (f64, f64) {
+/// Mean cells visited and disks tested per ray (a separate, uncounted-time pass): the
+/// renderer's packed walk (disk lanes of the leaves its slabs do not skip), and the artifact's
+/// plain walk (every listed disk of every leaf crossed).
+fn work(view: &OctreeView, accel: Option<&pc_tree::accel::Accel>, rays: &[Ray]) -> (f64, f64) {
     let mut st = TraversalStats::default();
     for r in rays.iter().step_by(16) {
-        pc_tree::intersect(view, r, &mut st);
+        match accel {
+            Some(a) => a.intersect(view, r, &mut st),
+            None => pc_tree::intersect(view, r, &mut st),
+        };
     }
     let n = rays.len().div_ceil(16) as f64;
     (st.cells as f64 / n, st.splat_tests as f64 / n)
@@ -122,9 +132,17 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let (cpu_primary, primary_hits) = cpu_rate(&view, &accel, &primary);
     let (cpu_incoherent, incoherent_hits) = cpu_rate(&view, &accel, &incoherent);
     let threads = rayon::current_num_threads();
-    let (pc, pt) = work(&view, &primary);
-    let (ic, it) = work(&view, &incoherent);
-    eprintln!("pc-raybench: per primary ray {pc:.1} cells, {pt:.1} splat tests; per incoherent ray {ic:.1} cells, {it:.1} splat tests");
+    let (pc, pt) = work(&view, None, &primary);
+    let (ic, it) = work(&view, None, &incoherent);
+    let (_, apt) = work(&view, Some(&accel), &primary);
+    let (_, ait) = work(&view, Some(&accel), &incoherent);
+    eprintln!(
+        "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apt:.1} disk lanes tested \
+         by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed disks ({ait:.1})"
+    );
+    if let Some(dir) = &args.dump {
+        dump(dir, &view, &accel, &primary, &incoherent)?;
+    }
     let caustic_json = if args.caustics {
         caustic_lookups(&cfg, &art, &view, &accel, &primary)?
     } else {
@@ -182,6 +200,59 @@ fn run(args: &Args) -> anyhow::Result<()> {
             incoherent.len()
         );
         std::fs::write(path, json).with_context(|| path.display().to_string())?;
+    }
+    Ok(())
+}
+
+/// The peer's input and pcgi's answer (`--dump`): `disks.f32` (per splat x y z r nx ny nz
+/// clipped), `primary.f32` / `incoherent.f32` (per ray ox oy oz t_min dx dy dz t_max) and
+/// `primary.pcgi` / `incoherent.pcgi` (per ray the hit distance, +inf for a miss, then the
+/// splat index as f32 bits), all f32 little-endian.
+fn dump(
+    dir: &std::path::Path,
+    view: &OctreeView,
+    accel: &pc_tree::accel::Accel,
+    primary: &[Ray],
+    incoherent: &[Ray],
+) -> anyhow::Result<()> {
+    let write = |name: &str, v: &[f32]| -> anyhow::Result<()> {
+        let path = dir.join(name);
+        let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+        pc_artifact::atomic::write_file_atomically(&path, &bytes)
+            .with_context(|| path.display().to_string())
+    };
+    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
+    let disks: Vec<f32> = view
+        .splats
+        .iter()
+        .flat_map(|s| {
+            let [x, y, z] = s.position;
+            let [a, b, c] = s.normal;
+            let clipped = (s.clip != [0.0; 4]) as u32 as f32;
+            [x, y, z, s.radius, a, b, c, clipped]
+        })
+        .collect();
+    write("disks.f32", &disks)?;
+    for (name, rays) in [("primary", primary), ("incoherent", incoherent)] {
+        let r: Vec<f32> = rays
+            .iter()
+            .flat_map(|r| {
+                let (o, d) = (r.origin, r.dir);
+                [o.x, o.y, o.z, r.t_min, d.x, d.y, d.z, r.t_max]
+            })
+            .collect();
+        write(&format!("{name}.f32"), &r)?;
+        let hits: Vec<f32> = rays
+            .par_iter()
+            .map_init(TraversalStats::default, |st, r| {
+                match accel.intersect(view, r, st) {
+                    Some(h) => [h.t, f32::from_bits(h.splat)],
+                    None => [f32::INFINITY, f32::from_bits(u32::MAX)],
+                }
+            })
+            .flatten_iter()
+            .collect();
+        write(&format!("{name}.pcgi"), &hits)?;
     }
     Ok(())
 }
