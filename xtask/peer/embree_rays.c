@@ -7,11 +7,13 @@
  *   disks.f32       per splat: x y z r nx ny nz clipped
  *   primary.f32     per ray:   ox oy oz t_min dx dy dz t_max
  *   incoherent.f32  the same layout
+ *   shadow.f32      the same layout: segments between splats facing each other
  * builds one Embree scene of oriented discs (RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT, the disk
  * primitive pcgi's splats are; Embree knows no border clip) on THREADS threads, traces each ray
  * set with rtcIntersect1 on THREADS threads (a shared counter hands out chunks of 4096 rays, as
  * rayon splits pcgi's), and writes
  *   primary.embree, incoherent.embree   per ray: hit distance (+inf for a miss), primID as f32 bits
+ *   shadow.embree   per ray: 1 where rtcOccluded1 finds the segment blocked, else 0
  * and one JSON line on stdout: build seconds and rays per second of each set (after a warm-up
  * pass over the first 10,000 rays, as pc-raybench does). */
 #include <embree3/rtcore.h>
@@ -58,6 +60,7 @@ struct job {
   RTCScene scene;
   const float *rays;
   float *hits;
+  int occlusion; /* rtcOccluded1 (one f32 per ray) instead of rtcIntersect1 (two) */
   size_t begin, end;
   atomic_size_t next;
 };
@@ -72,7 +75,16 @@ static void *worker(void *arg) {
     size_t a = atomic_fetch_add(&j->next, CHUNK);
     if (a >= j->end) break;
     size_t b = a + CHUNK < j->end ? a + CHUNK : j->end;
-    for (size_t i = a; i < b; i++) {
+    for (size_t i = a; i < b && j->occlusion; i++) {
+      const float *r = j->rays + 8 * i;
+      struct RTCRay ray;
+      ray.org_x = r[0]; ray.org_y = r[1]; ray.org_z = r[2]; ray.tnear = r[3];
+      ray.dir_x = r[4]; ray.dir_y = r[5]; ray.dir_z = r[6]; ray.tfar = r[7];
+      ray.time = 0.0f; ray.mask = 0xffffffff; ray.id = 0; ray.flags = 0;
+      rtcOccluded1(j->scene, &ctx, &ray);
+      j->hits[i] = ray.tfar == -INFINITY ? 1.0f : 0.0f;
+    }
+    for (size_t i = a; i < b && !j->occlusion; i++) {
       const float *r = j->rays + 8 * i;
       struct RTCRayHit rh;
       rh.ray.org_x = r[0]; rh.ray.org_y = r[1]; rh.ray.org_z = r[2]; rh.ray.tnear = r[3];
@@ -90,8 +102,8 @@ static void *worker(void *arg) {
 }
 
 /* Trace rays [begin, end) on `threads` threads; seconds taken. */
-static double trace(RTCScene scene, const float *rays, float *hits, size_t begin, size_t end, int threads) {
-  struct job j = {scene, rays, hits, begin, end};
+static double trace(RTCScene scene, const float *rays, float *hits, int occlusion, size_t begin, size_t end, int threads) {
+  struct job j = {scene, rays, hits, occlusion, begin, end};
   atomic_init(&j.next, begin);
   pthread_t t[256];
   double t0 = now();
@@ -106,11 +118,12 @@ int main(int argc, char **argv) {
   const char *dir = argv[1];
   int threads = atoi(argv[2]);
   if (threads < 1 || threads > 256) { fprintf(stderr, "embree_rays: THREADS must be 1..256\n"); return 2; }
-  size_t nd, np, ni;
+  size_t nd, np, ni, ns;
   float *disks = read_all(dir, "disks.f32", &nd);
   float *primary = read_all(dir, "primary.f32", &np);
   float *incoherent = read_all(dir, "incoherent.f32", &ni);
-  nd /= 8; np /= 8; ni /= 8;
+  float *shadow = read_all(dir, "shadow.f32", &ns);
+  nd /= 8; np /= 8; ni /= 8; ns /= 8;
 
   char cfg[64];
   snprintf(cfg, sizeof cfg, "threads=%d", threads);
@@ -133,16 +146,19 @@ int main(int argc, char **argv) {
   double build = now() - t1, copy = t1 - t0;
   if (rtcGetDeviceError(device) != RTC_ERROR_NONE) { fprintf(stderr, "embree_rays: scene build failed\n"); return 2; }
 
-  float *hp = malloc(np * 2 * sizeof(float)), *hi = malloc(ni * 2 * sizeof(float));
-  trace(scene, primary, hp, 0, np < 10000 ? np : 10000, threads);
-  double tp = trace(scene, primary, hp, 0, np, threads);
-  double tinc = trace(scene, incoherent, hi, 0, ni, threads);
+  float *hp = malloc(np * 2 * sizeof(float)), *hi = malloc(ni * 2 * sizeof(float)), *hs = malloc(ns * sizeof(float));
+  if (!hp || !hi || !hs) { fprintf(stderr, "embree_rays: out of memory\n"); return 2; }
+  trace(scene, primary, hp, 0, 0, np < 10000 ? np : 10000, threads);
+  double tp = trace(scene, primary, hp, 0, 0, np, threads);
+  double tinc = trace(scene, incoherent, hi, 0, 0, ni, threads);
+  double tsh = trace(scene, shadow, hs, 1, 0, ns, threads);
   write_all(dir, "primary.embree", hp, 2 * np);
   write_all(dir, "incoherent.embree", hi, 2 * ni);
+  write_all(dir, "shadow.embree", hs, ns);
   printf("{\"peer\": \"Embree %d.%d.%d\", \"threads\": %d, \"disks\": %zu, \"build_s\": %.4f, \"copy_s\": %.4f, "
-         "\"primary_rays_per_s\": %.0f, \"incoherent_rays_per_s\": %.0f}\n",
+         "\"primary_rays_per_s\": %.0f, \"incoherent_rays_per_s\": %.0f, \"shadow_rays_per_s\": %.0f}\n",
          RTC_VERSION_MAJOR, RTC_VERSION_MINOR, RTC_VERSION_PATCH, threads, nd, build, copy,
-         np / tp, ni / tinc);
+         np / tp, ni / tinc, ns / tsh);
   rtcReleaseScene(scene);
   rtcReleaseDevice(device);
   return 0;

@@ -97,13 +97,11 @@ pub fn splat_areas(
         }),
     };
     let unclipped = dups.spread(ctx.run(None));
-    let gap = dups.spread(ctx.spacing(&unclipped, |near, a| {
-        near.iter()
-            .map(|&j| a[j as usize])
-            .fold(f32::INFINITY, f32::min)
-    }));
-    let borders = dups.spread(ctx.borders(&gap));
-    let areas = dups.spread(ctx.run(Some(&borders)));
+    let borders = dups.spread(ctx.borders(&unclipped));
+    // An interior splat's clipped pass is its unclipped one, sample for sample (its share
+    // accepts every sample, and the cover counts never look at borders): only the border
+    // splats run again.
+    let areas = dups.spread(ctx.run(Some((&borders, &unclipped))));
     let clips = borders
         .par_iter()
         .zip(splats)
@@ -301,25 +299,13 @@ impl AreaPass<'_> {
         }
     }
 
-    /// Half the local sample spacing, g_i = ½√(estimate of the area per splat around i).
-    fn spacing(&self, areas: &[f32], estimate: impl Fn(&[u32], &[f32]) -> f32 + Sync) -> Vec<f32> {
-        (0..self.splats.len())
-            .into_par_iter()
-            .map_init(Vec::new, |near: &mut Vec<u32>, i| {
-                if !self.dups.is_rep(i as u32) {
-                    return 0.0; // the representative's, spread afterwards
-                }
-                self.neighbourhood(i, near);
-                0.5 * estimate(near, areas).max(0.0).sqrt()
-            })
-            .collect()
-    }
-
-    /// Each splat's border status. Direction k is open when no same-surface neighbour's
-    /// offset projects more than the half spacing onto it (a smaller offset is the jitter of
-    /// the border row, not more surface). One arc of open directions is a stretch of border
-    /// (or a corner) whose outward direction is the arc's middle.
-    fn borders(&self, gap: &[f32]) -> Vec<Border> {
+    /// Each splat's border status, from its same-surface neighbourhood (one query serves
+    /// both steps). First half the local sample spacing, g_i = ½√(least unclipped area in the
+    /// neighbourhood). Then direction k is open when no neighbour's offset projects more than
+    /// g_i onto it (a smaller offset is the jitter of the border row, not more surface). One arc
+    /// of open directions is a stretch of border (or a corner) whose outward direction is the
+    /// arc's middle.
+    fn borders(&self, unclipped: &[f32]) -> Vec<Border> {
         (0..self.splats.len())
             .into_par_iter()
             .map_init(Vec::new, |near: &mut Vec<u32>, i| {
@@ -327,6 +313,11 @@ impl AreaPass<'_> {
                     return Border::Interior; // the representative's, spread afterwards
                 }
                 self.neighbourhood(i, near);
+                let least = near
+                    .iter()
+                    .map(|&j| unclipped[j as usize])
+                    .fold(f32::INFINITY, f32::min);
+                let g = 0.5 * least.max(0.0).sqrt();
                 let s = &self.splats[i];
                 let (u, v) = tangent_frame(s.normal);
                 let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(s.position));
@@ -343,7 +334,6 @@ impl AreaPass<'_> {
                         *hk = hk.max(a * ck + b * sk);
                     }
                 }
-                let g = gap[i];
                 let mask = reach
                     .iter()
                     .enumerate()
@@ -368,8 +358,9 @@ impl AreaPass<'_> {
         }
     }
 
-    /// One partition-of-unity pass; `borders` clips the border splats' shares.
-    fn run(&self, borders: Option<&[Border]>) -> Vec<f32> {
+    /// One partition-of-unity pass; `borders` clips the border splats' shares, and the interior
+    /// splats take their area from the unclipped pass given with them.
+    fn run(&self, borders: Option<(&[Border], &[f32])>) -> Vec<f32> {
         let origin = Vec3::from(self.frame.origin);
         let inv_size = self.frame.inv_size;
         (0..self.splats.len())
@@ -377,6 +368,10 @@ impl AreaPass<'_> {
             .map_init(Vec::new, |near: &mut Vec<u32>, i| {
                 if !self.dups.is_rep(i as u32) {
                     return 0.0; // the representative's, spread afterwards
+                }
+                let border = borders.map_or(Border::Interior, |(b, _)| b[i]);
+                if let (Border::Interior, Some((_, unclipped))) = (border, borders) {
+                    return unclipped[i];
                 }
                 let s = &self.splats[i];
                 let c = Vec3::from(s.position);
@@ -388,7 +383,6 @@ impl AreaPass<'_> {
                 self.near(i, near);
                 let (u, v) = tangent_frame(s.normal);
                 let (u, v) = (Vec3::from(u), Vec3::from(v));
-                let border = borders.map_or(Border::Interior, |b| b[i]);
                 let mut acc = 0.0f32;
                 for &(a, b) in &self.pattern {
                     let x = c + (u * a + v * b) * s.radius;
@@ -404,7 +398,9 @@ impl AreaPass<'_> {
                             0
                         }
                     };
-                    let cover: u32 = if (q * scale).floor() == cell {
+                    // floor(q · scale) == cell, without a call to floorf per sample.
+                    let qs = q * scale;
+                    let cover: u32 = if qs.cmpge(cell).all() && qs.cmplt(cell + 1.0).all() {
                         near.iter().map(|&j| weight(j)).sum()
                     } else if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                         let loc = locate_normalized(self.nodes, q);

@@ -116,6 +116,7 @@ impl Accel {
             .par_iter()
             .map(|&w| {
                 if node::is_leaf(w) {
+                    // The reader checks that every leaf word points at a leaf's start.
                     let i = offsets.binary_search(&node::ptr(w)).unwrap_or(0);
                     node::LEAF | i as u32
                 } else {
@@ -347,6 +348,7 @@ fn lanes(c: &Chunk, o: [f32; 3], d: [f32; 3], t_min: f32, limit: f32) -> ([f32; 
 }
 
 /// [`lanes`] one lane at a time.
+#[allow(clippy::needless_range_loop)] // lane l of seven arrays
 #[cfg_attr(target_arch = "x86_64", allow(dead_code))]
 fn lanes_scalar(
     c: &Chunk,

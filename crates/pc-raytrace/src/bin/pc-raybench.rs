@@ -119,6 +119,32 @@ fn run(args: &Args) -> anyhow::Result<()> {
             }
         })
         .collect();
+    // Shadow rays: segments between two random splats that face each other (what the V-map's
+    // links and the emitters' shadow rays test).
+    let shadow: Vec<Ray> = (0..args.incoherent as u32)
+        .map(|i| {
+            let pick =
+                |d: u32| &view.splats[((rand(2, i, 0, d) * n as f32) as u32).min(n - 1) as usize];
+            let a = pick(0);
+            let pa = Vec3::from(a.position);
+            // The first of a few candidates in front of `a` and facing it (or the last).
+            let b = (1..64)
+                .map(pick)
+                .find(|b| {
+                    let d = Vec3::from(b.position) - pa;
+                    d.dot(Vec3::from(a.normal)) > 0.0 && d.dot(Vec3::from(b.normal)) < 0.0
+                })
+                .unwrap_or_else(|| pick(64));
+            let pb = Vec3::from(b.position);
+            let len = (pb - pa).length();
+            Ray {
+                origin: pa,
+                dir: (pb - pa) / len.max(1e-30),
+                t_min: 0.5 * a.radius,
+                t_max: (len - 0.5 * b.radius).max(0.0),
+            }
+        })
+        .collect();
     // The renderer's packed leaf lists (built once per render, not timed here).
     let t = Instant::now();
     let accel = pc_tree::accel::Accel::new(&view);
@@ -131,17 +157,27 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let _ = cpu_rate(&view, &accel, &primary[..primary.len().min(10_000)]);
     let (cpu_primary, primary_hits) = cpu_rate(&view, &accel, &primary);
     let (cpu_incoherent, incoherent_hits) = cpu_rate(&view, &accel, &incoherent);
+    let t = Instant::now();
+    let blocked = accel
+        .visible(&view, &shadow)
+        .iter()
+        .filter(|v| !**v)
+        .count();
+    let cpu_shadow = shadow.len() as f64 / t.elapsed().as_secs_f64();
     let threads = rayon::current_num_threads();
     let (pc, pt) = work(&view, None, &primary);
     let (ic, it) = work(&view, None, &incoherent);
     let (_, apt) = work(&view, Some(&accel), &primary);
     let (_, ait) = work(&view, Some(&accel), &incoherent);
+    let (sc, st) = work(&view, None, &shadow);
+    let (_, ast) = work(&view, Some(&accel), &shadow);
     eprintln!(
         "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apt:.1} disk lanes tested \
-         by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed disks ({ait:.1})"
+         by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed disks ({ait:.1}); \
+         per shadow ray {sc:.1} cells, {st:.1} listed disks ({ast:.1}, to the nearest hit)"
     );
     if let Some(dir) = &args.dump {
-        dump(dir, &view, &accel, &primary, &incoherent)?;
+        dump(dir, &view, &accel, [&primary, &incoherent, &shadow])?;
     }
     let caustic_json = if args.caustics {
         caustic_lookups(&cfg, &art, &view, &accel, &primary)?
@@ -182,7 +218,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         }
     }
     println!(
-        "pc-raybench: {} splats, {} threads: CPU primary {:.2} M rays/s ({} of {} hit), incoherent {:.2} M rays/s ({} of {} hit){line}",
+        "pc-raybench: {} splats, {} threads: CPU primary {:.2} M rays/s ({} of {} hit), incoherent {:.2} M rays/s ({} of {} hit), shadow {:.2} M rays/s ({blocked} of {} blocked){line}",
         view.splats.len(),
         threads,
         cpu_primary / 1e6,
@@ -190,14 +226,17 @@ fn run(args: &Args) -> anyhow::Result<()> {
         primary.len(),
         cpu_incoherent / 1e6,
         incoherent_hits,
-        incoherent.len()
+        incoherent.len(),
+        cpu_shadow / 1e6,
+        shadow.len()
     );
     if let Some(path) = &args.json {
         let json = format!(
-            "{{\"splats\": {}, \"threads\": {threads}, \"primary_rays\": {}, \"cpu_primary_rays_per_s\": {cpu_primary:.0}, \"incoherent_rays\": {}, \"cpu_incoherent_rays_per_s\": {cpu_incoherent:.0}, \"gpu\": {gpu}, \"caustic\": {caustic_json}}}\n",
+            "{{\"splats\": {}, \"threads\": {threads}, \"primary_rays\": {}, \"cpu_primary_rays_per_s\": {cpu_primary:.0}, \"incoherent_rays\": {}, \"cpu_incoherent_rays_per_s\": {cpu_incoherent:.0}, \"shadow_rays\": {}, \"cpu_shadow_rays_per_s\": {cpu_shadow:.0}, \"gpu\": {gpu}, \"caustic\": {caustic_json}}}\n",
             view.splats.len(),
             primary.len(),
-            incoherent.len()
+            incoherent.len(),
+            shadow.len()
         );
         std::fs::write(path, json).with_context(|| path.display().to_string())?;
     }
@@ -205,15 +244,15 @@ fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 /// The peer's input and pcgi's answer (`--dump`): `disks.f32` (per splat x y z r nx ny nz
-/// clipped), `primary.f32` / `incoherent.f32` (per ray ox oy oz t_min dx dy dz t_max) and
-/// `primary.pcgi` / `incoherent.pcgi` (per ray the hit distance, +inf for a miss, then the
-/// splat index as f32 bits), all f32 little-endian.
+/// clipped), `primary.f32` / `incoherent.f32` / `shadow.f32` (per ray ox oy oz t_min dx dy dz
+/// t_max), `primary.pcgi` / `incoherent.pcgi` (per ray the hit distance, +inf for a miss, then
+/// the splat index as f32 bits) and `shadow.pcgi` (per ray 1 where the segment is blocked,
+/// else 0), all f32 little-endian.
 fn dump(
     dir: &std::path::Path,
     view: &OctreeView,
     accel: &pc_tree::accel::Accel,
-    primary: &[Ray],
-    incoherent: &[Ray],
+    [primary, incoherent, shadow]: [&[Ray]; 3],
 ) -> anyhow::Result<()> {
     let write = |name: &str, v: &[f32]| -> anyhow::Result<()> {
         let path = dir.join(name);
@@ -233,7 +272,11 @@ fn dump(
         })
         .collect();
     write("disks.f32", &disks)?;
-    for (name, rays) in [("primary", primary), ("incoherent", incoherent)] {
+    for (name, rays) in [
+        ("primary", primary),
+        ("incoherent", incoherent),
+        ("shadow", shadow),
+    ] {
         let r: Vec<f32> = rays
             .iter()
             .flat_map(|r| {
@@ -242,6 +285,8 @@ fn dump(
             })
             .collect();
         write(&format!("{name}.f32"), &r)?;
+    }
+    for (name, rays) in [("primary", primary), ("incoherent", incoherent)] {
         let hits: Vec<f32> = rays
             .par_iter()
             .map_init(TraversalStats::default, |st, r| {
@@ -254,7 +299,12 @@ fn dump(
             .collect();
         write(&format!("{name}.pcgi"), &hits)?;
     }
-    Ok(())
+    let blocked: Vec<f32> = accel
+        .visible(view, shadow)
+        .iter()
+        .map(|&v| if v { 0.0 } else { 1.0 })
+        .collect();
+    write("shadow.pcgi", &blocked)
 }
 
 /// Time the caustic lookups at the primary rays' diffuse hits; returns the JSON object.
