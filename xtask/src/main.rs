@@ -33,12 +33,14 @@ commands:
                                              N frames (default 60) of a camera orbit on it as
                                              out/<scene>/walkthrough-{cpu,gpu}/frame_NNNNN.png,
                                              and report frames per second on the CPU and the GPU
-  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|scale]
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|scale|mitsuba]
         [--peer embree] [--write]
                                              octree build and ray traversal benchmarks; with
                                              --only rays --peer embree, the same rays traced by
                                              Embree (Debian's libembree-dev) in one run,
-                                             alternating, with the ratios; with
+                                             alternating, with the ratios; with --only mitsuba,
+                                             time to pcgi's error on both shared references
+                                             against Mitsuba 3 (pip, in a venv); with
                                              --only caustics, photon tracing at about 1M photons
                                              and the caustic lookup (default size 1M); with
                                              --only fmm, the radiosity solve (default sizes

@@ -1,4 +1,4 @@
-//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale]
+//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale|mitsuba]
 //! [--peer embree]`:
 //! the options and which benchmarks run; each benchmark is in its own module.
 
@@ -6,6 +6,7 @@ mod caustics;
 mod chain;
 mod fmm;
 mod harness;
+mod mitsuba;
 mod octree;
 mod peer;
 mod rays;
@@ -64,7 +65,9 @@ impl Options {
                 "--only" => {
                     o.only = Some(
                         it.next()
-                            .context("--only needs octree, rays, caustics, fmm, chain or scale")?
+                            .context(
+                                "--only needs octree, rays, caustics, fmm, chain, scale or mitsuba",
+                            )?
                             .clone(),
                     )
                 }
@@ -101,6 +104,8 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
         }
         Some("caustics") => caustics::bench(&o.sizes_or(&[1_000_000]), runs, write),
         Some("chain") => chain::bench(&o.sizes_or(&[1_000_000]), write),
+        // Not part of the full run: it installs Mitsuba into a virtual environment.
+        Some("mitsuba") => mitsuba::bench(write),
         Some("fmm") => fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write),
         Some(what @ ("octree" | "rays")) => octree_or_rays(what, &o.sizes, runs, write),
         // Not part of the full run: the 20M scan alone takes most of an hour on two cores.
@@ -117,7 +122,7 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
             chain::bench(&small, write)
         }
         Some(other) => {
-            bail!("bench: --only takes octree, rays, caustics, fmm, chain or scale, not `{other}`")
+            bail!("bench: --only takes octree, rays, caustics, fmm, chain, scale or mitsuba, not `{other}`")
         }
     }
 }

@@ -285,7 +285,11 @@ fn first_hits(dump: &Path, n: usize) -> Result<String> {
         std::fs::read(dump.join("shadow.pcgi"))?,
         std::fs::read(dump.join("shadow.embree"))?,
     );
-    let differ = a.chunks_exact(4).zip(b.chunks_exact(4)).filter(|(x, y)| x != y).count();
+    let differ = a
+        .chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .filter(|(x, y)| x != y)
+        .count();
     parts.push(format!(
         "shadow rays: {differ} of {} answers differ (a border-clipped disk blocks for Embree, \
          whose disc is whole, and not always for pcgi)",
