@@ -99,11 +99,13 @@ fn fresnel(cos_i: f32, eta: f32) -> f32 {
 fn shading_normal(j: u32, x: vec3<f32>) -> vec3<f32> {
     let ns = splats[j].normal;
     let info = node_info[splat_leaf[j]];
-    var n = ns;
-    if any(info.normal != vec3<f32>(0.0)) {
-        n = field_normal(info, x);
+    // No field, or one that misses the splat's own normal at its centre (fitted across a sharp
+    // edge; twin of FIELD_RESIDUAL_COS in optics.rs): the splat's own normal.
+    if all(info.normal == vec3<f32>(0.0)) || dot(field_normal(info, splats[j].position), ns) < FIELD_RESIDUAL_COS {
+        return ns;
     }
-    // A field that turns more than FIELD_MAX_TURN away from the splat blends across a sharp
+    var n = field_normal(info, x);
+    // A field that turns more than FIELD_MIN_COS away from the splat blends across a sharp
     // edge (twin of optics.rs).
     if dot(n, ns) < FIELD_MIN_COS {
         n = ns;
@@ -112,6 +114,7 @@ fn shading_normal(j: u32, x: vec3<f32>) -> vec3<f32> {
 }
 
 const FIELD_MIN_COS: f32 = 0.9;
+const FIELD_RESIDUAL_COS: f32 = 0.995;
 
 struct Bounce {
     dir: vec3<f32>,

@@ -46,18 +46,31 @@ pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
 /// `FIELD_MIN_COS` in shaders/common/optics.wgsl.
 pub const FIELD_MIN_COS: f32 = 0.9;
 
+/// A leaf's field is trusted for a splat only where, at the splat's own centre, it gives back
+/// the splat's own normal within this cosine (about 5.7°). The linear field fits a sphere's
+/// normals exactly (they are linear in the position), so a curved surface passes; a leaf that
+/// straddles a sharp edge fits one tilted field to both faces, which fails at every splat.
+/// Without this the mirror box's front face, tilted up to [`FIELD_MIN_COS`] towards its side
+/// and top faces within a pixel of the edge, reflected the walls where the reference shows the
+/// black open front (cornell-mirror-glass). WGSL twin: `FIELD_RESIDUAL_COS` in
+/// shaders/common/optics.wgsl.
+pub const FIELD_RESIDUAL_COS: f32 = 0.995;
+
 /// The normal at point `x` of specular splat `splat`: the normal field of the leaf that owns the
-/// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field or the
-/// field turns more than [`FIELD_MIN_COS`] away from it (a sharp edge, or the other side).
+/// splat (§8.5.5, §8.5.6 Fig. 17(a)), or the splat's own normal when the leaf has no field, the
+/// field misses the splat's own normal at its centre ([`FIELD_RESIDUAL_COS`]), or it turns more
+/// than [`FIELD_MIN_COS`] away from it at `x` (a sharp edge, or the other side).
 #[inline]
 pub fn shading_normal(view: &OctreeView, splat: u32, x: Vec3) -> Vec3 {
-    let ns = Vec3::from(view.splats[splat as usize].normal);
+    let s = &view.splats[splat as usize];
+    let ns = Vec3::from(s.normal);
     let info = &view.node_info[view.splat_leaf[splat as usize] as usize];
-    let n = if info.normal != [0.0; 3] {
-        field_normal(info, x)
-    } else {
-        ns
-    };
+    if info.normal == [0.0; 3]
+        || field_normal(info, Vec3::from(s.position)).dot(ns) < FIELD_RESIDUAL_COS
+    {
+        return ns;
+    }
+    let n = field_normal(info, x);
     if n.dot(ns) < FIELD_MIN_COS {
         ns
     } else {
