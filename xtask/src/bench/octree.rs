@@ -39,7 +39,7 @@ pub(super) fn rows(bin: &Path, sizes: &[usize], runs: usize) -> Result<Vec<Strin
 }
 
 /// One pc-octree run on `threads` threads; its `--stats-json`.
-fn build(bin: &Path, config: &Path, stats: &Path, threads: usize) -> Result<Value> {
+pub(super) fn build(bin: &Path, config: &Path, stats: &Path, threads: usize) -> Result<Value> {
     run_checked(
         Command::new(bin.join("pc-octree"))
             .env("RAYON_NUM_THREADS", threads.to_string())

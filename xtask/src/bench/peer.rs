@@ -74,7 +74,7 @@ pub(super) fn bench(
             let (mut p, mut e) = (Vec::new(), Vec::new());
             for _ in 0..runs {
                 let v = raybench(bin, &config, &scene.join("rays.json"), threads, None)?;
-                let o = octree_build(bin, &config, &scene.join("stats.json"), threads)?;
+                let o = super::octree::build(bin, &config, &scene.join("stats.json"), threads)?;
                 p.push([
                     num(&v, "cpu_primary_rays_per_s"),
                     num(&v, "cpu_incoherent_rays_per_s"),
@@ -190,20 +190,6 @@ fn raybench(
     }
     run_checked(&mut cmd, "pc-raybench")?;
     read_json(json)
-}
-
-/// One pc-octree build on `threads` threads; its `--stats-json`.
-fn octree_build(bin: &Path, config: &Path, stats: &Path, threads: usize) -> Result<Value> {
-    run_checked(
-        Command::new(bin.join("pc-octree"))
-            .env("RAYON_NUM_THREADS", threads.to_string())
-            .args(["--quiet", "--config"])
-            .arg(config)
-            .arg("--stats-json")
-            .arg(stats),
-        "pc-octree",
-    )?;
-    read_json(stats)
 }
 
 /// One harness run; its JSON line.
