@@ -44,11 +44,31 @@ pub(crate) fn node_info(
     } else {
         class::MIXED
     };
-    let tilt = if is_leaf && normal != Vec3::ZERO {
+    let mut tilt = if is_leaf && normal != Vec3::ZERO {
         normal_field(splats, centroid, normal)
     } else {
         [0.0; 2]
     };
+    // A field that misses one of the leaf's own normals by more than the renderer trusts is a
+    // leaf straddling a sharp edge (one tilted field fitted to two faces): flatten it, so that
+    // every splat of such a leaf shades with its own normal (the renderer's residual rule,
+    // pc_tree::optics::FIELD_RESIDUAL_COS, then rejects the flat mean of the two faces). A
+    // sphere's field fits its normals exactly and keeps its tilt.
+    if tilt != [0.0; 2] {
+        let field = NodeInfo {
+            centroid: centroid.into(),
+            normal: normal.into(),
+            tilt,
+            ..NodeInfo::default()
+        };
+        let misses = splats.iter().any(|s| {
+            pc_tree::field_normal(&field, Vec3::from(s.position)).dot(Vec3::from(s.normal))
+                < pc_tree::optics::FIELD_RESIDUAL_COS
+        });
+        if misses {
+            tilt = [0.0; 2];
+        }
+    }
     NodeInfo {
         centroid: centroid.into(),
         disk_radius,

@@ -626,6 +626,49 @@ fn normal_fields_follow_the_curvature() {
     );
 }
 
+/// A mirror cube: the leaves along its edges hold splats of two faces at right angles, whose
+/// one linear field would tilt every normal there towards the other face (a mirror box's edge
+/// then reflected the walls where a path tracer shows its black open front). Such leaves get a
+/// flat field, and the renderer's shading normal anywhere on any splat of the cube is the
+/// splat's own (within 0.08°: a flat face's mean normal rounds).
+#[test]
+fn sharp_edges_shade_with_the_splats_own_normals() {
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut s = Soa::default();
+    s.cube(Vec3::ZERO, Vec3::splat(0.5), 0.02, 0, &mut rng);
+    let o = s
+        .build(
+            &[class::MIRROR],
+            OctreeParams {
+                max_leaf_points: 32,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    let view = o.view();
+    let mut on_edges = 0;
+    for (i, sp) in o.splats.iter().enumerate() {
+        let info = &o.node_info[o.splat_leaf[i] as usize];
+        let ns = Vec3::from(sp.normal);
+        if Vec3::from(info.normal).dot(ns) < 0.99 {
+            on_edges += 1; // its leaf mixes faces
+        }
+        let (u, v) = pc_artifact::octree::tangent_frame(sp.normal);
+        for (a, b) in [(0.0, 0.0), (0.9, 0.0), (-0.9, 0.0), (0.0, 0.9), (0.0, -0.9)] {
+            let x = Vec3::from(sp.position) + (Vec3::from(u) * a + Vec3::from(v) * b) * sp.radius;
+            let n = pc_tree::optics::shading_normal(&view, i as u32, x);
+            assert!(
+                n.dot(ns) > 0.999_999,
+                "splat {i} at ({a}, {b}) of its radius: shading normal {n}, its own {ns}"
+            );
+        }
+    }
+    assert!(
+        on_edges > 100,
+        "only {on_edges} splats in leaves that mix faces"
+    );
+}
+
 #[test]
 fn node_statistics_describe_the_subtree() {
     let (s, classes) = mixed_scene(0.05);
