@@ -98,18 +98,23 @@ impl Accel {
             offsets.push(o as u32);
             o += 2 + t[o + 1] as usize;
         }
-        let mut leaves = Vec::with_capacity(offsets.len());
+        // Each leaf's slab and chunk count in parallel, then its run by a prefix sum.
+        let mut leaves: Vec<Leaf> = offsets
+            .par_iter()
+            .map(|&o| {
+                let (r, refs) = view.leaf(node::leaf(o));
+                Leaf {
+                    first: 0,
+                    end: ((r.end - r.start) as usize + refs.len()).div_ceil(LANES) as u32,
+                    word: node::leaf(o),
+                    ..slab(view, r.chain(refs.iter().copied()))
+                }
+            })
+            .collect();
         let mut acc = 0u32;
-        for &o in &offsets {
-            let (r, refs) = view.leaf(node::leaf(o));
-            let end = acc + ((r.end - r.start) as usize + refs.len()).div_ceil(LANES) as u32;
-            leaves.push(Leaf {
-                first: acc,
-                end,
-                word: node::leaf(o),
-                ..slab(view, r.chain(refs.iter().copied()))
-            });
-            acc = end;
+        for l in &mut leaves {
+            (l.first, l.end) = (acc, acc + l.end);
+            acc = l.end;
         }
         let nodes = view
             .nodes
