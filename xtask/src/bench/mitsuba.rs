@@ -53,18 +53,17 @@ pub(super) fn bench(write: bool) -> Result<()> {
                 .arg(&reference),
             "pc-compare --write-config",
         )?;
-        let cold = timed(
-            Command::new(bin.join("pc-run"))
-                .args(["-q", "--config"])
-                .arg(&config),
-            "pc-run",
-        )?;
-        let new_view = timed(
-            Command::new(bin.join("pc-raytrace"))
-                .args(["-q", "--config"])
-                .arg(&config),
-            "pc-raytrace",
-        )?;
+        // Cold: the whole chain from no artifacts; a new view: the renderer alone on them.
+        let stage = |name: &str| {
+            timed(
+                Command::new(bin.join(name))
+                    .args(["-q", "--config"])
+                    .arg(&config),
+                name,
+            )
+        };
+        let cold = stage("pc-run")?;
+        let new_view = stage("pc-raytrace")?;
         let image = dir.join("image.exr");
         let error = pcgi_error(&bin, &image, &reference)?;
         let peer = run_peer(&python, &reference, error, &image)?;
