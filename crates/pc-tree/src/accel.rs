@@ -25,7 +25,7 @@
 use pc_artifact::octree::{node, within_clip};
 use rayon::prelude::*;
 
-use crate::ray::{Hit, Ray, TraversalStats};
+use crate::ray::{Hit, Ray, Slab, TraversalStats};
 use crate::OctreeView;
 
 /// Disks per chunk.
@@ -71,17 +71,32 @@ struct Leaf {
     end: u32,
     /// The view's node word (what [`Hit::leaf`] reports).
     word: u32,
-    /// Every point of every listed disk has `axis · x` in `[lo, hi]` (padded for rounding);
-    /// `lo > hi` nowhere, `axis` zero with an infinite interval where the normals cancel.
-    axis: [f32; 3],
-    lo: f32,
-    hi: f32,
+    slab: Slab,
 }
+
+/// One internal node's eight child words and the slab of every disk listed below it: one cache
+/// line, so the walk reads the slab with the words it reads anyway. Block 0 holds the root
+/// word alone.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct Block {
+    words: [u32; 8],
+    /// [`Slab`]'s axis, lo and hi as bits; `has_slab` 0 where it would not pay to test.
+    slab: [u32; 5],
+    has_slab: u32,
+    _pad: [u32; 2],
+}
+
+/// Words of a [`Block`]: an internal word points at its block's first word.
+const BLOCK_WORDS: u32 = 16;
 
 /// The packed copy of an octree for the CPU walk.
 pub struct Accel {
-    /// The view's node pool, leaf words holding their leaf number (SFC order) as pointer.
-    nodes: Vec<u32>,
+    /// The view's tree in [`Block`]s: leaf words hold their leaf number (SFC order), internal
+    /// words the first word of their children's block.
+    nodes: Vec<Block>,
+    /// Whether the blocks hold slabs (else `nodes` is the view's pool word for word).
+    slabs: bool,
     leaves: Vec<Leaf>,
     chunks: Vec<Chunk>,
     /// Per chunk lane (`chunk · LANES + lane`).
@@ -107,7 +122,7 @@ impl Accel {
                     first: 0,
                     end: ((r.end - r.start) as usize + refs.len()).div_ceil(LANES) as u32,
                     word: node::leaf(o),
-                    ..slab(view, r.chain(refs.iter().copied()))
+                    slab: slab(view, r.chain(refs.iter().copied())),
                 }
             })
             .collect();
@@ -116,19 +131,6 @@ impl Accel {
             (l.first, l.end) = (acc, acc + l.end);
             acc = l.end;
         }
-        let nodes = view
-            .nodes
-            .par_iter()
-            .map(|&w| {
-                if node::is_leaf(w) {
-                    // The reader checks that every leaf word points at a leaf's start.
-                    let i = offsets.binary_search(&node::ptr(w)).unwrap_or(0);
-                    node::LEAF | i as u32
-                } else {
-                    w
-                }
-            })
-            .collect();
         let mut chunks = vec![PAD; acc as usize];
         let mut cold = vec![
             Cold {
@@ -163,12 +165,67 @@ impl Accel {
                     };
                 }
             });
+        let (nodes, slabs) = blocks(view, &offsets, &leaves, &chunks);
         Accel {
             nodes,
+            slabs,
             leaves,
             chunks,
             cold,
         }
+    }
+
+    /// Internal nodes whose slab the walk tests.
+    pub fn slabbed_nodes(&self) -> usize {
+        match self.slabs {
+            true => self.nodes.iter().filter(|b| b.has_slab != 0).count(),
+            false => 0,
+        }
+    }
+
+    /// Checks that every slab holds every disk it stands for: each leaf's listed disks lie in
+    /// the leaf's slab and in the slab of each of its ancestors that has one (reached by the
+    /// tree from the root, independently of how the slabs were gathered). For tests.
+    pub fn verify_slabs(&self) -> Result<(), String> {
+        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes);
+        let holds = |s: &Slab, (p, n, r): ([f32; 3], [f32; 3], f32)| {
+            let (a, p, n) = (
+                glam::Vec3::from(s.axis),
+                glam::Vec3::from(p),
+                glam::Vec3::from(n),
+            );
+            let c = a.dot(n);
+            let reach = r * (1.0 - c * c).max(0.0).sqrt();
+            s.lo <= a.dot(p) - reach && a.dot(p) + reach <= s.hi
+        };
+        let mut stack: Vec<(u32, Vec<Slab>)> = vec![(nodes[0], Vec::new())];
+        while let Some((w, mut above)) = stack.pop() {
+            if node::is_empty(w) {
+                continue;
+            }
+            if node::is_leaf(w) {
+                let leaf = &self.leaves[node::ptr(w) as usize];
+                above.push(leaf.slab);
+                let run = &self.chunks[leaf.first as usize..leaf.end as usize];
+                for (k, d) in run.iter().flat_map(lane_disks).enumerate() {
+                    if let Some(s) = above.iter().find(|s| !holds(s, d)) {
+                        return Err(format!(
+                            "leaf {}: disk {k} {d:?} outside {s:?}",
+                            node::ptr(w)
+                        ));
+                    }
+                }
+                continue;
+            }
+            if self.slabs {
+                above.extend(node_slab(nodes, w));
+            }
+            let b = node::ptr(w) as usize;
+            for &c in &nodes[b..b + 8] {
+                stack.push((c, above.clone()));
+            }
+        }
+        Ok(())
     }
 
     /// Bytes held.
@@ -176,7 +233,7 @@ impl Accel {
         self.chunks.len() * std::mem::size_of::<Chunk>()
             + self.cold.len() * std::mem::size_of::<Cold>()
             + self.leaves.len() * std::mem::size_of::<Leaf>()
-            + self.nodes.len() * 4
+            + self.nodes.len() * std::mem::size_of::<Block>()
     }
 
     /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`any`: the first
@@ -192,14 +249,11 @@ impl Accel {
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
         let leaf = &self.leaves[node::ptr(w) as usize];
-        let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
-        // The ray's stretch inside the leaf's slab: no disk can be hit outside it.
-        let [ax, ay, az] = leaf.axis;
-        let (s0, ds) = (ax * ox + ay * oy + az * oz, ax * dx + ay * dy + az * dz);
-        let (ta, tb) = ((leaf.lo - s0) / ds, (leaf.hi - s0) / ds);
-        if ta.min(tb).max(ray.t_min) > ta.max(tb).min(limit) {
+        // No disk can be hit outside the leaf's slab.
+        if leaf.slab.misses(ray, limit) {
             return None;
         }
+        let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
         let (a, b) = (leaf.first as usize, leaf.end as usize);
         stats.splat_tests += ((b - a) * LANES) as u64;
         let mut best: Option<Hit> = None;
@@ -236,7 +290,15 @@ impl Accel {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
-        crate::ray::walk_with(view, &self.nodes, ray, stats, |w, limit, st| {
+        let nodes = bytemuck::cast_slice(&self.nodes);
+        let slab = |w| {
+            if self.slabs {
+                node_slab(nodes, w)
+            } else {
+                None
+            }
+        };
+        crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             self.test(ray, w, limit, false, st)
         })
     }
@@ -250,54 +312,219 @@ impl Accel {
 
     /// Same as [`OctreeView::occluded`].
     pub fn occluded(&self, view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
-        crate::ray::walk_with(view, &self.nodes, ray, stats, |w, limit, st| {
+        let nodes = bytemuck::cast_slice(&self.nodes);
+        let slab = |w| {
+            if self.slabs {
+                node_slab(nodes, w)
+            } else {
+                None
+            }
+        };
+        crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             self.test(ray, w, limit, true, st)
         })
         .is_some()
     }
 }
 
-/// The slab of a leaf's listed disks ([`Leaf::axis`]): about their mean normal, each disk
+/// The slab of a leaf's listed disks ([`Leaf::slab`]): about their mean normal, each disk
 /// reaching `r · sin θ` either side of its centre's level (θ between its normal and the axis),
 /// padded by 10⁻³ of the largest radius and 10⁻⁵ of the coordinates' size, far above the
 /// rounding of a hit point, so a leaf is skipped only where no hit can be.
-fn slab(view: &OctreeView, listed: impl Iterator<Item = u32> + Clone) -> Leaf {
-    let sum: glam::Vec3 = listed
-        .clone()
-        .map(|i| glam::Vec3::from(view.splats[i as usize].normal))
-        .sum();
-    let whole = Leaf {
-        first: 0,
-        end: 0,
-        word: 0,
-        axis: [0.0; 3],
-        lo: f32::NEG_INFINITY,
-        hi: f32::INFINITY,
-    };
-    let Some(axis) = sum.try_normalize() else {
-        return whole;
-    };
-    let (mut lo, mut hi, mut r_max, mut size) = (f32::INFINITY, f32::NEG_INFINITY, 0.0f32, 0.0f32);
-    for i in listed {
+fn slab(view: &OctreeView, listed: impl Iterator<Item = u32> + Clone) -> Slab {
+    let disks = listed.map(|i| {
         let s = &view.splats[i as usize];
-        let (p, n) = (glam::Vec3::from(s.position), glam::Vec3::from(s.normal));
+        (s.position, s.normal, s.radius)
+    });
+    slab_of(disks)
+}
+
+/// [`slab`] of disks given as (centre, normal, radius).
+fn slab_of(disks: impl Iterator<Item = ([f32; 3], [f32; 3], f32)> + Clone) -> Slab {
+    let sum: glam::Vec3 = disks.clone().map(|d| glam::Vec3::from(d.1)).sum();
+    match sum.try_normalize() {
+        Some(axis) => slab_about(axis, disks),
+        None => Slab::WHOLE,
+    }
+}
+
+/// The slab about a unit `axis` that holds the disks, padded as [`slab`] says.
+fn slab_about(axis: glam::Vec3, disks: impl Iterator<Item = ([f32; 3], [f32; 3], f32)>) -> Slab {
+    let (mut lo, mut hi, mut r_max, mut size) = (f32::INFINITY, f32::NEG_INFINITY, 0.0f32, 0.0f32);
+    for (p, n, r) in disks {
+        let (p, n) = (glam::Vec3::from(p), glam::Vec3::from(n));
         let c = axis.dot(n);
-        let reach = s.radius * (1.0 - c * c).max(0.0).sqrt();
+        let reach = r * (1.0 - c * c).max(0.0).sqrt();
         lo = lo.min(axis.dot(p) - reach);
         hi = hi.max(axis.dot(p) + reach);
-        r_max = r_max.max(s.radius);
-        size = size.max(p.abs().max_element() + s.radius);
+        r_max = r_max.max(r);
+        size = size.max(p.abs().max_element() + r);
     }
     if lo > hi {
-        return whole; // no disks
+        return Slab::WHOLE; // no disks
     }
     let pad = 1e-3 * r_max + 1e-5 * size;
-    Leaf {
+    Slab {
         axis: axis.to_array(),
         lo: lo - pad,
         hi: hi + pad,
-        ..whole
     }
+}
+
+/// A chunk's disks (not its padding) as (centre, normal, radius).
+fn lane_disks(c: &Chunk) -> impl Iterator<Item = ([f32; 3], [f32; 3], f32)> + '_ {
+    (0..LANES).filter(|&l| c.r2[l] >= 0.0).map(|l| {
+        let p = [c.px[l], c.py[l], c.pz[l]];
+        (p, [c.nx[l], c.ny[l], c.nz[l]], c.r2[l].sqrt())
+    })
+}
+
+/// The slab of an internal word's block, where it has one worth testing.
+#[inline(always)]
+fn node_slab(nodes: &[u32], w: u32) -> Option<Slab> {
+    let b = node::ptr(w) as usize;
+    let f = |k: usize| f32::from_bits(nodes[b + 8 + k]);
+    (nodes[b + 13] != 0).then(|| Slab {
+        axis: [f(0), f(1), f(2)],
+        lo: f(3),
+        hi: f(4),
+    })
+}
+
+/// A node slab is tested only when thinner than this share of the node's cell: a thicker one
+/// seldom lets a ray past, and the test costs the cell's exit and the slab's arithmetic.
+const THIN: f32 = 0.25;
+
+/// A node is a candidate for a slab only where its normals' mean has at least this length
+/// (nearly one orientation); the others are not worth the pass over their disks.
+const ALIGNED: f32 = 0.9;
+
+/// The view's tree as [`Block`]s, depth first, with the slab of each internal node's listed
+/// disks (every leaf below it) where it is thin. Without room for the pointers (over 67M
+/// internal nodes) the blocks carry no slabs.
+fn blocks(
+    view: &OctreeView,
+    offsets: &[u32],
+    leaves: &[Leaf],
+    chunks: &[Chunk],
+) -> (Vec<Block>, bool) {
+    let zero = Block {
+        words: [0; 8],
+        slab: [0; 5],
+        has_slab: 0,
+        _pad: [0; 2],
+    };
+    // The blocks and, per block, the view's word and its depth.
+    let mut blocks = vec![zero];
+    let mut info: Vec<(u32, u32)> = vec![(0, 0)];
+    let mut stack = Vec::new();
+    // The reader checks that every leaf word points at a leaf's start.
+    let leaf = |w: u32| node::LEAF | offsets.binary_search(&node::ptr(w)).unwrap_or(0) as u32;
+    let map =
+        |w: u32, depth: u32, blocks: &mut Vec<Block>, info: &mut Vec<_>, stack: &mut Vec<u32>| {
+            if node::is_leaf(w) {
+                leaf(w)
+            } else if node::is_empty(w) {
+                w
+            } else {
+                let b = blocks.len() as u32;
+                blocks.push(zero);
+                info.push((w, depth));
+                stack.push(b);
+                node::internal(b.saturating_mul(BLOCK_WORDS))
+            }
+        };
+    let root = map(view.nodes[0], 0, &mut blocks, &mut info, &mut stack);
+    blocks[0].words[0] = root;
+    // The reader's checks make the pool a forest of forward pointers, not yet a tree: groups
+    // shared by two parents would be copied twice. More blocks than groups means sharing.
+    let groups = view.nodes.len() / 8;
+    let mut order = Vec::new();
+    while let Some(b) = stack.pop() {
+        if blocks.len() > groups + 1 {
+            break;
+        }
+        order.push(b);
+        let (w, depth) = info[b as usize];
+        for c in 0..8 {
+            let child = view.nodes[(node::ptr(w) + c) as usize];
+            let word = map(child, depth + 1, &mut blocks, &mut info, &mut stack);
+            blocks[b as usize].words[c as usize] = word;
+        }
+    }
+    if blocks.len() > groups + 1 || blocks.len() as u64 * BLOCK_WORDS as u64 > node::MAX_PTR as u64
+    {
+        // Shared groups, or too many internal nodes for block pointers: the view's pool as it
+        // is, leaf words rewritten, read as plain words (no slabs).
+        let mut flat = vec![zero; view.nodes.len().div_ceil(BLOCK_WORDS as usize)];
+        let words: &mut [u32] = bytemuck::cast_slice_mut(&mut flat);
+        for (to, &w) in words.iter_mut().zip(view.nodes) {
+            *to = if node::is_leaf(w) { leaf(w) } else { w };
+        }
+        return (flat, false);
+    }
+    // The normals' sum and the disk count below each block, children before parents (reverse
+    // depth-first order): where the normals nearly agree, the node is worth a slab.
+    let run = |l: &Leaf| &chunks[l.first as usize..l.end as usize];
+    let leaf_sums: Vec<(glam::Vec3, u32)> = leaves
+        .par_iter()
+        .map(|l| {
+            let disks = run(l).iter().flat_map(lane_disks);
+            disks.fold((glam::Vec3::ZERO, 0), |(s, n), d| {
+                (s + glam::Vec3::from(d.1), n + 1)
+            })
+        })
+        .collect();
+    let mut sums = vec![(glam::Vec3::ZERO, 0u32); blocks.len()];
+    for &b in order.iter().rev() {
+        for &w in &blocks[b as usize].words {
+            let (s, n) = match (node::is_leaf(w), node::is_empty(w)) {
+                (true, _) => leaf_sums[node::ptr(w) as usize],
+                (_, true) => continue,
+                _ => sums[(node::ptr(w) / BLOCK_WORDS) as usize],
+            };
+            sums[b as usize].0 += s;
+            sums[b as usize].1 += n;
+        }
+    }
+    // Each candidate's slab over every disk listed in the leaves below it (the leaves' table
+    // order need not follow the tree's near cell borders, so they are gathered by the tree).
+    let size = view.frame.size;
+    let all: &[u32] = bytemuck::cast_slice(&blocks);
+    let slabs: Vec<Option<Slab>> = (0..blocks.len())
+        .into_par_iter()
+        .map(|b| {
+            let (sum, n) = sums[b];
+            if b == 0 || n == 0 || sum.length() < ALIGNED * n as f32 {
+                return None;
+            }
+            let mut below = Vec::new();
+            let mut stack = vec![node::internal(b as u32 * BLOCK_WORDS)];
+            while let Some(w) = stack.pop() {
+                for &c in &all[node::ptr(w) as usize..node::ptr(w) as usize + 8] {
+                    match (node::is_leaf(c), node::is_empty(c)) {
+                        (true, _) => below.push(node::ptr(c)),
+                        (_, true) => {}
+                        _ => stack.push(c),
+                    }
+                }
+            }
+            let disks = below
+                .iter()
+                .flat_map(|&l| run(&leaves[l as usize]).iter().flat_map(lane_disks));
+            let s = slab_about(sum.normalize(), disks);
+            let cell = size * 0.5f32.powi(info[b].1.min(64) as i32);
+            (s.hi - s.lo < THIN * cell).then_some(s)
+        })
+        .collect();
+    for (block, s) in blocks.iter_mut().zip(slabs) {
+        if let Some(s) = s {
+            let [ax, ay, az] = s.axis;
+            block.slab = [ax, ay, az, s.lo, s.hi].map(f32::to_bits);
+            block.has_slab = 1;
+        }
+    }
+    (blocks, true)
 }
 
 /// One chunk's ray-disk tests: each lane's plane distance `t` and the mask of lanes hit inside

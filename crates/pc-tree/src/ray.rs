@@ -54,6 +54,36 @@ pub struct Hit {
     pub leaf: u32,
 }
 
+/// The slab `lo ≤ axis · x ≤ hi` that holds every disk listed in a leaf or below a node, padded
+/// far above the rounding of a hit point: a ray that stays outside it can hit none of them.
+/// `axis` zero with an infinite interval where the normals cancel.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Slab {
+    pub axis: [f32; 3],
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl Slab {
+    /// Holds everything.
+    pub const WHOLE: Slab = Slab {
+        axis: [0.0; 3],
+        lo: f32::NEG_INFINITY,
+        hi: f32::INFINITY,
+    };
+
+    /// Whether the ray's stretch `[ray.t_min, limit]` stays outside the slab.
+    #[inline(always)]
+    pub fn misses(&self, ray: &Ray, limit: f32) -> bool {
+        let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
+        let [ax, ay, az] = self.axis;
+        let (s0, ds) = (ax * ox + ay * oy + az * oz, ax * dx + ay * dy + az * dz);
+        let (ta, tb) = ((self.lo - s0) / ds, (self.hi - s0) / ds);
+        ta.min(tb).max(ray.t_min) > ta.max(tb).min(limit)
+    }
+}
+
 /// Work counters of traversals, for benchmarks.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalStats {
@@ -116,38 +146,49 @@ pub fn occluded(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> boo
 }
 
 fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
-    walk_with(view, view.nodes, ray, stats, |w, limit, stats| {
-        let (range, refs) = view.leaf(w);
-        let mut best: Option<Hit> = None;
-        stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
-        for i in range.chain(refs.iter().copied()) {
-            if let Some(th) = intersect_splat(ray.origin, ray.dir, &view.splats[i as usize]) {
-                if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
-                    best = Some(Hit {
-                        t: th,
-                        splat: i,
-                        leaf: w,
-                    });
-                    if any {
-                        return best;
+    walk_with(
+        view,
+        view.nodes,
+        ray,
+        stats,
+        |_| None,
+        |w, limit, stats| {
+            let (range, refs) = view.leaf(w);
+            let mut best: Option<Hit> = None;
+            stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
+            for i in range.chain(refs.iter().copied()) {
+                if let Some(th) = intersect_splat(ray.origin, ray.dir, &view.splats[i as usize]) {
+                    if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
+                        best = Some(Hit {
+                            t: th,
+                            splat: i,
+                            leaf: w,
+                        });
+                        if any {
+                            return best;
+                        }
                     }
                 }
             }
-        }
-        best
-    })
+            best
+        },
+    )
 }
 
 /// The walk over `nodes` (the view's node pool, or [`crate::accel::Accel`]'s copy of it whose
-/// leaf words point elsewhere), with the test of one leaf's splats supplied by the caller
-/// (`test(node word, t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`), so the
-/// packed layout shares the same traversal.
+/// leaf and internal words point elsewhere), with the test of one leaf's splats supplied by the
+/// caller (`test(node word, t limit, stats)` returns the nearest hit in `[ray.t_min, limit]`),
+/// so the packed layout shares the same traversal. `slab(internal word)` may give a slab that
+/// holds every disk listed below the node: where the ray's stretch `[ray.t_min, limit]` (the
+/// limit being where it leaves the node's cell) misses it, the node is skipped whole, as if it
+/// were empty, since none of its leaves could accept a hit. The artifact's walk has no slabs.
 #[inline(always)]
 pub(crate) fn walk_with(
     view: &OctreeView,
     nodes: &[u32],
     ray: &Ray,
     stats: &mut TraversalStats,
+    slab: impl Fn(u32) -> Option<Slab>,
     mut test: impl FnMut(u32, f32, &mut TraversalStats) -> Option<Hit>,
 ) -> Option<Hit> {
     // Normalised root coordinates: the root is [0,1)³ and t is the same parameter.
@@ -162,6 +203,17 @@ pub(crate) fn walk_with(
     if t > t_end {
         return None;
     }
+    // Where the ray leaves the cell of depth `depth` around the integer point `qi`: the cell's
+    // corner, its size and the exit parameter of each axis.
+    let exit = |qi: [u32; 3], depth: usize| {
+        let shift = (MAX_LEVELS - depth) as u32;
+        let lo_i = qi.map(|c| (c >> shift) << shift);
+        let size_i = 1u32 << shift;
+        let lo = Vec3::from_array(lo_i.map(|c| c as f32 * CELL));
+        let hi = Vec3::from_array(lo_i.map(|c| (c + size_i) as f32 * CELL));
+        let far = Vec3::select(qd.cmpge(Vec3::ZERO), hi, lo);
+        (lo_i, size_i, (far - qo) * inv)
+    };
     // The current point as 21-bit integer cell coordinates (exact: q·2²¹ is a scaling by a
     // power of two and the floor reads its bits), and the path of node words from the root.
     let q = (qo + qd * t).clamp(Vec3::ZERO, Vec3::splat(below(1.0)));
@@ -174,6 +226,11 @@ pub(crate) fn walk_with(
         // Descend from the deepest ancestor that still contains qi (§8.5.11, resumed).
         let mut w = path[depth];
         while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
+            if let Some(s) = slab(w) {
+                if s.misses(ray, exit(qi, depth).2.min_element().min(t_end)) {
+                    break;
+                }
+            }
             let shift = (MAX_LEVELS - 1 - depth) as u32;
             let child = ((qi[0] >> shift) & 1)
                 | (((qi[1] >> shift) & 1) << 1)
@@ -182,14 +239,7 @@ pub(crate) fn walk_with(
             depth += 1;
             path[depth] = w;
         }
-        let shift = (MAX_LEVELS - depth) as u32;
-        let lo_i = qi.map(|c| (c >> shift) << shift);
-        let size_i = 1u32 << shift;
-        let lo = Vec3::from_array(lo_i.map(|c| c as f32 * CELL));
-        let hi = Vec3::from_array(lo_i.map(|c| (c + size_i) as f32 * CELL));
-        // Where the ray leaves this cell.
-        let far = Vec3::select(qd.cmpge(Vec3::ZERO), hi, lo);
-        let ta = (far - qo) * inv;
+        let (lo_i, size_i, ta) = exit(qi, depth);
         let t_exit = ta.min_element();
         if node::is_leaf(w) {
             let hit = test(w, t_exit.min(t_end), stats);

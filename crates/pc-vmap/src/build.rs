@@ -32,6 +32,8 @@ pub struct VNode {
     pub cone_cos: f32,
     /// No pair goes below a V-map leaf.
     pub vleaf: bool,
+    /// The summed areas of its splats (in data-pool order, as f64).
+    pub area: f64,
 }
 
 impl VNode {
@@ -67,6 +69,10 @@ pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
                 // light and the ceiling just behind it are not equally visible).
                 vleaf: node::is_leaf(view.nodes[slot])
                     || (hi - lo <= leaf_splats && info.class != pc_artifact::octree::class::MIXED),
+                area: view.splat_area[lo as usize..hi as usize]
+                    .iter()
+                    .map(|&a| a as f64)
+                    .sum(),
             }
         })
         .collect()
@@ -129,13 +135,18 @@ pub(crate) fn sample(
     k: u32,
     m: u32,
 ) -> (u32, Vec3, Vec3, f32) {
+    let i = sample_index(v, seed, stream, k, m);
+    let s = &view.splats[i as usize];
+    (i, Vec3::from(s.position), Vec3::from(s.normal), s.radius)
+}
+
+/// The data-pool index of [`sample`]: no memory is read.
+fn sample_index(v: &VNode, seed: u32, stream: u32, k: u32, m: u32) -> u32 {
     let count = v.count();
     let u0 = rand(seed, stream, k, 0);
     // m = 1: uniform over the whole range (k only picks the random number).
     let (k, m) = if m == 1 { (0, 1) } else { (k, m) };
-    let i = v.lo + (((k as f32 + u0) / m as f32 * count as f32) as u32).min(count - 1);
-    let s = &view.splats[i as usize];
-    (i, Vec3::from(s.position), Vec3::from(s.normal), s.radius)
+    v.lo + (((k as f32 + u0) / m as f32 * count as f32) as u32).min(count - 1)
 }
 
 /// The visibility rays between two nodes, each with the weight of its sample pair in the
@@ -165,28 +176,32 @@ fn pair_rays(
     } else {
         far_rays
     };
+    // Sampled pairs: every index first, and a read of each splat and its area, so the cache
+    // misses of a pair's scattered samples overlap instead of following one another.
+    let sampled: Vec<(u32, u32)> = match all {
+        true => Vec::new(),
+        // The near end stratified along a's range, the far end uniform over b's: the two ends
+        // must be independent, or a node paired with itself would pair each splat with itself.
+        false => (0..n)
+            .map(|k| {
+                let i = sample_index(va, p.seed, stream, k, n);
+                (i, sample_index(vb, p.seed ^ 0x9e37_79b9, stream, k, 1))
+            })
+            .collect(),
+    };
+    for &(i, j) in &sampled {
+        let (i, j) = (i as usize, j as usize);
+        std::hint::black_box((view.splats[i].radius, view.splats[j].radius));
+        std::hint::black_box((view.splat_area[i], view.splat_area[j]));
+    }
     for k in 0..n {
-        let (ia, xa, na, ra, ib, xb, nb, rb) = if all {
-            let (i, j) = (va.lo + k / vb.count(), vb.lo + k % vb.count());
-            let (si, sj) = (&view.splats[i as usize], &view.splats[j as usize]);
-            (
-                i,
-                Vec3::from(si.position),
-                Vec3::from(si.normal),
-                si.radius,
-                j,
-                Vec3::from(sj.position),
-                Vec3::from(sj.normal),
-                sj.radius,
-            )
-        } else {
-            // The near end stratified along a's range, the far end uniform over b's: the two
-            // ends must be independent, or a node paired with itself would pair each splat
-            // with itself.
-            let (ia, xa, na, ra) = sample(view, va, p.seed, stream, k, n);
-            let (ib, xb, nb, rb) = sample(view, vb, p.seed ^ 0x9e37_79b9, stream, k, 1);
-            (ia, xa, na, ra, ib, xb, nb, rb)
+        let (ia, ib) = match all {
+            true => (va.lo + k / vb.count(), vb.lo + k % vb.count()),
+            false => sampled[k as usize],
         };
+        let (si, sj) = (&view.splats[ia as usize], &view.splats[ib as usize]);
+        let (xa, na, ra) = (Vec3::from(si.position), Vec3::from(si.normal), si.radius);
+        let (xb, nb, rb) = (Vec3::from(sj.position), Vec3::from(sj.normal), sj.radius);
         if ia == ib {
             continue;
         }
@@ -233,8 +248,69 @@ fn ray_count(vn: &[VNode], a: u32, b: u32, near: bool, p: &VmapParams) -> u32 {
     }
 }
 
+/// Rays cast first for a far pair (spread over its stratified samples): when they already
+/// disagree, the pair is partly visible whatever the others say.
+const PROBE_RAYS: usize = 4;
+
+/// What a partly visible far pair becomes; known before any ray, from the nodes, the close
+/// occluders and the sample weights.
+#[derive(Clone, Copy, PartialEq)]
+enum Partly {
+    /// Both are V-map leaves: the exhaustive pass.
+    Exact,
+    /// An occluder close to this node: refine it.
+    Refine(u32),
+    /// Too little light flows to resolve the shadow edge: a partial link with its fraction.
+    Keep,
+    /// Finer pairs.
+    Split,
+}
+
+fn partly(
+    vn: &[VNode],
+    p: &VmapParams,
+    close: &[bool],
+    (a, b): (u32, u32),
+    r: &[(Ray, f32)],
+) -> Partly {
+    let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+    if va.vleaf && vb.vleaf {
+        return Partly::Exact;
+    }
+    let least = p.refine_form_factor * crate::close::REFINE_SHARE;
+    if let Some(x) = [a, b]
+        .into_iter()
+        .find(|&x| close[x as usize] && !vn[x as usize].vleaf)
+        .filter(|_| form_factors(va, vb, r) >= least)
+    {
+        // An occluder close to one of the two changes its splats' visibility sharply
+        // (crate::close): refine that one down to a smaller form factor.
+        return Partly::Refine(x);
+    }
+    if p.refine_form_factor > 0.0 && form_factors(va, vb, r) < p.refine_form_factor {
+        // Hierarchical radiosity's importance criterion.
+        return Partly::Keep;
+    }
+    Partly::Split
+}
+
+/// The indices of a far pair's probe rays: [`PROBE_RAYS`] spread over its samples.
+fn probes(n: usize) -> impl Iterator<Item = usize> {
+    let k = PROBE_RAYS.min(n);
+    (0..k).map(move |i| i * n / k)
+}
+
+fn is_probe(i: usize, n: usize) -> bool {
+    probes(n).any(|j| j == i)
+}
+
 /// Cast the rays of `tested` pairs and decide each: a link, nothing, finer pairs (returned), or
 /// a partially visible pair of V-map leaves for the exhaustive pass (returned).
+///
+/// In two casts. A far pair's probe rays go first; where they disagree (some visible with
+/// light-carrying weight, some blocked) and the pair's fate needs no fraction (finer pairs or the
+/// exhaustive pass), its other rays are never cast. Every other ray is cast in the second, so
+/// the links are exactly those of casting every ray at once (docs/vmap.md, "Cost").
 #[allow(clippy::type_complexity)]
 fn decide(
     view: &OctreeView,
@@ -247,7 +323,7 @@ fn decide(
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
     let mut next = Vec::new();
     let mut partial = Vec::new();
-    let per_pair: Vec<Vec<(Ray, f32)>> = tested
+    let per_pair: Vec<(Vec<(Ray, f32)>, Partly)> = tested
         .par_iter()
         .map(|&(a, b, near)| {
             let mut r = Vec::with_capacity(p.rays as usize);
@@ -257,77 +333,130 @@ fn decide(
             // the receiver. The pairs that carry the most light get more rays.
             if !near
                 && p.heavy_rays > p.rays
-                && form_factors(view, &vn[a as usize], &vn[b as usize], &r) >= p.heavy_form_factor
+                && form_factors(&vn[a as usize], &vn[b as usize], &r) >= p.heavy_form_factor
             {
                 r.clear();
                 pair_rays(view, vn, (a, b), near, p.heavy_rays, p, &mut r);
             }
-            r
+            let fate = if near {
+                Partly::Keep
+            } else {
+                partly(vn, p, close, (a, b), &r)
+            };
+            (r, fate)
         })
         .collect();
-    let rays: Vec<Ray> = per_pair.iter().flatten().map(|r| r.0).collect();
-    let visible = caster.visible(&rays)?;
-    links.pairs_tested += tested.len() as u64;
-    links.rays += rays.len() as u64;
-    // 3. Decide.
+    // 1. Probes: every ray of a near pair or of one whose partial fate needs its fraction, the
+    //    probe rays of the others.
+    let probing =
+        |(r, fate): &(Vec<(Ray, f32)>, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
+    let first: Vec<Ray> = per_pair
+        .iter()
+        .flat_map(|x| {
+            let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
+                true => Box::new(probes(x.0.len())),
+                false => Box::new(0..x.0.len()),
+            };
+            all.map(|i| x.0[i].0)
+        })
+        .collect();
+    let seen_first = caster.visible(&first)?;
+    // 2. The rest, where the probes do not settle the pair.
+    let mut visible: Vec<Vec<bool>> = Vec::with_capacity(per_pair.len());
+    let mut settled: Vec<bool> = Vec::with_capacity(per_pair.len());
+    let mut rest: Vec<Ray> = Vec::new();
     let mut at = 0;
-    for ((a, b, near), r) in tested.iter().copied().zip(&per_pair) {
+    for x in &per_pair {
+        let r = &x.0;
+        if !probing(x) {
+            visible.push(seen_first[at..at + r.len()].to_vec());
+            settled.push(false);
+            at += r.len();
+            continue;
+        }
+        let mut vis = vec![false; r.len()];
+        let (mut any_seen, mut any_blocked, mut weight) = (false, false, 0.0f32);
+        for i in probes(r.len()) {
+            vis[i] = seen_first[at];
+            at += 1;
+            any_seen |= vis[i];
+            any_blocked |= !vis[i];
+            weight += if vis[i] { r[i].1 } else { 0.0 };
+        }
+        // Light-carrying visible probes keep the whole pair's fraction above zero (the
+        // weights' sum is finite), as casting every ray would find.
+        let wsum: f32 = r.iter().map(|x| x.1).sum();
+        let done = any_seen && any_blocked && wsum.is_finite() && weight / wsum > 0.0;
+        if !done {
+            rest.extend(
+                (0..r.len())
+                    .filter(|&i| !is_probe(i, r.len()))
+                    .map(|i| r[i].0),
+            );
+        }
+        visible.push(vis);
+        settled.push(done);
+    }
+    let seen_rest = caster.visible(&rest)?;
+    let mut at = 0;
+    for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
+        if probing(x) && !done {
+            for i in (0..x.0.len()).filter(|&i| !is_probe(i, x.0.len())) {
+                vis[i] = seen_rest[at];
+                at += 1;
+            }
+        }
+    }
+    links.pairs_tested += tested.len() as u64;
+    links.rays += (first.len() + rest.len()) as u64;
+    // 3. Decide.
+    let pairs = tested.iter().copied().zip(&per_pair);
+    for (((a, b, near), (r, fate)), (vis, &done)) in pairs.zip(visible.iter().zip(&settled)) {
         let total = r.len();
-        let vis = &visible[at..at + total];
-        at += total;
-        let seen = vis.iter().filter(|&&v| v).count();
         let (va, vb) = (&vn[a as usize], &vn[b as usize]);
         if total == 0 {
             continue; // no sample pair faces each other
         }
-        if seen == 0 {
-            // All rays blocked. With at least half the samples carrying light, a visible share
-            // above about a tenth would have shown (0.9^16 < 0.2): drop the pair. With fewer
-            // informative samples (nodes whose splats mostly face away), refine instead, unless
-            // both are V-map leaves.
-            if !near && total * 2 < p.rays as usize && !(va.vleaf && vb.vleaf) {
-                split(view, vn, a, b, &mut next);
+        if !done {
+            let seen = vis.iter().filter(|&&v| v).count();
+            if seen == 0 {
+                // All rays blocked. With at least half the samples carrying light, a visible
+                // share above about a tenth would have shown (0.9^16 < 0.2): drop the pair.
+                // With fewer informative samples (nodes whose splats mostly face away), refine
+                // instead, unless both are V-map leaves.
+                if !near && total * 2 < p.rays as usize && !(va.vleaf && vb.vleaf) {
+                    split(view, vn, a, b, &mut next);
+                }
+                continue;
             }
-            continue;
+            let (wvis, wsum) = weights(r, vis);
+            let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
+                continue; // the visible samples carry no weight: no light flows
+            };
+            if near {
+                let l = |x: u32| Link::near(x, fraction);
+                links.pairs.push((a, l(b)));
+                if a != b {
+                    links.pairs.push((b, l(a)));
+                }
+                links.near += 1;
+                continue;
+            }
+            if seen == total || *fate == Partly::Keep {
+                links.pairs.push((a, Link::far(b, fraction)));
+                links.pairs.push((b, Link::far(a, fraction)));
+                links.far += 1;
+                continue;
+            }
         }
-        let (wvis, wsum) = weights(r, vis);
-        let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
-            continue; // the visible samples carry no weight: no light flows
-        };
-        if near {
-            let l = |x: u32| Link::near(x, fraction);
-            links.pairs.push((a, l(b)));
-            if a != b {
-                links.pairs.push((b, l(a)));
+        // Partly visible, a fate without a fraction (`Keep` is never settled by its probes).
+        match *fate {
+            Partly::Exact => partial.push((a, b)),
+            Partly::Refine(x) => {
+                let other = if x == a { b } else { a };
+                next.extend(children(view, vn, x).map(|c| (c.min(other), c.max(other))));
             }
-            links.near += 1;
-        } else if seen == total {
-            links.pairs.push((a, Link::far(b, fraction)));
-            links.pairs.push((b, Link::far(a, fraction)));
-            links.far += 1;
-        } else if va.vleaf && vb.vleaf {
-            partial.push((a, b));
-        } else if let Some(x) = [a, b]
-            .into_iter()
-            .find(|&x| close[x as usize] && !vn[x as usize].vleaf)
-            .filter(|_| {
-                let least = p.refine_form_factor * crate::close::REFINE_SHARE;
-                form_factors(view, va, vb, r) >= least
-            })
-        {
-            // An occluder close to one of the two changes its splats' visibility sharply
-            // (crate::close): refine that one down to a smaller form factor.
-            let other = if x == a { b } else { a };
-            next.extend(children(view, vn, x).map(|c| (c.min(other), c.max(other))));
-        } else if p.refine_form_factor > 0.0 && form_factors(view, va, vb, r) < p.refine_form_factor
-        {
-            // Too little light flows between the two to be worth resolving the shadow edge
-            // (hierarchical radiosity's importance criterion): keep the partial link.
-            links.pairs.push((a, Link::far(b, fraction)));
-            links.pairs.push((b, Link::far(a, fraction)));
-            links.far += 1;
-        } else {
-            split(view, vn, a, b, &mut next);
+            Partly::Keep | Partly::Split => split(view, vn, a, b, &mut next),
         }
     }
     Ok((next, partial))
@@ -404,20 +533,14 @@ fn link_fraction(wvis: f32, wsum: f32, seen: usize, total: usize) -> Option<f32>
 /// The larger of the two form factors F_AB, F_BA estimated from a pair's sample weights: the
 /// mean weight times the number of splat pairs over π estimates Σ A_i A_j cos cos / (π r²), the
 /// area-weighted form factor between the nodes; divide by each node's area.
-fn form_factors(view: &OctreeView, va: &VNode, vb: &VNode, samples: &[(Ray, f32)]) -> f32 {
+fn form_factors(va: &VNode, vb: &VNode, samples: &[(Ray, f32)]) -> f32 {
     if samples.is_empty() {
         return 0.0;
     }
     let mean = samples.iter().map(|s| s.1 as f64).sum::<f64>() / samples.len() as f64;
     let pairs = va.count() as f64 * vb.count() as f64;
     let total = mean * pairs / std::f64::consts::PI;
-    let area = |v: &VNode| {
-        view.splat_area[v.lo as usize..v.hi as usize]
-            .iter()
-            .map(|&a| a as f64)
-            .sum::<f64>()
-            .max(1e-30)
-    };
+    let area = |v: &VNode| v.area.max(1e-30);
     (total / area(va)).max(total / area(vb)) as f32
 }
 

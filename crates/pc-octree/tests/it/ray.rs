@@ -256,3 +256,73 @@ fn packed_leaf_lists_give_identical_hits() {
         );
     }
 }
+
+/// The packed walk skips whole internal nodes whose disks all lie in a thin slab the ray's
+/// stretch misses: the hits stay identical, on the rays the V-map casts most (segments between
+/// two splats, which leave one wall and end just before another) and on the others, and the
+/// walk visits fewer cells.
+#[test]
+fn node_slabs_skip_cells_without_changing_a_hit() {
+    // Walls and a densely sampled ball: curved nodes get slabs too, thicker ones.
+    let (mut s, classes) = mixed_scene(0.025);
+    s.sphere(Vec3::new(0.3, 0.2, -0.4), 0.35, 12000, 0);
+    let o = s
+        .build(
+            &classes,
+            OctreeParams {
+                max_leaf_points: 8,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    let view = o.view();
+    let accel = pc_tree::accel::Accel::new(&view);
+    assert!(
+        accel.slabbed_nodes() >= 1000,
+        "{} node slabs",
+        accel.slabbed_nodes()
+    );
+    accel.verify_slabs().unwrap();
+    let mut rng = Pcg64::seed_from_u64(34);
+    let (mut packed, mut plain) = (TraversalStats::default(), TraversalStats::default());
+    let n = view.splats.len();
+    let mut blocked = 0;
+    for k in 0..20000 {
+        let a = &view.splats[rng.random_range(0..n)];
+        let r = if k % 2 == 0 {
+            // A V-map ray: from one splat to another, its self-hit distance off either end.
+            let b = &view.splats[rng.random_range(0..n)];
+            let (pa, pb) = (Vec3::from(a.position), Vec3::from(b.position));
+            let len = (pb - pa).length();
+            if len < 1e-3 {
+                continue;
+            }
+            let mut r = Ray::new(pa, (pb - pa) / len);
+            r.t_min = 0.5 * a.radius;
+            r.t_max = (len - 0.5 * b.radius).max(r.t_min);
+            r
+        } else {
+            // A bounce ray leaving a splat.
+            let n = Vec3::from(a.normal);
+            let d = random_dir(&mut rng);
+            let mut r = Ray::new(Vec3::from(a.position), if d.dot(n) < 0.0 { -d } else { d });
+            r.t_min = 0.5 * a.radius;
+            r
+        };
+        let occluded = pc_tree::occluded(&view, &r, &mut plain);
+        blocked += occluded as usize;
+        assert_eq!(accel.occluded(&view, &r, &mut packed), occluded, "ray {k}");
+        assert_eq!(
+            accel.intersect(&view, &r, &mut packed),
+            pc_tree::intersect(&view, &r, &mut plain),
+            "ray {k}"
+        );
+    }
+    assert!(blocked > 2000, "{blocked} blocked");
+    assert!(
+        packed.cells * 4 < plain.cells * 3,
+        "cells: packed {} vs plain {}",
+        packed.cells,
+        plain.cells
+    );
+}
