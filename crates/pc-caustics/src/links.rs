@@ -206,44 +206,50 @@ pub fn aims(
 ) -> Vec<Aim> {
     let diffuse = Prefix::new(leaves, &|l| !class::is_specular(l.class));
     let specular = Prefix::new(leaves, &|l| class::is_specular(l.class));
-    let mut plans: Vec<LinkPlan> = Vec::new();
-    for x in 0..v.node_range.len() {
-        let row = v.links_of(x);
-        if row.is_empty() {
-            continue;
-        }
-        let [xlo, xhi] = v.node_range[x];
-        let xr = leaves.within(xlo, xhi);
-        let (ax, cx, nx) = diffuse.part(&xr);
-        if ax <= 0.0 {
-            continue;
-        }
-        for link in row.iter().filter(|k| k.fraction > 0.0) {
-            let y_splats = v.node_range[link.slot() as usize];
-            let yr = leaves.within(y_splats[0], y_splats[1]);
-            let (ay, cy, ny) = specular.part(&yr);
-            if ay <= 0.0 {
-                continue;
-            }
-            let d = cy - cx;
-            let r2 = d.length_squared() as f64;
-            let dir = d.normalize_or_zero();
-            let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
-            let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
-            let bounded = r2 + (ax + ay) / std::f64::consts::PI;
-            let share = ax * ay * cos_x * cos_y / bounded;
-            plans.push(LinkPlan {
-                x: xr.clone(),
-                y: yr,
-                y_splats,
-                ax,
-                ay,
-                share,
-                near: link.is_near(),
-                direction: 0.0,
-            });
-        }
+    if specular.part(&(0..leaves.leaves.len())).0 <= 0.0 {
+        return Vec::new(); // no specular surface: no path to plan
     }
+    // Every V-map link from a node with diffuse splats to one with specular splats, in node
+    // order (rayon keeps it).
+    let mut plans: Vec<LinkPlan> = (0..v.node_range.len())
+        .into_par_iter()
+        .flat_map_iter(|x| {
+            let row = v.links_of(x);
+            let [xlo, xhi] = v.node_range[x];
+            let xr = leaves.within(xlo, xhi);
+            let (ax, cx, nx) = match row.is_empty() {
+                true => (0.0, Vec3::ZERO, Vec3::ZERO),
+                false => diffuse.part(&xr),
+            };
+            let links = row.iter().filter(move |k| ax > 0.0 && k.fraction > 0.0);
+            let specular = &specular;
+            links.filter_map(move |link| {
+                let y_splats = v.node_range[link.slot() as usize];
+                let yr = leaves.within(y_splats[0], y_splats[1]);
+                let (ay, cy, ny) = specular.part(&yr);
+                if ay <= 0.0 {
+                    return None;
+                }
+                let d = cy - cx;
+                let r2 = d.length_squared() as f64;
+                let dir = d.normalize_or_zero();
+                let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
+                let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
+                let bounded = r2 + (ax + ay) / std::f64::consts::PI;
+                let share = ax * ay * cos_x * cos_y / bounded;
+                Some(LinkPlan {
+                    x: xr.clone(),
+                    y: yr,
+                    y_splats,
+                    ax,
+                    ay,
+                    share,
+                    near: link.is_near(),
+                    direction: 0.0,
+                })
+            })
+        })
+        .collect();
     // Near links: the centroids say little about parts that touch (from the floor beside a
     // ball's contact, the ball's centroid lies at a grazing angle, yet it fills most of the
     // sky). Their share and strategy mix follow a pilot estimate of the form factor instead.

@@ -399,6 +399,10 @@ const THIN: f32 = 0.25;
 /// (nearly one orientation); the others are not worth the pass over their disks.
 const ALIGNED: f32 = 0.9;
 
+/// Nor where more disks than this are listed below it: the pass over a node's disks is repeated
+/// at every level, and the few nodes above this size seldom lie in one thin slab.
+const MAX_SLAB_DISKS: u32 = 1 << 20;
+
 /// The view's tree as [`Block`]s, depth first, with the slab of each internal node's listed
 /// disks (every leaf below it) where it is thin. Without room for the pointers (over 67M
 /// internal nodes) the blocks carry no slabs.
@@ -487,15 +491,31 @@ fn blocks(
             sums[b as usize].1 += n;
         }
     }
-    // Each candidate's slab over every disk listed in the leaves below it (the leaves' table
-    // order need not follow the tree's near cell borders, so they are gathered by the tree).
-    let size = view.frame.size;
+    // A block whose one non-empty child is internal holds exactly that child's disks, and so
+    // its slab: along such chains (deep in a scan's tree) it is computed once.
+    let only: Vec<Option<usize>> = blocks
+        .iter()
+        .enumerate()
+        .map(|(b, block)| {
+            let mut kids = block.words.iter().filter(|&&w| !node::is_empty(w));
+            match (b, kids.next(), kids.next()) {
+                (1.., Some(&w), None) if !node::is_leaf(w) => {
+                    Some((node::ptr(w) / BLOCK_WORDS) as usize)
+                }
+                _ => None,
+            }
+        })
+        .collect();
+    // Each other candidate's slab over every disk listed in the leaves below it (the leaves'
+    // table order need not follow the tree's near cell borders, so they are gathered by the
+    // tree).
     let all: &[u32] = bytemuck::cast_slice(&blocks);
-    let slabs: Vec<Option<Slab>> = (0..blocks.len())
+    let mut slabs: Vec<Option<Slab>> = (0..blocks.len())
         .into_par_iter()
         .map(|b| {
             let (sum, n) = sums[b];
-            if b == 0 || n == 0 || sum.length() < ALIGNED * n as f32 {
+            let aligned = sum.length() >= ALIGNED * n as f32;
+            if b == 0 || n == 0 || n > MAX_SLAB_DISKS || !aligned || only[b].is_some() {
                 return None;
             }
             let mut below = Vec::new();
@@ -512,13 +532,19 @@ fn blocks(
             let disks = below
                 .iter()
                 .flat_map(|&l| run(&leaves[l as usize]).iter().flat_map(lane_disks));
-            let s = slab_about(sum.normalize(), disks);
-            let cell = size * 0.5f32.powi(info[b].1.min(64) as i32);
-            (s.hi - s.lo < THIN * cell).then_some(s)
+            Some(slab_about(sum.normalize(), disks))
         })
         .collect();
-    for (block, s) in blocks.iter_mut().zip(slabs) {
-        if let Some(s) = s {
+    for &b in order.iter().rev() {
+        if let Some(c) = only[b as usize] {
+            slabs[b as usize] = slabs[c];
+        }
+    }
+    // Kept where thin for the node's own cell.
+    let size = view.frame.size;
+    for ((block, s), &(_, depth)) in blocks.iter_mut().zip(slabs).zip(&info) {
+        let cell = size * 0.5f32.powi(depth.min(64) as i32);
+        if let Some(s) = s.filter(|s| s.hi - s.lo < THIN * cell) {
             let [ax, ay, az] = s.axis;
             block.slab = [ax, ay, az, s.lo, s.hi].map(f32::to_bits);
             block.has_slab = 1;
