@@ -29,6 +29,71 @@ pub struct Caustics<'a> {
     pub radius: f32,
     /// k of the k-nearest estimate; 0 for the fixed radius.
     pub k: u32,
+    /// Which cells hold a photon ([`Occupied`]): most shaded hits lie far from every photon
+    /// and skip the tree.
+    occupied: Occupied,
+}
+
+/// A conservative set of the cubic cells (side a little over `2r`) that hold a photon, as bits
+/// of a hash of the cell: a query at `x` looks only where one of the at most 2×2×2 cells
+/// reaching `x ± r` (padded past the rounding of the tree's distances) has its bit. Collisions
+/// only cost a lookup; no photon within `r` is ever skipped.
+struct Occupied {
+    /// Cell side; 0 where the radius is not a positive finite number (no filter).
+    side: f32,
+    bits: Vec<u64>,
+}
+
+impl Occupied {
+    const BITS: u64 = 1 << 20;
+
+    fn new(photons: &[Photon], radius: f32) -> Occupied {
+        let side = if radius.is_finite() && radius > 0.0 {
+            2.01 * radius
+        } else {
+            0.0
+        };
+        let mut o = Occupied {
+            side,
+            bits: vec![0; (Self::BITS / 64) as usize],
+        };
+        if side > 0.0 {
+            for p in photons {
+                let c = Vec3::from(p.position) / side;
+                let b = Self::bit([c.x, c.y, c.z].map(|v| v.floor() as i64));
+                o.bits[(b / 64) as usize] |= 1 << (b % 64);
+            }
+        }
+        o
+    }
+
+    fn bit(c: [i64; 3]) -> u64 {
+        let h = (c[0] as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            ^ (c[1] as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f)
+            ^ (c[2] as u64).wrapping_mul(0x1656_67b1_9e37_79f9);
+        (h ^ (h >> 29)) % Self::BITS
+    }
+
+    /// Whether a photon may lie within `r` of `x`.
+    fn maybe(&self, x: Vec3, r: f32) -> bool {
+        if self.side <= 0.0 {
+            return true;
+        }
+        let (lo, hi) = ((x - 1.001 * r) / self.side, (x + 1.001 * r) / self.side);
+        let (lo, hi) = (lo.floor().to_array(), hi.floor().to_array());
+        if (0..3).any(|k| !(hi[k] - lo[k] <= 1.0)) {
+            return true; // rounding far from the origin, or not finite: ask the tree
+        }
+        let range = |k: usize| lo[k] as i64..=hi[k] as i64;
+        range(0).any(|i| {
+            range(1).any(|j| {
+                range(2).any(|k| {
+                    let b = Self::bit([i, j, k]);
+                    self.bits[(b / 64) as usize] & (1 << (b % 64)) != 0
+                })
+            })
+        })
+    }
 }
 
 /// Whether photon `p` counts at `x` (normal `n`, radius `r`): it arrived from the front and lies
@@ -51,6 +116,7 @@ impl<'a> Caustics<'a> {
             tree,
             radius,
             k,
+            occupied: Occupied::new(photons, radius),
         }
     }
 
@@ -62,6 +128,9 @@ impl<'a> Caustics<'a> {
     /// Caustic irradiance (W/m², RGB) at `x` on a surface with unit normal `n` (its front).
     pub fn irradiance(&self, x: Vec3, n: Vec3) -> Vec3 {
         let r = self.radius;
+        if !self.occupied.maybe(x, r) {
+            return Vec3::ZERO;
+        }
         let q: [f32; 3] = x.into();
         let accept = |p: &Photon| accept(p, x, n, r);
         if let Some(k) = NonZeroUsize::new(self.k as usize) {

@@ -114,6 +114,52 @@ fn the_hashed_grid_finds_the_kd_trees_photons() {
     assert!(lit > 2000, "{lit} lookups found photons");
 }
 
+/// The lookup skips the tree where no photon's cell is near (most shaded hits): it must still
+/// find a lone photon just inside the radius, from every side, at any scale of coordinates.
+#[test]
+fn the_empty_space_filter_never_hides_a_photon() {
+    let mut rng = Pcg64::seed_from_u64(12);
+    for (scale, r) in [(1.0f32, 0.03f32), (300.0, 0.5), (0.01, 1e-4)] {
+        let photons: Vec<Photon> = room_photons(300)
+            .into_iter()
+            .map(|mut p| {
+                p.position = p.position.map(|c| c * scale);
+                p
+            })
+            .collect();
+        let c = Caustics::new(&photons, r, 0);
+        let mut found = 0;
+        for (i, p) in photons.iter().enumerate().filter(|(_, p)| p.dir[1] < 0.0) {
+            // A point on the floor at 0.9 to 0.9999 r from the photon, in any direction.
+            let a = rng.random_range(0.0f32..std::f32::consts::TAU);
+            let d = r * rng.random_range(0.9f32..0.9999);
+            let x = Vec3::from(p.position) + Vec3::new(d * a.cos(), 0.0, d * a.sin());
+            let brute: Vec3 = photons
+                .iter()
+                .filter(|q| Vec3::from(q.dir).dot(Vec3::Y) < 0.0)
+                .map(|q| {
+                    let d2 = (Vec3::from(q.position) - x).length_squared();
+                    let off = (Vec3::from(q.position) - x).dot(Vec3::Y).abs();
+                    match d2 <= r * r && off <= 0.25 * r {
+                        true => Vec3::from(q.power) * (1.0 - d2 / (r * r)).max(0.0),
+                        false => Vec3::ZERO,
+                    }
+                })
+                .sum::<Vec3>()
+                * (2.0 / (std::f32::consts::PI * r * r));
+            let e = c.irradiance(x, Vec3::Y);
+            assert!(
+                (e - brute).abs().max_element() <= 1e-3 * brute.max_element(),
+                "scale {scale}, photon {i}: {e} vs {brute}"
+            );
+            found += (e.x > 0.0) as usize;
+        }
+        assert!(found > 100, "{found} lookups found their photon");
+        // Far from every photon: nothing.
+        assert_eq!(c.irradiance(Vec3::splat(5.0 * scale), Vec3::Y), Vec3::ZERO);
+    }
+}
+
 #[test]
 fn cpu_and_gpu_render_the_same_caustics() {
     let Some(ctx) = pc_gpu::test_context() else {
