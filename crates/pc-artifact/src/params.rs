@@ -332,6 +332,21 @@ pub struct FmmParams {
     /// own direct light plus its cluster's gathered light (docs/fmm.md, "Scale").
     /// 1,000..=4,000,000,000.
     pub max_elements: u64,
+    /// Final gather (docs/fmm.md, "Final gather"): rays per gathered splat, in a stratified
+    /// √n × √n grid of cosine directions (rounded down to a square); 0: no final gather.
+    /// 0..=65,536.
+    pub gather_rays: u32,
+    /// A V-map leaf's splats are gathered when its links' shared fractions misstate the light
+    /// of some node in it by more than this share of that light, beyond three standard
+    /// deviations of the V-map's sampling (pc-vmap's `smear` section). (0, 1].
+    pub gather_error: f32,
+    /// A V-map leaf's splats are gathered, too, when at least this share of its probes finds
+    /// another surface close over it (pc-vmap's `smear` section: a ball resting on it, a box
+    /// standing on it), where what its splats see changes from splat to splat. (0, 1].
+    pub gather_contact: f32,
+    /// At most this share of the active splats is gathered, the most misstated V-map leaves
+    /// first. [0, 1].
+    pub gather_share: f32,
 }
 
 impl Default for FmmParams {
@@ -347,6 +362,10 @@ impl Default for FmmParams {
             solver: Solver::Gmres,
             relax: true,
             max_elements: 250_000,
+            gather_rays: 256,
+            gather_error: 0.02,
+            gather_contact: 0.25,
+            gather_share: 0.03,
         }
     }
 }
@@ -361,7 +380,16 @@ impl FmmParams {
         int("fmm.max_iterations", self.max_iterations, 1..=10_000)?;
         int("fmm.emitter_samples", self.emitter_samples, 0..=4096)?;
         int("fmm.emitter_probes", self.emitter_probes, 0..=4096)?;
-        int("fmm.max_elements", self.max_elements, 1_000..=4_000_000_000)
+        int("fmm.max_elements", self.max_elements, 1_000..=4_000_000_000)?;
+        int("fmm.gather_rays", self.gather_rays, 0..=65_536)?;
+        real("fmm.gather_error", self.gather_error, Excl(0.0), Incl(1.0))?;
+        real(
+            "fmm.gather_contact",
+            self.gather_contact,
+            Excl(0.0),
+            Incl(1.0),
+        )?;
+        real("fmm.gather_share", self.gather_share, Incl(0.0), Incl(1.0))
     }
 }
 

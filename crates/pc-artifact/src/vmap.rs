@@ -13,6 +13,7 @@
 //! | `node_range`    | `[u32; 2]`    | per node-pool slot: its subtree's own splats `[begin, end)` in the data pool |
 //! | `node_cone`     | `f32`         | per node-pool slot: cosine of the half-angle of its normal cone (−1: no cone) |
 //! | `vnode`         | `u32`         | per node-pool slot: 1 when the node is a V-map leaf (no link goes below it) |
+//! | `smear`         | [`Smear`]     | per node-pool slot: what its links' shared fractions misstate of its splats' visible transfer |
 
 use std::path::Path;
 
@@ -33,6 +34,32 @@ pub mod sections {
     pub const NODE_RANGE: &str = "node_range";
     pub const NODE_CONE: &str = "node_cone";
     pub const VNODE: &str = "vnode";
+    pub const SMEAR: &str = "smear";
+}
+
+/// What the fractions of the links that reach a node's splats misstate of the light they see,
+/// summed over the node's subtree from the rays the links were decided on (docs/vmap.md,
+/// "Visibility within a V-map leaf"). Area-weighted form factors, in the octree's normalised
+/// frame: `error` is the visible transfer the rays found minus the one the links give
+/// (`transfer`, ≥ 0), `variance` (≥ 0) the sampling variance of `error`. `contact`, for a
+/// V-map leaf, is the share of its probes that another surface close over it blocks (a ball
+/// resting on it: visibility changes from splat to splat), in [0, 1].
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Smear {
+    pub error: f32,
+    pub transfer: f32,
+    pub variance: f32,
+    pub contact: f32,
+}
+
+impl Smear {
+    /// Whether the links misstate the node's light by more than `share` of it, beyond `z`
+    /// standard deviations of the sampling noise.
+    pub fn exceeds(&self, share: f32, z: f32) -> bool {
+        let e = self.error.abs();
+        e > share * self.transfer && e * e > z * z * self.variance
+    }
 }
 
 /// One visibility link: the other node and the fraction of the light between the two that is
@@ -116,6 +143,7 @@ pub struct VmapView<'a> {
     pub node_range: &'a [[u32; 2]],
     pub node_cone: &'a [f32],
     pub vnode: &'a [u32],
+    pub smear: &'a [Smear],
 }
 
 impl<'a> VmapView<'a> {
@@ -128,6 +156,13 @@ impl<'a> VmapView<'a> {
             node_range: a.section(sections::NODE_RANGE)?,
             node_cone: a.section(sections::NODE_CONE)?,
             vnode: a.section(sections::VNODE)?,
+            smear: a.section(sections::SMEAR).map_err(|e| match e {
+                ArtifactError::MissingSection { .. } => a.stale(
+                    "it was made by a pc-vmap from before the `smear` section (November 2026)",
+                    "pc-vmap",
+                ),
+                e => e,
+            })?,
         })
     }
 
@@ -155,12 +190,20 @@ impl<'a> VmapView<'a> {
                 "light offsets are not a CSR index over the light links of {lights} lights"
             ));
         }
-        if self.node_cone.len() != nodes || self.vnode.len() != nodes {
+        if self.node_cone.len() != nodes || self.vnode.len() != nodes || self.smear.len() != nodes {
             return Err(format!(
-                "{} node cones and {} V-map leaf flags for {nodes} nodes",
+                "{} node cones, {} V-map leaf flags and {} smear records for {nodes} nodes",
                 self.node_cone.len(),
-                self.vnode.len()
+                self.vnode.len(),
+                self.smear.len()
             ));
+        }
+        if self.smear.iter().any(|s| {
+            !(s.error.is_finite() && s.transfer >= 0.0 && s.variance >= 0.0)
+                || !(s.transfer.is_finite() && s.variance.is_finite())
+                || !(0.0..=1.0).contains(&s.contact)
+        }) {
+            return Err("a node's smear record is not finite or has a negative sum".into());
         }
         if self
             .links

@@ -13,6 +13,7 @@ pub mod cpu;
 pub mod emitter;
 pub mod error;
 pub mod expansion;
+pub mod gather;
 pub mod gpu;
 pub mod gpu_wgsl;
 pub mod gpu_work;

@@ -72,8 +72,9 @@ impl<'a> SpecularTransfer<'a> {
         }
     }
 
-    /// `out += S radiance` (reflected radiance of the unknowns).
-    pub fn add(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    /// Each bin's density estimate of the light `radiance` (reflected radiance of the unknowns)
+    /// sends through the specular chains.
+    fn density(&self, radiance: &[[f32; 3]]) -> Vec<Vec3> {
         let l = &self.links;
         let sent = |j: u32| {
             self.unknown(j as usize)
@@ -88,7 +89,7 @@ impl<'a> SpecularTransfer<'a> {
                     .sum()
             })
             .collect();
-        let density: Vec<Vec3> = (0..l.bins())
+        (0..l.bins())
             .into_par_iter()
             .map(|b| {
                 l.smooth_of(b)
@@ -96,13 +97,31 @@ impl<'a> SpecularTransfer<'a> {
                     .map(|g| g.weight * flux[g.bin as usize])
                     .sum()
             })
-            .collect();
-        let gathered = |i: usize| -> Vec3 {
-            l.gather_of(i)
-                .iter()
-                .map(|g| g.weight * density[g.bin as usize])
-                .sum()
-        };
+            .collect()
+    }
+
+    /// What splat `i` gathers of the bins' `density`.
+    fn gathered(&self, density: &[Vec3], i: usize) -> Vec3 {
+        self.links
+            .gather_of(i)
+            .iter()
+            .map(|g| g.weight * density[g.bin as usize])
+            .sum()
+    }
+
+    /// `(S radiance)` at each of `splats` (splat indices, also in a clustered solve).
+    pub fn at_splats(&self, radiance: &[[f32; 3]], splats: &[u32]) -> Vec<[f32; 3]> {
+        let density = self.density(radiance);
+        splats
+            .par_iter()
+            .map(|&i| self.gathered(&density, i as usize).into())
+            .collect()
+    }
+
+    /// `out += S radiance` (reflected radiance of the unknowns).
+    pub fn add(&self, radiance: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        let density = self.density(radiance);
+        let gathered = |i: usize| self.gathered(&density, i);
         match self.of {
             None => out.par_iter_mut().enumerate().for_each(|(i, o)| {
                 if self.pts.active[i] {

@@ -19,6 +19,7 @@ use crate::cluster::Clustering;
 use crate::emitter::{self, EmitterRays, EmitterSampling};
 use crate::error::FmmError;
 use crate::expansion::Basis;
+use crate::gather;
 use crate::plan::{self, Plan, PlanParams};
 use crate::solve::{self, Gmres, Operator, Solution};
 use crate::specular::{SpecularTransfer, WithSpecular};
@@ -178,6 +179,54 @@ fn solve(
     }
 }
 
+/// The final gather (crate::gather): the splats of the V-map leaves whose links misstate their
+/// light take it from rays of their own, in `radiance` (per splat, solved); `unknowns` is the
+/// reflected radiance of the solve's unknowns, which `specular` carries through mirrors and
+/// glass.
+#[allow(clippy::too_many_arguments)]
+fn final_gather(
+    view: &OctreeView,
+    vmap: &VmapFile,
+    pts: &Points,
+    sys: &System,
+    radiance: &mut [[f32; 3]],
+    unknowns: &[[f32; 3]],
+    specular: Option<SpecularTransfer>,
+    p: &FmmParams,
+    backend: Backend,
+) -> Result<gather::Gathered, FmmError> {
+    let rays = gather::GatherRays::new(p.gather_rays, vmap.meta().params.self_hit);
+    let how = gather::Selection::of(p);
+    if rays.strata == 0 || gather::candidates(view, &vmap.view(), how).is_empty() {
+        return Ok(Default::default());
+    }
+    let gatherer = pc_stage::gpu_or_cpu(
+        STAGE,
+        backend,
+        |ctx| Ok::<_, FmmError>(gather::Gatherer::Gpu(gather::GpuGather::new(ctx, view)?)),
+        || {
+            Ok(gather::Gatherer::Cpu(
+                view,
+                pc_tree::accel::Accel::new(view),
+            ))
+        },
+    )?;
+    let reflected = gather::reflected(radiance, &sys.emission, &pts.active);
+    let solved = gather::Solved {
+        radiance,
+        source: &sys.source,
+        albedo: &sys.albedo,
+        reflected: &reflected,
+        active: &pts.active,
+    };
+    let through = |splats: &[u32]| specular.as_ref().map(|s| s.at_splats(unknowns, splats));
+    let g = gather::run(view, &vmap.view(), solved, how, rays, &gatherer, &through)?;
+    for (&i, l) in g.splats.iter().zip(&g.radiance) {
+        radiance[i as usize] = *l;
+    }
+    Ok(g)
+}
+
 /// Run the stage.
 pub fn run(
     cfg: &LoadedConfig,
@@ -248,6 +297,7 @@ pub fn run(
         .as_ref()
         .map(|f| f.view().specular)
         .unwrap_or_default();
+    let specular = SpecularTransfer::new(links, &pts, clusters.as_ref());
     if let Some(transfer) = SpecularTransfer::new(links, &pts, clusters.as_ref()) {
         op = Box::new(WithSpecular {
             inner: op,
@@ -258,17 +308,33 @@ pub fn run(
     progress.phase("solve");
     let t = Instant::now();
     let mut sol = solve(op.as_mut(), &s_sys, s_pts, &p, progress)?;
-    let solved = match &clusters {
+    let unknowns = gather::reflected(&sol.radiance, &s_sys.emission, &s_pts.active);
+    let mut solved = match &clusters {
         Some(c) => c.radiance(op.as_mut(), &sol, &s_sys, &sys)?,
         None => std::mem::take(&mut sol.radiance),
     };
     let solve_s = t.elapsed().as_secs_f64();
     time("solve", t);
+    drop(op);
+
+    progress.phase("final gather");
+    let t = Instant::now();
+    let gathered = final_gather(
+        &view,
+        &vmap,
+        &pts,
+        &sys,
+        &mut solved,
+        &unknowns,
+        specular,
+        &p,
+        backend,
+    )?;
+    time("final gather", t);
     timings.push((
         "per iteration".to_string(),
         solve_s / sol.residuals.len().max(1) as f64,
     ));
-    drop(op);
 
     let key = radiosity_key(
         &octree.key(),
@@ -308,6 +374,9 @@ pub fn run(
         emitter_samples: emitter.samples,
         emitter_rays: emitter.cast,
         emitter_settled: emitter.settled,
+        gather_candidates: gathered.piloted,
+        gathered_splats: gathered.splats.len() as u64,
+        gather_rays_cast: gathered.rays,
         device,
         timings,
     };
@@ -409,7 +478,7 @@ impl Stage for FmmStage {
             .find(|t| t.0 == "per iteration")
             .map_or(0.0, |t| t.1);
         format!(
-            "pc-fmm: wrote {} ({} splats{}, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs) in {:.2} s on {}",
+            "pc-fmm: wrote {} ({} splats{}, {} iterations{}, residual {:.2e}, {:.3} s per iteration; tasks: {} M2L, {} P2L, {} M2P, {} P2P over {} pairs; {} splats gathered) in {:.2} s on {}",
             s.path.display(),
             m.active_splats,
             match m.elements {
@@ -425,6 +494,7 @@ impl Stage for FmmStage {
             m.m2p,
             m.p2p,
             m.p2p_pairs,
+            m.gathered_splats,
             s.seconds,
             m.device
         )

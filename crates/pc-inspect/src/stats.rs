@@ -202,6 +202,13 @@ pub(crate) fn radiosity(f: &RadiosityFile) -> String {
             100.0 * meta.emitter_rays as f64 / meta.emitter_samples as f64
         );
     }
+    if meta.gather_candidates > 0 {
+        let _ = writeln!(
+            s,
+            "gather      {} of the {} splats of the candidate leaves took their light from rays of their own ({} rays with the pilot's; final gather)",
+            meta.gathered_splats, meta.gather_candidates, meta.gather_rays_cast
+        );
+    }
     let _ = writeln!(s, "device      {}", meta.device);
     let _ = writeln!(s, "octree      key {}", meta.octree_key);
     let _ = writeln!(s, "vmap        key {}", meta.vmap_key);
@@ -373,6 +380,7 @@ pub(crate) fn vmap(f: &VmapFile) -> String {
         v.light_offsets.len().saturating_sub(1),
         v.light_links.len()
     );
+    s.push_str(&smear_line(&v));
     let _ = writeln!(
         s,
         "parameters  theta {}, rays {}, near rays {}, leaf splats {} (used {}), self-hit {}",
@@ -398,4 +406,31 @@ pub(crate) fn vmap(f: &VmapFile) -> String {
     let _ = writeln!(s, "octree      key {}", meta.octree_key);
     s.push_str(&timings_line(&meta.timings));
     s
+}
+
+/// The V-map leaves with a surface close over them (contact shares) and the splats they hold,
+/// and the nodes whose links misstate their light beyond 2 % at 3 deviations (the `smear`
+/// section, which pc-fmm's final gather reads).
+fn smear_line(v: &pc_artifact::vmap::VmapView) -> String {
+    let mut at = [0u64; 3];
+    let mut splats = [0u64; 3];
+    let mut leaves = 0u64;
+    for (slot, m) in v.smear.iter().enumerate() {
+        if v.vnode[slot] == 0 || m.contact == 0.0 && m.transfer == 0.0 {
+            continue;
+        }
+        let [lo, hi] = v.node_range[slot];
+        leaves += (m.contact > 0.0) as u64;
+        for (k, t) in [0.25f32, 0.5, 0.75].iter().enumerate() {
+            if m.contact >= *t {
+                at[k] += 1;
+                splats[k] += (hi - lo) as u64;
+            }
+        }
+    }
+    let misstated = v.smear.iter().filter(|m| m.exceeds(0.02, 3.0)).count();
+    format!(
+        "contact     V-map leaves with a contact share of at least 0.25 / 0.5 / 0.75: {} / {} / {} ({} / {} / {} splats; {leaves} with any); {misstated} nodes misstated beyond 2 %\n",
+        at[0], at[1], at[2], splats[0], splats[1], splats[2]
+    )
 }

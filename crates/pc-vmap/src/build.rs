@@ -19,6 +19,8 @@ use rayon::prelude::*;
 use pc_gpu::GpuError;
 pub use pc_tree::caster::{Caster, CpuCaster, GpuCaster};
 
+use crate::smear::Smear;
+
 /// What the V-map needs per node-pool slot.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct VNode {
@@ -79,7 +81,7 @@ pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
 }
 
 /// Non-empty children of an internal node.
-pub(crate) fn children<'v>(
+pub fn children<'v>(
     view: &OctreeView,
     vn: &'v [VNode],
     slot: u32,
@@ -154,7 +156,8 @@ fn sample_index(v: &VNode, seed: u32, stream: u32, k: u32, m: u32) -> u32 {
 /// share of the pair's form factor, which is what the FMM multiplies it with. (A plain share of
 /// rays would do far apart, where the kernel is nearly constant, but not for near-field pairs,
 /// whose closest splats dominate the sum.) Only sample pairs whose front sides face each other
-/// carry light (one-sided surfaces), and only those are cast.
+/// carry light (one-sided surfaces), and only those are cast. Returns how many sample pairs were
+/// drawn (the cast ones and the skipped ones).
 fn pair_rays(
     view: &OctreeView,
     vn: &[VNode],
@@ -162,8 +165,8 @@ fn pair_rays(
     near: bool,
     far_rays: u32,
     p: &VmapParams,
-    out: &mut Vec<(Ray, f32)>,
-) {
+    out: &mut Vec<Sample>,
+) -> u32 {
     let stream = pcg(a ^ pcg(b));
     let (va, vb) = (&vn[a as usize], &vn[b as usize]);
     // Near-field pairs: every splat pair when there are at most `near_rays` of them (the kernel
@@ -221,16 +224,27 @@ fn pair_rays(
         let t_min = p.self_hit * ra;
         let t_max = (len - p.self_hit * rb).max(t_min);
         let w = view.splat_area[ia as usize] * view.splat_area[ib as usize] * ca * cb / (len * len);
-        out.push((
-            Ray {
+        out.push(Sample {
+            ray: Ray {
                 origin: xa,
                 dir,
                 t_min,
                 t_max,
             },
-            w,
-        ));
+            weight: w,
+            ends: [ia, ib],
+        });
     }
+    n
+}
+
+/// One sample pair of two nodes: the ray between the two splat centres, the pair's weight in
+/// the form-factor sum, and the two splats (data-pool indices).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sample {
+    pub ray: Ray,
+    pub weight: f32,
+    pub ends: [u32; 2],
 }
 
 /// Rays per batch handed to a caster (bounds the memory of a round).
@@ -271,7 +285,7 @@ fn partly(
     p: &VmapParams,
     close: &[bool],
     (a, b): (u32, u32),
-    r: &[(Ray, f32)],
+    r: &[Sample],
 ) -> Partly {
     let (va, vb) = (&vn[a as usize], &vn[b as usize]);
     if va.vleaf && vb.vleaf {
@@ -323,11 +337,11 @@ fn decide(
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
     let mut next = Vec::new();
     let mut partial = Vec::new();
-    let per_pair: Vec<(Vec<(Ray, f32)>, Partly)> = tested
+    let per_pair: Vec<(Vec<Sample>, u32, Partly)> = tested
         .par_iter()
         .map(|&(a, b, near)| {
             let mut r = Vec::with_capacity(p.rays as usize);
-            pair_rays(view, vn, (a, b), near, p.rays, p, &mut r);
+            let mut drawn = pair_rays(view, vn, (a, b), near, p.rays, p, &mut r);
             // A pair that all of a few rays find unoccluded is linked whole: a partial occluder
             // slips through with probability (1 − blocked share)^rays, and every miss brightens
             // the receiver. The pairs that carry the most light get more rays.
@@ -336,20 +350,20 @@ fn decide(
                 && form_factors(&vn[a as usize], &vn[b as usize], &r) >= p.heavy_form_factor
             {
                 r.clear();
-                pair_rays(view, vn, (a, b), near, p.heavy_rays, p, &mut r);
+                drawn = pair_rays(view, vn, (a, b), near, p.heavy_rays, p, &mut r);
             }
             let fate = if near {
                 Partly::Keep
             } else {
                 partly(vn, p, close, (a, b), &r)
             };
-            (r, fate)
+            (r, drawn, fate)
         })
         .collect();
     // 1. Probes: every ray of a near pair or of one whose partial fate needs its fraction, the
     //    probe rays of the others.
     let probing =
-        |(r, fate): &(Vec<(Ray, f32)>, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
+        |(r, _, fate): &(Vec<Sample>, u32, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
     let first: Vec<Ray> = per_pair
         .iter()
         .flat_map(|x| {
@@ -357,7 +371,7 @@ fn decide(
                 true => Box::new(probes(x.0.len())),
                 false => Box::new(0..x.0.len()),
             };
-            all.map(|i| x.0[i].0)
+            all.map(|i| x.0[i].ray)
         })
         .collect();
     let seen_first = caster.visible(&first)?;
@@ -381,17 +395,17 @@ fn decide(
             at += 1;
             any_seen |= vis[i];
             any_blocked |= !vis[i];
-            weight += if vis[i] { r[i].1 } else { 0.0 };
+            weight += if vis[i] { r[i].weight } else { 0.0 };
         }
         // Light-carrying visible probes keep the whole pair's fraction above zero (the
         // weights' sum is finite), as casting every ray would find.
-        let wsum: f32 = r.iter().map(|x| x.1).sum();
+        let wsum: f32 = r.iter().map(|x| x.weight).sum();
         let done = any_seen && any_blocked && wsum.is_finite() && weight / wsum > 0.0;
         if !done {
             rest.extend(
                 (0..r.len())
                     .filter(|&i| !is_probe(i, r.len()))
-                    .map(|i| r[i].0),
+                    .map(|i| r[i].ray),
             );
         }
         visible.push(vis);
@@ -411,7 +425,8 @@ fn decide(
     links.rays += (first.len() + rest.len()) as u64;
     // 3. Decide.
     let pairs = tested.iter().copied().zip(&per_pair);
-    for (((a, b, near), (r, fate)), (vis, &done)) in pairs.zip(visible.iter().zip(&settled)) {
+    for (((a, b, near), (r, drawn, fate)), (vis, &done)) in pairs.zip(visible.iter().zip(&settled))
+    {
         let total = r.len();
         let (va, vb) = (&vn[a as usize], &vn[b as usize]);
         if total == 0 {
@@ -440,12 +455,14 @@ fn decide(
                     links.pairs.push((b, l(a)));
                 }
                 links.near += 1;
+                links.smear.add((va, vb), *drawn, r, vis, fraction);
                 continue;
             }
             if seen == total || *fate == Partly::Keep {
                 links.pairs.push((a, Link::far(b, fraction)));
                 links.pairs.push((b, Link::far(a, fraction)));
                 links.far += 1;
+                links.smear.add((va, vb), *drawn, r, vis, fraction);
                 continue;
             }
         }
@@ -473,19 +490,19 @@ fn exact_partial(
     links: &mut Links,
 ) -> Result<(), GpuError> {
     {
-        let per_pair: Vec<Vec<(Ray, f32)>> = partial
+        let per_pair: Vec<(Vec<Sample>, u32)> = partial
             .par_iter()
             .map(|&(a, b)| {
                 let mut r = Vec::new();
-                pair_rays(view, vn, (a, b), true, p.rays, p, &mut r);
-                r
+                let drawn = pair_rays(view, vn, (a, b), true, p.rays, p, &mut r);
+                (r, drawn)
             })
             .collect();
-        let rays: Vec<Ray> = per_pair.iter().flatten().map(|r| r.0).collect();
+        let rays: Vec<Ray> = per_pair.iter().flat_map(|r| &r.0).map(|r| r.ray).collect();
         let visible = caster.visible(&rays)?;
         links.rays += rays.len() as u64;
         let mut at = 0;
-        for (&(a, b), r) in partial.iter().zip(&per_pair) {
+        for (&(a, b), (r, drawn)) in partial.iter().zip(&per_pair) {
             let vis = &visible[at..at + r.len()];
             at += r.len();
             let (wvis, wsum) = weights(r, vis);
@@ -495,6 +512,8 @@ fn exact_partial(
                 links.pairs.push((a, Link::far(b, f)));
                 links.pairs.push((b, Link::far(a, f)));
                 links.far += 1;
+                let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+                links.smear.add((va, vb), *drawn, r, vis, f);
             }
         }
     }
@@ -502,13 +521,13 @@ fn exact_partial(
 }
 
 /// The summed weights of a pair's visible samples and of all its samples.
-fn weights(samples: &[(Ray, f32)], visible: &[bool]) -> (f32, f32) {
-    let all = samples.iter().map(|x| x.1).sum();
+fn weights(samples: &[Sample], visible: &[bool]) -> (f32, f32) {
+    let all = samples.iter().map(|x| x.weight).sum();
     let seen = samples
         .iter()
         .zip(visible)
         .filter(|(_, &v)| v)
-        .map(|(x, _)| x.1)
+        .map(|(x, _)| x.weight)
         .sum();
     (seen, all)
 }
@@ -533,11 +552,11 @@ fn link_fraction(wvis: f32, wsum: f32, seen: usize, total: usize) -> Option<f32>
 /// The larger of the two form factors F_AB, F_BA estimated from a pair's sample weights: the
 /// mean weight times the number of splat pairs over π estimates Σ A_i A_j cos cos / (π r²), the
 /// area-weighted form factor between the nodes; divide by each node's area.
-fn form_factors(va: &VNode, vb: &VNode, samples: &[(Ray, f32)]) -> f32 {
+fn form_factors(va: &VNode, vb: &VNode, samples: &[Sample]) -> f32 {
     if samples.is_empty() {
         return 0.0;
     }
-    let mean = samples.iter().map(|s| s.1 as f64).sum::<f64>() / samples.len() as f64;
+    let mean = samples.iter().map(|s| s.weight as f64).sum::<f64>() / samples.len() as f64;
     let pairs = va.count() as f64 * vb.count() as f64;
     let total = mean * pairs / std::f64::consts::PI;
     let area = |v: &VNode| v.area.max(1e-30);
@@ -555,6 +574,11 @@ pub struct Links {
     pub rays: u64,
     /// Nodes with an occluder close by ([`crate::close`]).
     pub close: u64,
+    /// What the links' shared fractions misstate of each splat's visible transfer.
+    pub smear: Smear,
+    /// Per node-pool slot: the share of a V-map leaf's probes that a surface close over it
+    /// blocks ([`crate::close::contact_shares`]).
+    pub contact: Vec<f32>,
 }
 
 #[derive(Clone, Copy)]
@@ -616,12 +640,16 @@ pub fn build_links(
     caster: &dyn Caster,
     round: &mut dyn FnMut(usize, usize),
 ) -> Result<Links, GpuError> {
-    let mut links = Links::default();
+    let mut links = Links {
+        smear: Smear::new(view.splats.len()),
+        ..Default::default()
+    };
     if vn[0].count() == 0 {
         return Ok(links);
     }
     let close = crate::close::close_occluders(view, vn, p, caster)?;
     links.close = close.iter().filter(|&&c| c).count() as u64;
+    links.contact = crate::close::contact_shares(view, vn, p, caster)?;
     let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
     let mut level = 0;
     while !frontier.is_empty() {

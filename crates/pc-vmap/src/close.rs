@@ -67,7 +67,7 @@ pub fn close_occluders(
             .flat_map_iter(|(a, kids)| {
                 let reach = vn[*a as usize].radius;
                 kids.iter().flat_map(move |&c| {
-                    (0..PROBES).map(move |k| probe(view, &vn[c as usize], c, k, reach, p))
+                    (0..PROBES).map(move |k| probe(view, &vn[c as usize], c, (k, PROBES), reach, p))
                 })
             })
             .collect();
@@ -116,11 +116,68 @@ fn step_between_layers(v: &VNode, probes: &[Ray], seen: &[bool]) -> bool {
     (blocked(back) - blocked(front)).abs() >= STEP
 }
 
-/// The k-th probe of child node `v` (slot `c`): from the centre of one of its splats, cosine-
-/// distributed about the splat's normal, out to `reach`.
-fn probe(view: &OctreeView, v: &VNode, c: u32, k: u32, reach: f32, p: &VmapParams) -> Ray {
+/// Probe rays per V-map leaf for its contact share ([`contact_shares`]).
+const CONTACT_PROBES: u32 = 32;
+/// How far a contact probe reaches, in radii of its V-map leaf.
+const CONTACT_REACH: f32 = 2.0;
+
+/// Per node-pool slot: for each V-map leaf (the topmost of a subtree; others get 0), the share
+/// of [`CONTACT_PROBES`] rays from its splats (stratified along its range, cosine-distributed)
+/// that another surface blocks within [`CONTACT_REACH`] of its radii: a ball resting on the
+/// floor over the leaf, a box standing on it, the wall at a room's corner. Where something that
+/// close stands over a leaf, what the leaf's splats see of the rest of the scene changes from
+/// splat to splat, which the leaf's links, one fraction each, cannot say; pc-fmm gathers the
+/// light of such leaves splat by splat (docs/fmm.md, "Final gather").
+pub fn contact_shares(
+    view: &OctreeView,
+    vn: &[VNode],
+    p: &VmapParams,
+    caster: &dyn Caster,
+) -> Result<Vec<f32>, GpuError> {
+    let mut leaves = Vec::new();
+    let mut stack: Vec<u32> = if vn.first().is_some_and(|v| v.count() > 0) {
+        vec![0]
+    } else {
+        vec![]
+    };
+    while let Some(a) = stack.pop() {
+        match vn[a as usize].vleaf {
+            true => leaves.push(a),
+            false => stack.extend(children(view, vn, a)),
+        }
+    }
+    leaves.sort_unstable();
+    let mut share = vec![0.0f32; vn.len()];
+    let per_batch = (RAYS_PER_BATCH / CONTACT_PROBES as u64).max(1) as usize;
+    for batch in leaves.chunks(per_batch) {
+        let rays: Vec<Ray> = batch
+            .par_iter()
+            .flat_map_iter(|&a| {
+                let v = &vn[a as usize];
+                let reach = CONTACT_REACH * v.radius;
+                (0..CONTACT_PROBES).map(move |k| probe(view, v, a, (k, CONTACT_PROBES), reach, p))
+            })
+            .collect();
+        let visible = caster.visible(&rays)?;
+        for (&a, seen) in batch.iter().zip(visible.chunks(CONTACT_PROBES as usize)) {
+            share[a as usize] = seen.iter().filter(|&&s| !s).count() as f32 / seen.len() as f32;
+        }
+    }
+    Ok(share)
+}
+
+/// The k-th of m probes of node `v` (slot `c`): from the centre of one of its splats (the k-th
+/// of m strata of its range), cosine-distributed about the splat's normal, out to `reach`.
+fn probe(
+    view: &OctreeView,
+    v: &VNode,
+    c: u32,
+    (k, m): (u32, u32),
+    reach: f32,
+    p: &VmapParams,
+) -> Ray {
     let stream = pcg(c ^ 0x27d4_eb2f);
-    let (_, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, PROBES);
+    let (_, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, m);
     let (u1, u2) = (rand(p.seed, stream, k, 1), rand(p.seed, stream, k, 2));
     let (tu, tv) = tangent_frame(n.into());
     let (s, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);

@@ -4,4 +4,5 @@
 pub mod build;
 pub mod close;
 pub mod error;
+pub mod smear;
 pub mod stage;

@@ -7,7 +7,7 @@ use std::time::Instant;
 use glam::Vec3;
 use pc_artifact::octree::{OctreeFile, OctreeView};
 use pc_artifact::params::VmapParams;
-use pc_artifact::vmap::{sections, Link, VmapFile, VmapMeta};
+use pc_artifact::vmap::{sections, Link, Smear, VmapFile, VmapMeta};
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointLight};
 use pc_config::{Backend, LoadedConfig};
 use pc_stage::{Progress, Stage};
@@ -55,6 +55,7 @@ pub struct Summary {
 struct Links {
     offsets: Vec<u32>,
     links: Vec<Link>,
+    smear: Vec<Smear>,
     far: u64,
     near: u64,
     pairs: u64,
@@ -70,6 +71,7 @@ fn reusable(path: &Path, key: &Key, nodes: usize) -> Option<Links> {
     (meta.links_key == key.to_string() && v.node_range.len() == nodes).then(|| Links {
         offsets: v.link_offsets.to_vec(),
         links: v.links.to_vec(),
+        smear: v.smear.to_vec(),
         far: meta.far_links,
         near: meta.near_links,
         pairs: meta.pairs_tested,
@@ -124,10 +126,12 @@ pub fn run(
                 progress.phase(&format!("links, round {level}: {frontier} node pairs next"))
             };
             let l = build_links(&view, &vn, p, caster.as_ref(), &mut round)?;
+            let smear = l.smear.per_node(&vn, &l.contact);
             let (offsets, links) = csr(view.nodes.len(), l.pairs);
             Links {
                 offsets,
                 links,
+                smear,
                 far: l.far,
                 near: l.near,
                 pairs: l.pairs_tested,
@@ -181,6 +185,7 @@ pub fn run(
     w.section(sections::NODE_RANGE, &range)?;
     w.section(sections::NODE_CONE, &cone)?;
     w.section(sections::VNODE, &vnode)?;
+    w.section(sections::SMEAR, &links.smear)?;
     w.metadata(&meta)?;
     w.finish()?;
     Ok(Summary {

@@ -109,6 +109,7 @@ pub fn with_setup<R>(
         node_range: &node_range,
         node_cone: &cones,
         vnode: &vleaves,
+        smear: &vec![Default::default(); vn.len()],
     };
     let leaves = Leaves::new(&view, materials);
     let light = PointLight::new(light.0.into(), light.1.into());

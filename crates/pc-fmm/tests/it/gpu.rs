@@ -285,3 +285,47 @@ fn gpu_relaxed_products_match_the_cpus() {
     assert_eq!(orders, vec![3, 2, 1, 1]);
     assert_eq!(gpu.applications, 4);
 }
+
+/// The final gather's WGSL twin (shaders/fmm/gather.wgsl) casts the same rays from the same
+/// random numbers as the CPU's: on the box scene with varied radiance, every splat gathered by
+/// both, splat by splat.
+#[test]
+fn gpu_gather_matches_the_cpu() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let soa = box_scene(0.07);
+    let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
+    let view = sc.octree.view();
+    let n = view.splats.len();
+    let radiance = varied_radiance(n);
+    let splats: Vec<u32> = (0..n as u32).step_by(3).collect();
+    let rays = pc_fmm::gather::GatherRays::new(64, 0.5);
+    let accel = pc_tree::accel::Accel::new(&view);
+    let cpu = pc_fmm::gather::gather_cpu(&view, &accel, &radiance, rays, &splats);
+    let gpu = pc_fmm::gather::GpuGather::new(ctx, &view)
+        .unwrap()
+        .gather(&radiance, rays, &splats)
+        .unwrap();
+    assert_eq!(cpu.len(), gpu.len());
+    // A ray that grazes a disk's rim may hit on one side and miss on the other: at most a ray
+    // or two of a splat's 64 differ.
+    let differ = cpu
+        .iter()
+        .zip(&gpu)
+        .filter(|(c, g)| (0..3).any(|k| (c[k] - g[k]).abs() > 1e-4 * (1.0 + c[k].abs())))
+        .count();
+    let e = rel_l2(&gpu, &cpu);
+    println!(
+        "{} splats gathered, {differ} differ, relative L2 {e:.2e}",
+        splats.len()
+    );
+    assert!(e < 2e-3, "relative L2 {e}");
+    assert!(differ * 50 < splats.len(), "{differ} splats differ");
+    // Every ray of the cube's bottom meets the floor's back (nothing); the rest see light.
+    assert!(cpu
+        .iter()
+        .all(|c| c.iter().all(|v| v.is_finite() && *v >= 0.0)));
+    let lit = cpu.iter().filter(|c| c[2] > 0.0).count();
+    assert!(lit * 10 > splats.len() * 9, "{lit} splats see light");
+}

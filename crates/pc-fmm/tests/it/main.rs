@@ -4,7 +4,7 @@
 use glam::Vec3;
 use pc_artifact::octree::MaterialRecord;
 use pc_artifact::params::VmapParams;
-use pc_artifact::vmap::Link;
+use pc_artifact::vmap::{Link, Smear, VmapView};
 use pc_fmm::cpu::{direct, PhaseTimes};
 use pc_fmm::plan::{self, PlanParams};
 use pc_fmm::solve::{self, Operator};
@@ -20,12 +20,32 @@ mod contact;
 mod gpu;
 mod specular;
 
-/// An octree with its V-map links.
+/// An octree with its V-map: the links and the per-node tables.
 pub struct Scene {
     pub octree: Octree,
     pub offsets: Vec<u32>,
     pub links: Vec<Link>,
     pub materials: Vec<MaterialRecord>,
+    range: Vec<[u32; 2]>,
+    cone: Vec<f32>,
+    vnode: Vec<u32>,
+    smear: Vec<Smear>,
+}
+
+impl Scene {
+    /// The V-map as pc-vmap would write it (no light lists).
+    pub fn vmap(&self) -> VmapView<'_> {
+        VmapView {
+            link_offsets: &self.offsets,
+            links: &self.links,
+            light_offsets: &[0],
+            light_links: &[],
+            node_range: &self.range,
+            node_cone: &self.cone,
+            vnode: &self.vnode,
+            smear: &self.smear,
+        }
+    }
 }
 
 pub use pc_testkit::material::{diffuse, emitter};
@@ -63,12 +83,17 @@ pub fn scene(soa: &Soa, materials: Vec<MaterialRecord>, k: u32) -> Scene {
     let vn = vnodes(&view, p.leaf_splats);
     let caster = CpuCaster::new(&view);
     let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let smear = l.smear.per_node(&vn, &l.contact);
     let (offsets, links) = csr(view.nodes.len(), l.pairs);
     Scene {
         octree,
         offsets,
         links,
         materials,
+        range: vn.iter().map(|v| [v.lo, v.hi]).collect(),
+        cone: vn.iter().map(|v| v.cone_cos).collect(),
+        vnode: vn.iter().map(|v| v.vleaf as u32).collect(),
+        smear,
     }
 }
 

@@ -4,7 +4,6 @@
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
-use pc_artifact::vmap::VmapView;
 use pc_caustics::emit::Leaves;
 use pc_caustics::links::{self, Links};
 use pc_caustics::stage::trace_all;
@@ -13,7 +12,6 @@ use pc_fmm::solve::{self, Operator};
 use pc_fmm::specular::{SpecularTransfer, WithSpecular};
 use pc_fmm::{Basis, CpuFmm, CpuOperator};
 use pc_tree::accel::Accel;
-use pc_vmap::build::vnodes;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
@@ -24,19 +22,7 @@ use crate::{diffuse, scene, tree_and_plan, Scene, Soa};
 /// The specular links of a scene: `budget` paths, estimates of `gather` paths.
 fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
     let view = sc.octree.view();
-    let vn = vnodes(&view, 64);
-    let range: Vec<[u32; 2]> = vn.iter().map(|v| [v.lo, v.hi]).collect();
-    let cone: Vec<f32> = vn.iter().map(|v| v.cone_cos).collect();
-    let vnode: Vec<u32> = vn.iter().map(|v| v.vleaf as u32).collect();
-    let v = VmapView {
-        link_offsets: &sc.offsets,
-        links: &sc.links,
-        light_offsets: &[0],
-        light_links: &[],
-        node_range: &range,
-        node_cone: &cone,
-        vnode: &vnode,
-    };
+    let v = sc.vmap();
     let leaves = Leaves::new(&view, &sc.materials);
     let self_hit = pc_artifact::params::CausticsParams::default().self_hit;
     let aims = links::aims(&view, &leaves, &v, budget, self_hit, 5);
@@ -78,6 +64,19 @@ pub(crate) fn solve_system(
     links: Option<&Links>,
     system: &dyn Fn(&pc_fmm::tree::Points) -> pc_fmm::System,
 ) -> Vec<f32> {
+    solve_full(sc, links, system)
+        .2
+        .iter()
+        .map(|l| l[0])
+        .collect()
+}
+
+/// [`solve_system`], every channel, with the FMM's points and the system.
+pub(crate) fn solve_full(
+    sc: &Scene,
+    links: Option<&Links>,
+    system: &dyn Fn(&pc_fmm::tree::Points) -> pc_fmm::System,
+) -> (pc_fmm::tree::Points, pc_fmm::System, Vec<[f32; 3]>) {
     let (t, p, plan) = tree_and_plan(sc, 0.5, 1e-4);
     let basis = Basis::new(4);
     let mut op: Box<dyn Operator> = Box::new(CpuOperator {
@@ -107,7 +106,8 @@ pub(crate) fn solve_system(
     )
     .unwrap();
     assert!(sol.converged);
-    sol.radiance.iter().map(|l| l[0]).collect()
+    drop(op);
+    (p, sys, sol.radiance)
 }
 
 /// Worst and mean relative deviation from `want` over the diffuse splats.

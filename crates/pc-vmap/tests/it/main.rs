@@ -456,3 +456,118 @@ fn a_distant_light_through_a_skylight_lights_the_floor_below() {
         "{under} under, {beside} beside"
     );
 }
+
+/// pc-vmap's `smear` (crates/pc-vmap/src/smear.rs) against brute force on the room with a box,
+/// at V-map leaves of 64 splats: per V-map leaf, what the links' shared fractions misstate of
+/// its area-weighted visible form-factor sum, `Σ A_i (exact_i − links_i)`, and what they give
+/// (`Σ A_i links_i`), from the rays the links were decided on alone.
+#[test]
+fn the_smear_estimates_what_shared_fractions_misstate() {
+    let s = room(0.085);
+    let o = s.build(8);
+    let view = o.view();
+    let p = VmapParams {
+        refine_form_factor: 1e-3,
+        ..params(16, 64)
+    };
+    let vn = vnodes(&view, p.leaf_splats);
+    let caster = CpuCaster::new(&view);
+    let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let smear = l.smear.per_node(&vn, &l.contact);
+    let (offsets, links) = csr(view.nodes.len(), l.pairs);
+    let (exact, vmap) = form_factor_sums(&view, &vn, &offsets, &links);
+    let area = |i: u32| view.splat_area[i as usize] as f64;
+    let leaves = top_vleaves(&view, &vn);
+    let (mut z_big, mut flagged, mut caught) = (0, 0, 0);
+    let (mut err_sum, mut truth_sum, mut given_sum, mut transfer_sum) = (0.0, 0.0, 0.0, 0.0);
+    for &a in &leaves {
+        let v = &vn[a as usize];
+        let truth: f64 = (v.lo..v.hi)
+            .map(|i| area(i) * (exact[i as usize] - vmap[i as usize]))
+            .sum();
+        let given: f64 = (v.lo..v.hi).map(|i| area(i) * vmap[i as usize]).sum();
+        let m = smear[a as usize];
+        let sd = (m.variance as f64).sqrt();
+        let z = (m.error as f64 - truth) / (sd + 1e-3 * given.abs() + 1e-12);
+        z_big += (z.abs() > 4.0) as usize;
+        err_sum += m.error as f64;
+        truth_sum += truth;
+        given_sum += given;
+        transfer_sum += m.transfer as f64;
+        if truth.abs() > 0.05 * given {
+            flagged += 1;
+            caught += m.exceeds(0.02, 3.0) as usize;
+        }
+    }
+    println!(
+        "{} V-map leaves: {z_big} estimates more than 4 deviations off; misstated by over 5 %: {flagged}, of them {caught} significant; \
+         error {err_sum:.4e} (truth {truth_sum:.4e}), transfer {transfer_sum:.4e} (links give {given_sum:.4e})",
+        leaves.len()
+    );
+    assert!(leaves.len() > 20);
+    // What the links give: the smear's transfer is an estimate of the same sum.
+    assert!(
+        (transfer_sum / given_sum - 1.0).abs() < 0.05,
+        "{transfer_sum} vs {given_sum}"
+    );
+    assert!(
+        z_big * 10 <= leaves.len(),
+        "{z_big} of {} leaves off",
+        leaves.len()
+    );
+    let _ = (flagged, caught);
+}
+
+/// Contact probes: the floor's V-map leaves under a ball resting on it find it close over them;
+/// the leaves far from it find nothing.
+#[test]
+fn contact_probes_find_a_ball_resting_on_the_floor() {
+    let mut rng = Pcg64::seed_from_u64(3);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X * 2.0, Vec3::Z * -2.0, 0.04, 0, &mut rng); // floor, normal +y
+    s.sphere(Vec3::Y * 0.3, 0.3, 3000, 0);
+    let o = s.build(8);
+    let view = o.view();
+    let p = params(16, 64);
+    let vn = vnodes(&view, p.leaf_splats);
+    let caster = CpuCaster::new(&view);
+    let l = build_links(&view, &vn, &p, &caster, &mut |_, _| {}).unwrap();
+    let (mut near, mut far) = (Vec::new(), Vec::new());
+    for slot in top_vleaves(&view, &vn) {
+        let v = &vn[slot as usize];
+        let slot = slot as usize;
+        let on_floor = (v.lo..v.hi)
+            .filter(|&i| view.splats[i as usize].position[1] < 0.01)
+            .count();
+        let floor = on_floor * 2 > v.count() as usize;
+        let r = Vec3::new(v.center.x, 0.0, v.center.z).length();
+        match (floor, r) {
+            (true, r) if r < 0.2 => near.push(l.contact[slot]),
+            (true, r) if r > 0.8 && r < 1.6 => far.push(l.contact[slot]),
+            _ => {}
+        }
+    }
+    println!(
+        "contact shares of the floor's V-map leaves within 0.2 of the contact {near:?}; of {} far ones: max {:?}",
+        far.len(),
+        far.iter().copied().reduce(f32::max)
+    );
+    assert!(
+        !near.is_empty() && near.iter().all(|&c| c >= 0.5),
+        "{near:?}"
+    );
+    assert!(far.len() > 10 && far.iter().all(|&c| c == 0.0));
+}
+
+/// The topmost V-map leaves (no link goes below them).
+fn top_vleaves(view: &OctreeView, vn: &[VNode]) -> Vec<u32> {
+    let mut leaves = Vec::new();
+    let mut stack = vec![0u32];
+    while let Some(a) = stack.pop() {
+        match vn[a as usize].vleaf {
+            true => leaves.push(a),
+            false => stack.extend(pc_vmap::build::children(view, vn, a)),
+        }
+    }
+    leaves
+}

@@ -1,0 +1,489 @@
+//! The final gather (docs/fmm.md, "Final gather"): where a V-map leaf's links cannot stand for
+//! every splat in it (an occluder close to the leaf, as under a ball resting on a floor, makes
+//! visibility change from splat to splat), the splats of that leaf gather the solved light
+//! themselves, by ray casting, instead of taking the FMM's `T` at the leaf's shared fractions.
+//!
+//! Which leaves: candidates are those where pc-vmap's `smear` section (crates/pc-vmap/src/smear.rs)
+//! says some node's visible transfer differs from what its links give it by more than
+//! `gather_error` of it, beyond [`Z`] standard deviations of the V-map's sampling, or that at
+//! least `gather_contact` of the leaf's probes found another surface close over it
+//! ([`candidates`]). A pilot of a few rays per splat measures how far off each candidate's
+//! light is; those off by more than `gather_error` are gathered, the worst first, at most
+//! `gather_share` of the active splats ([`run`]).
+//!
+//! How: each splat casts a stratified grid of cosine-distributed rays from its centre, with the
+//! surface-aware self-hit rule, and averages the reflected radiance `L − Lₑ` of the splats they
+//! hit from the front ([`gather_splat`]): an unbiased estimate of `(T (L − Lₑ))_i`, the light
+//! the FMM's `T` would bring, with visibility per ray. Specular splats (whose light reaches
+//! diffuse ones through `S`), back faces and the sky give nothing. The CPU twin of
+//! `shaders/fmm/gather.wgsl` ([`GpuGather`]): the same rays from the same random numbers.
+
+use glam::Vec3;
+use pc_artifact::octree::node;
+use pc_artifact::vmap::VmapView;
+use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
+use pc_tree::accel::Accel;
+use pc_tree::gpu::{GpuOctree, OctreeParts};
+use pc_tree::rng::rand;
+use pc_tree::{first_hit_leaving, OctreeView, Ray, TraversalStats};
+use rayon::prelude::*;
+
+/// Standard deviations of the V-map's sampling noise a misstatement must stand out by.
+pub const Z: f32 = 3.0;
+
+/// Where a gather ray starts, in radii of its splat (twin of the photon tracer's `LEAVE_EPS`).
+const LEAVE_EPS: f32 = 1e-3;
+
+/// The seed of the gather's random numbers (fixed: a rerun gives the same light).
+const SEED: u32 = 0x6761_7468;
+
+/// Which V-map leaves the final gather considers and how many splats it may gather
+/// ([`candidates`], [`run`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Selection {
+    /// A candidate: some node in the leaf whose light the links misstate by more than this
+    /// share of it ([`pc_artifact::vmap::Smear::exceeds`], beyond [`Z`] deviations); gathered
+    /// when the pilot finds its light off by more than this share, too.
+    pub error: f32,
+    /// A candidate, too: at least this share of the leaf's probes blocked by a surface close
+    /// over it.
+    pub contact: f32,
+    /// At most this share of the active splats is gathered in all, the leaves the pilot finds
+    /// most off first.
+    pub share: f32,
+}
+
+impl Selection {
+    /// The selection the parameters `p` ask for.
+    pub fn of(p: &pc_artifact::params::FmmParams) -> Selection {
+        Selection {
+            error: p.gather_error,
+            contact: p.gather_contact,
+            share: p.gather_share,
+        }
+    }
+}
+
+/// Rays per splat of the pilot gather that ranks the candidates (a 4 × 4 grid).
+pub const PILOT_RAYS: u32 = 16;
+
+/// Splats of a candidate leaf whose pilot differences are summed before their magnitude is
+/// taken (consecutive in Morton order, so close together): the error under a ball changes
+/// sign across a leaf, and the pilot's noise mostly cancels within a group.
+const GROUP: usize = 8;
+
+/// What the solve gave each splat (per splat, RGB).
+#[derive(Clone, Copy)]
+pub struct Solved<'a> {
+    pub radiance: &'a [[f32; 3]],
+    /// The source term: the light that reaches a splat other than through `T` and `S`.
+    pub source: &'a [[f32; 3]],
+    pub albedo: &'a [[f32; 3]],
+    /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
+    pub reflected: &'a [[f32; 3]],
+    pub active: &'a [bool],
+}
+
+/// The V-map leaves whose links may misstate their splats' light (pc-vmap's `smear` section):
+/// a node in the leaf misstated beyond `how.error` (significant at [`Z`]), or a contact share
+/// of at least `how.contact`. Ascending node-pool slots.
+pub fn candidates(view: &OctreeView, vmap: &VmapView, how: Selection) -> Vec<u32> {
+    let mut leaves = Vec::new();
+    let mut stack: Vec<u32> = if view.nodes.is_empty() {
+        vec![]
+    } else {
+        vec![0]
+    };
+    while let Some(slot) = stack.pop() {
+        if vmap.vnode[slot as usize] != 0 {
+            let contact = vmap.smear[slot as usize].contact >= how.contact;
+            if contact || misstated(view, vmap, slot, how.error) {
+                leaves.push(slot);
+            }
+            continue;
+        }
+        stack.extend(children(view, slot));
+    }
+    leaves.sort_unstable();
+    leaves
+}
+
+/// What the final gather did ([`run`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gathered {
+    /// The gathered splats (ascending data-pool indices) and their new radiance.
+    pub splats: Vec<u32>,
+    pub radiance: Vec<[f32; 3]>,
+    /// Candidate leaves and the splats the pilot gathered in them.
+    pub candidates: u64,
+    pub piloted: u64,
+    /// Rays cast, the pilot's and the gather's.
+    pub rays: u64,
+}
+
+/// The final gather: a pilot of [`PILOT_RAYS`] rays per splat over the [`candidates`] measures
+/// how far each leaf's light is off (`ρ (G + S)` against the solve's `L − E`, summed over groups
+/// of [`GROUP`] splats before the magnitude is taken, over `|L| + 1 %` of the scene's mean: the
+/// terms of the per-pixel relative error); the leaves off by more than `how.error` are
+/// gathered with `rays`, the most off first, at most `how.share` of the active splats. Each
+/// gathered splat's radiance becomes its source plus its albedo times its gathered light and
+/// what `specular` brings it through mirrors and glass.
+pub fn run(
+    view: &OctreeView,
+    vmap: &VmapView,
+    solved: Solved,
+    how: Selection,
+    rays: GatherRays,
+    gatherer: &Gatherer,
+    specular: &dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>,
+) -> Result<Gathered, GpuError> {
+    let leaves = candidates(view, vmap, how);
+    let active = solved.active;
+    let own = |slot: u32| {
+        let [lo, hi] = vmap.node_range[slot as usize];
+        (lo..hi).filter(move |&i| active[i as usize])
+    };
+    let pilot_splats: Vec<u32> = leaves.iter().flat_map(|&l| own(l)).collect();
+    let mut out = Gathered {
+        candidates: leaves.len() as u64,
+        piloted: pilot_splats.len() as u64,
+        ..Default::default()
+    };
+    if rays.strata == 0 || pilot_splats.is_empty() {
+        return Ok(out);
+    }
+    let pilot = GatherRays {
+        strata: PILOT_RAYS.isqrt(),
+        ..rays
+    };
+    let g = gatherer.gather(solved.reflected, pilot, &pilot_splats)?;
+    let s = specular(&pilot_splats);
+    out.rays += pilot_splats.len() as u64 * PILOT_RAYS as u64;
+    let lum = |c: Vec3| (c.x + c.y + c.z) as f64;
+    let count = active.iter().filter(|&&a| a).count();
+    let mean = (0..active.len())
+        .filter(|&i| active[i])
+        .map(|i| lum(solved.radiance[i].into()))
+        .sum::<f64>()
+        / count.max(1) as f64;
+    // Per candidate leaf: how far off its light is, beyond the pilot's noise.
+    let mut ranked: Vec<(f64, u32)> = Vec::with_capacity(leaves.len());
+    let mut at = 0;
+    for &leaf in &leaves {
+        let n = own(leaf).count();
+        let range = at..at + n;
+        at += n;
+        // The difference of splat k (pilot order): what its own rays see against the solve.
+        let diff = |k: usize| {
+            let i = pilot_splats[k] as usize;
+            let through = s.as_ref().map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
+            let want = Vec3::from(solved.albedo[i]) * (Vec3::from(g[k]) + through);
+            let have = Vec3::from(solved.radiance[i]) - Vec3::from(solved.source[i]);
+            lum(want) - lum(have)
+        };
+        let off: f64 = range
+            .clone()
+            .collect::<Vec<usize>>()
+            .chunks(GROUP)
+            .map(|c| c.iter().map(|&k| diff(k)).sum::<f64>().abs())
+            .sum();
+        let light: f64 = range
+            .map(|k| lum(solved.radiance[pilot_splats[k] as usize].into()).max(0.0) + 0.01 * mean)
+            .sum();
+        let rel = if light > 0.0 { off / light } else { 0.0 };
+        if rel > how.error as f64 {
+            ranked.push((rel, leaf));
+        }
+    }
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let budget = (how.share as f64 * count as f64) as usize;
+    for (_, leaf) in ranked {
+        let n = own(leaf).count();
+        if out.splats.len() + n <= budget {
+            out.splats.extend(own(leaf));
+        }
+    }
+    out.splats.sort_unstable();
+    if out.splats.is_empty() {
+        return Ok(out);
+    }
+    let light = gatherer.gather(solved.reflected, rays, &out.splats)?;
+    let through = specular(&out.splats);
+    out.rays += out.splats.len() as u64 * (rays.strata * rays.strata) as u64;
+    out.radiance = out
+        .splats
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let i = i as usize;
+            let s = through.as_ref().map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
+            let l = Vec3::from(solved.source[i])
+                + Vec3::from(solved.albedo[i]) * (Vec3::from(light[k]) + s);
+            l.into()
+        })
+        .collect();
+    Ok(out)
+}
+
+/// Whether a node in the subtree of `slot` is misstated by more than `error` of its transfer
+/// beyond [`Z`] deviations.
+fn misstated(view: &OctreeView, vmap: &VmapView, slot: u32, error: f32) -> bool {
+    let mut stack = vec![slot];
+    while let Some(s) = stack.pop() {
+        if vmap.smear[s as usize].exceeds(error, Z) {
+            return true;
+        }
+        stack.extend(children(view, s));
+    }
+    false
+}
+
+/// The non-empty children of `slot`.
+fn children<'v>(view: &'v OctreeView<'v>, slot: u32) -> impl Iterator<Item = u32> + 'v {
+    let w = view.nodes[slot as usize];
+    let first = match node::is_leaf(w) || node::is_empty(w) {
+        true => 0,
+        false => node::ptr(w),
+    };
+    let count = if first == 0 { 0 } else { 8 };
+    (first..first + count).filter(move |&c| !node::is_empty(view.nodes[c as usize]))
+}
+
+/// How the gather casts its rays.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GatherRays {
+    /// The rays of a splat form a `strata × strata` grid over the cosine-weighted hemisphere.
+    pub strata: u32,
+    /// Δ of §8.5.6 in radii of the splat a ray leaves (the surface-aware rule).
+    pub self_hit: f32,
+}
+
+impl GatherRays {
+    /// `rays` per splat, rounded down to a square.
+    pub fn new(rays: u32, self_hit: f32) -> GatherRays {
+        GatherRays {
+            strata: (rays as f64).sqrt().floor() as u32,
+            self_hit,
+        }
+    }
+
+    /// The `k`-th ray of splat `i` (grid cell `k / strata`, `k % strata`, jittered).
+    fn ray(&self, view: &OctreeView, i: u32, k: u32) -> Ray {
+        let s = &view.splats[i as usize];
+        let m = self.strata as f32;
+        let u1 = ((k / self.strata) as f32 + rand(SEED, i, k, 0)) / m;
+        let u2 = ((k % self.strata) as f32 + rand(SEED, i, k, 1)) / m;
+        Ray {
+            origin: Vec3::from(s.position),
+            dir: pc_tree::cosine_dir(s.normal, u1, u2),
+            t_min: LEAVE_EPS * s.radius,
+            t_max: f32::INFINITY,
+        }
+    }
+}
+
+/// The mean reflected radiance that splat `i`'s rays find (`reflected`: `L − Lₑ` of every splat,
+/// zero where a splat takes no part): its gathered `T (L − Lₑ)`. WGSL twin: `gather` in
+/// shaders/fmm/gather.wgsl.
+pub fn gather_splat(
+    view: &OctreeView,
+    accel: &Accel,
+    reflected: &[[f32; 3]],
+    rays: GatherRays,
+    i: u32,
+    stats: &mut TraversalStats,
+) -> [f32; 3] {
+    let s = &view.splats[i as usize];
+    let n = Vec3::from(s.normal);
+    let skip = rays.self_hit * s.radius;
+    let count = rays.strata * rays.strata;
+    let mut sum = Vec3::ZERO;
+    for k in 0..count {
+        let ray = rays.ray(view, i, k);
+        let hit = first_hit_leaving(view.splats, &ray, n, skip, |r| {
+            accel.intersect(view, r, stats)
+        });
+        if let Some(h) = hit {
+            if Vec3::from(view.splats[h.splat as usize].normal).dot(ray.dir) < 0.0 {
+                sum += Vec3::from(reflected[h.splat as usize]);
+            }
+        }
+    }
+    (sum / count.max(1) as f32).into()
+}
+
+/// [`gather_splat`] for each of `splats` (rayon across splats).
+pub fn gather_cpu(
+    view: &OctreeView,
+    accel: &Accel,
+    reflected: &[[f32; 3]],
+    rays: GatherRays,
+    splats: &[u32],
+) -> Vec<[f32; 3]> {
+    splats
+        .par_iter()
+        .map_init(TraversalStats::default, |st, &i| {
+            gather_splat(view, accel, reflected, rays, i, st)
+        })
+        .collect()
+}
+
+/// The gather on the device it was made for.
+pub enum Gatherer<'a> {
+    Cpu(&'a OctreeView<'a>, Accel),
+    Gpu(GpuGather),
+}
+
+impl Gatherer<'_> {
+    /// [`gather_cpu`] or [`GpuGather::gather`].
+    pub fn gather(
+        &self,
+        reflected: &[[f32; 3]],
+        rays: GatherRays,
+        splats: &[u32],
+    ) -> Result<Vec<[f32; 3]>, GpuError> {
+        match self {
+            Gatherer::Cpu(view, accel) => Ok(gather_cpu(view, accel, reflected, rays, splats)),
+            Gatherer::Gpu(g) => g.gather(reflected, rays, splats),
+        }
+    }
+
+    /// What runs it, for reports.
+    pub fn device(&self) -> String {
+        match self {
+            Gatherer::Cpu(..) => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Gatherer::Gpu(g) => g.device(),
+        }
+    }
+}
+
+/// Every splat's reflected radiance `L − Lₑ` (`radiance` and `emission` per splat), zero where
+/// a splat takes no part (`active`).
+pub fn reflected(radiance: &[[f32; 3]], emission: &[[f32; 3]], active: &[bool]) -> Vec<[f32; 3]> {
+    radiance
+        .iter()
+        .zip(emission)
+        .zip(active)
+        .map(|((l, e), &a)| match a {
+            true => std::array::from_fn(|c| l[c] - e[c]),
+            false => [0.0; 3],
+        })
+        .collect()
+}
+
+/// WGSL `GatherParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuParams {
+    strata: u32,
+    self_hit: f32,
+    count: u32,
+    _pad: u32,
+}
+
+/// WGSL `GatherSlot`: the splat to gather (in) and its gathered light (out).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct GpuSlot {
+    value: [f32; 3],
+    splat: u32,
+}
+
+/// Splats per dispatch (a dispatch must stay short: drivers reset devices whose work runs for
+/// seconds).
+const SPLATS_PER_DISPATCH: usize = 1 << 14;
+
+/// The kernel's source (`shaders/fmm/gather.wgsl` with the files it requires).
+pub fn gpu_source() -> Result<String, GpuError> {
+    pc_gpu::shaders::source("fmm/gather.wgsl")
+}
+
+/// The final gather on the GPU: `shaders/fmm/gather.wgsl`, twin of [`gather_cpu`].
+pub struct GpuGather {
+    ctx: GpuContext,
+    kernel: Kernel,
+    octree: GpuOctree,
+}
+
+impl GpuGather {
+    pub fn new(ctx: GpuContext, view: &OctreeView) -> Result<GpuGather, GpuError> {
+        let mut b = vec![Binding::Uniform];
+        b.extend([Binding::ReadOnly; 7]);
+        b.push(Binding::Uniform);
+        b.push(Binding::ReadWrite);
+        let kernel = ctx.kernel("fmm/gather", &gpu_source()?, "main", &b)?;
+        let octree = GpuOctree::upload(&ctx, view, OctreeParts::Shade)?;
+        Ok(GpuGather {
+            ctx,
+            kernel,
+            octree,
+        })
+    }
+
+    /// What the GPU runs on, for reports.
+    pub fn device(&self) -> String {
+        self.ctx.describe()
+    }
+
+    /// [`gather_cpu`] on the GPU.
+    pub fn gather(
+        &self,
+        reflected: &[[f32; 3]],
+        rays: GatherRays,
+        splats: &[u32],
+    ) -> Result<Vec<[f32; 3]>, GpuError> {
+        let ctx = &self.ctx;
+        let padded: Vec<[f32; 4]> = reflected.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
+        let rb = ctx.storage("reflected", bytemuck::cast_slice(&padded))?;
+        let mut out = Vec::with_capacity(splats.len());
+        for chunk in splats.chunks(SPLATS_PER_DISPATCH) {
+            let slots: Vec<GpuSlot> = chunk
+                .iter()
+                .map(|&splat| GpuSlot {
+                    splat,
+                    ..Default::default()
+                })
+                .collect();
+            let sb = ctx.storage("gather_slots", bytemuck::cast_slice(&slots))?;
+            let params = GpuParams {
+                strata: rays.strata,
+                self_hit: rays.self_hit,
+                count: chunk.len() as u32,
+                _pad: 0,
+            };
+            let pb = ctx.uniform("gather_params", bytemuck::bytes_of(&params));
+            let binds: Vec<&pc_gpu::Buffer> =
+                self.octree.buffers().chain([&rb, &pb, &sb]).collect();
+            self.kernel.run(ctx, &binds, grid(chunk.len() as u32, 64))?;
+            let size = std::mem::size_of_val(slots.as_slice()) as u64;
+            let bytes = ctx.read(&sb, size)?;
+            let back: &[GpuSlot] = bytemuck::cast_slice(&bytes);
+            out.extend(back.iter().map(|s| s.value));
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wgsl_records_match_rust_layouts() {
+        let module = pc_gpu::validate_wgsl(&gpu_source().unwrap()).unwrap();
+        for (name, size) in [
+            ("GatherParams", std::mem::size_of::<GpuParams>()),
+            ("GatherSlot", std::mem::size_of::<GpuSlot>()),
+        ] {
+            let (got, _) = pc_gpu::wgsl_struct_layout(&module, name).unwrap();
+            assert_eq!(got as usize, size, "{name}");
+        }
+    }
+
+    #[test]
+    fn rays_round_down_to_a_square() {
+        assert_eq!(GatherRays::new(256, 0.5).strata, 16);
+        assert_eq!(GatherRays::new(255, 0.5).strata, 15);
+        assert_eq!(GatherRays::new(0, 0.5).strata, 0);
+    }
+}

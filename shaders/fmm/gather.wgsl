@@ -1,0 +1,64 @@
+// requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
+// The final gather (docs/fmm.md, "Final gather"): one thread per splat to gather, which casts a
+// stratified grid of cosine-distributed rays from its centre with the surface-aware self-hit
+// rule and averages the reflected radiance L − Lₑ of the splats they hit from the front.
+// Line-by-line twin of pc_fmm::gather::gather_splat (crates/pc-fmm/src/gather.rs), from the same
+// counter-based random numbers. Driven by pc_fmm::gather::GpuGather.
+
+struct GatherParams {
+    strata: u32,
+    self_hit: f32,
+    count: u32,
+    _pad: u32,
+}
+
+// The splat to gather (written by the host) and its gathered light (written here).
+struct GatherSlot {
+    value: vec3<f32>,
+    splat: u32,
+}
+
+// Where a gather ray starts, in radii of its splat (twin of gather::LEAVE_EPS).
+const LEAVE_EPS: f32 = 1e-3;
+// Twin of gather::SEED.
+const GATHER_SEED: u32 = 0x67617468u;
+
+@group(0) @binding(0) var<uniform> octree_frame: Frame;
+@group(0) @binding(1) var<storage, read> octree_nodes: array<u32>;
+@group(0) @binding(2) var<storage, read> begin_end: array<u32>;
+@group(0) @binding(3) var<storage, read> splats: array<Splat>;
+@group(0) @binding(4) var<storage, read> node_info: array<NodeInfo>;
+@group(0) @binding(5) var<storage, read> splat_area: array<f32>;
+@group(0) @binding(6) var<storage, read> splat_leaf: array<u32>;
+// L − Lₑ of every splat (zero where a splat takes no part); w unused.
+@group(0) @binding(7) var<storage, read> reflected: array<vec4<f32>>;
+@group(0) @binding(8) var<uniform> params: GatherParams;
+@group(0) @binding(9) var<storage, read_write> slots: array<GatherSlot>;
+
+fn gather(i: u32) -> vec3<f32> {
+    let s = splats[i];
+    let n = s.normal;
+    let skip = params.self_hit * s.radius;
+    let m = f32(params.strata);
+    let count = params.strata * params.strata;
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < count; k = k + 1u) {
+        let u1 = (f32(k / params.strata) + rand4(GATHER_SEED, i, k, 0u)) / m;
+        let u2 = (f32(k % params.strata) + rand4(GATHER_SEED, i, k, 1u)) / m;
+        let dir = cosine_dir(n, u1, u2);
+        let hit = trace_leaving(s.position, dir, n, LEAVE_EPS * s.radius, skip);
+        if hit.found && dot(splats[hit.splat].normal, dir) < 0.0 {
+            sum = sum + reflected[hit.splat].xyz;
+        }
+    }
+    return sum / f32(max(count, 1u));
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let j = gid.x + gid.y * groups.x * 64u;
+    if j >= params.count {
+        return;
+    }
+    slots[j].value = gather(slots[j].splat);
+}
