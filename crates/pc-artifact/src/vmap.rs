@@ -199,9 +199,10 @@ impl<'a> VmapView<'a> {
             ));
         }
         if self.smear.iter().any(|s| {
-            !(s.error.is_finite() && s.transfer >= 0.0 && s.variance >= 0.0)
-                || !(s.transfer.is_finite() && s.variance.is_finite())
-                || !(0.0..=1.0).contains(&s.contact)
+            let sums = [s.transfer, s.variance];
+            !(s.error.is_finite()
+                && sums.iter().all(|x| x.is_finite() && *x >= 0.0)
+                && (0.0..=1.0).contains(&s.contact))
         }) {
             return Err("a node's smear record is not finite or has a negative sum".into());
         }

@@ -121,23 +121,25 @@ pub struct Gathered {
     pub rays: u64,
 }
 
-/// The final gather: a pilot of [`PILOT_RAYS`] rays per splat over the [`candidates`] measures
-/// how far each leaf's light is off (`ρ (G + S)` against the solve's `L − E`, summed over groups
-/// of [`GROUP`] splats before the magnitude is taken, over `|L| + 1 %` of the scene's mean: the
-/// terms of the per-pixel relative error); the leaves off by more than `how.error` are
-/// gathered with `rays`, the most off first, at most `how.share` of the active splats. Each
-/// gathered splat's radiance becomes its source plus its albedo times its gathered light and
-/// what `specular` brings it through mirrors and glass.
+/// What the specular links bring each of a list of splats (`S (L − Lₑ)`), or `None` without
+/// links.
+pub type SpecularAt<'a> = &'a dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>;
+
+/// The final gather over the candidate `leaves` ([`candidates`]): a pilot of [`PILOT_RAYS`] rays
+/// per splat measures how far off each leaf's light is ([`rank`]); the leaves off by more than
+/// `how.error` are gathered with `rays`, the most off first, at most `how.share` of the active
+/// splats. Each gathered splat's radiance becomes its source plus its albedo times its gathered
+/// light and what `specular` brings it through mirrors and glass.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
-    view: &OctreeView,
     vmap: &VmapView,
+    leaves: &[u32],
     solved: Solved,
     how: Selection,
     rays: GatherRays,
     gatherer: &Gatherer,
-    specular: &dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>,
+    specular: SpecularAt,
 ) -> Result<Gathered, GpuError> {
-    let leaves = candidates(view, vmap, how);
     let active = solved.active;
     let own = |slot: u32| {
         let [lo, hi] = vmap.node_range[slot as usize];
@@ -157,47 +159,15 @@ pub fn run(
         ..rays
     };
     let g = gatherer.gather(solved.reflected, pilot, &pilot_splats)?;
-    let s = specular(&pilot_splats);
+    let through = specular(&pilot_splats);
     out.rays += pilot_splats.len() as u64 * PILOT_RAYS as u64;
-    let lum = |c: Vec3| (c.x + c.y + c.z) as f64;
-    let count = active.iter().filter(|&&a| a).count();
-    let mean = (0..active.len())
-        .filter(|&i| active[i])
-        .map(|i| lum(solved.radiance[i].into()))
-        .sum::<f64>()
-        / count.max(1) as f64;
-    // Per candidate leaf: how far off its light is, beyond the pilot's noise.
-    let mut ranked: Vec<(f64, u32)> = Vec::with_capacity(leaves.len());
-    let mut at = 0;
-    for &leaf in &leaves {
-        let n = own(leaf).count();
-        let range = at..at + n;
-        at += n;
-        // The difference of splat k (pilot order): what its own rays see against the solve.
-        let diff = |k: usize| {
-            let i = pilot_splats[k] as usize;
-            let through = s.as_ref().map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
-            let want = Vec3::from(solved.albedo[i]) * (Vec3::from(g[k]) + through);
-            let have = Vec3::from(solved.radiance[i]) - Vec3::from(solved.source[i]);
-            lum(want) - lum(have)
-        };
-        let off: f64 = range
-            .clone()
-            .collect::<Vec<usize>>()
-            .chunks(GROUP)
-            .map(|c| c.iter().map(|&k| diff(k)).sum::<f64>().abs())
-            .sum();
-        let light: f64 = range
-            .map(|k| lum(solved.radiance[pilot_splats[k] as usize].into()).max(0.0) + 0.01 * mean)
-            .sum();
-        let rel = if light > 0.0 { off / light } else { 0.0 };
-        if rel > how.error as f64 {
-            ranked.push((rel, leaf));
-        }
-    }
-    ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    let budget = (how.share as f64 * count as f64) as usize;
-    for (_, leaf) in ranked {
+    let pilot = Pilot {
+        splats: &pilot_splats,
+        gathered: &g,
+        specular: through.as_deref(),
+    };
+    let budget = (how.share as f64 * active.iter().filter(|&&a| a).count() as f64) as usize;
+    for (_, leaf) in rank(vmap, leaves, pilot, solved, how.error) {
         let n = own(leaf).count();
         if out.splats.len() + n <= budget {
             out.splats.extend(own(leaf));
@@ -215,14 +185,75 @@ pub fn run(
         .iter()
         .enumerate()
         .map(|(k, &i)| {
-            let i = i as usize;
             let s = through.as_ref().map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
-            let l = Vec3::from(solved.source[i])
-                + Vec3::from(solved.albedo[i]) * (Vec3::from(light[k]) + s);
-            l.into()
+            radiance_with(solved, i as usize, Vec3::from(light[k]) + s).into()
         })
         .collect();
     Ok(out)
+}
+
+/// Splat `i`'s radiance with `transported` light (`G + S`): its source plus its albedo times it.
+fn radiance_with(solved: Solved, i: usize, transported: Vec3) -> Vec3 {
+    Vec3::from(solved.source[i]) + Vec3::from(solved.albedo[i]) * transported
+}
+
+/// The pilot's gather of the candidate leaves' splats (in leaf order) and what the specular
+/// links bring each of them.
+#[derive(Clone, Copy)]
+struct Pilot<'a> {
+    splats: &'a [u32],
+    gathered: &'a [[f32; 3]],
+    specular: Option<&'a [[f32; 3]]>,
+}
+
+/// The candidate `leaves` whose light the pilot finds off by more than `error`, the most off
+/// first, with that relative error: the difference of each splat's radiance with its pilot's
+/// light from the solve's, summed over groups of [`GROUP`] splats before the magnitude is taken,
+/// over `|L| + 1 %` of the scene's mean (the terms of the per-pixel relative error).
+fn rank(
+    vmap: &VmapView,
+    leaves: &[u32],
+    pilot: Pilot,
+    solved: Solved,
+    error: f32,
+) -> Vec<(f64, u32)> {
+    let lum = |c: Vec3| (c.x + c.y + c.z) as f64;
+    let active = solved.active;
+    let count = active.iter().filter(|&&a| a).count();
+    let mean = (0..active.len())
+        .filter(|&i| active[i])
+        .map(|i| lum(solved.radiance[i].into()))
+        .sum::<f64>()
+        / count.max(1) as f64;
+    // Splat k of the pilot: its radiance with the pilot's light against the solve's, and the
+    // solve's with the margin.
+    let off = |k: usize| {
+        let i = pilot.splats[k] as usize;
+        let through = pilot.specular.map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
+        let want = radiance_with(solved, i, Vec3::from(pilot.gathered[k]) + through);
+        lum(want) - lum(solved.radiance[i].into())
+    };
+    let light =
+        |k: usize| lum(solved.radiance[pilot.splats[k] as usize].into()).max(0.0) + 0.01 * mean;
+    let mut ranked = Vec::new();
+    let mut at = 0;
+    for &leaf in leaves {
+        let [lo, hi] = vmap.node_range[leaf as usize];
+        let n = (lo..hi).filter(|&i| active[i as usize]).count();
+        let ks: Vec<usize> = (at..at + n).collect();
+        at += n;
+        let diff: f64 = ks
+            .chunks(GROUP)
+            .map(|c| c.iter().map(|&k| off(k)).sum::<f64>().abs())
+            .sum();
+        let light: f64 = ks.iter().map(|&k| light(k)).sum();
+        let rel = if light > 0.0 { diff / light } else { 0.0 };
+        if rel > error as f64 {
+            ranked.push((rel, leaf));
+        }
+    }
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    ranked
 }
 
 /// Whether a node in the subtree of `slot` is misstated by more than `error` of its transfer
@@ -331,7 +362,7 @@ pub fn gather_cpu(
 /// The gather on the device it was made for.
 pub enum Gatherer<'a> {
     Cpu(&'a OctreeView<'a>, Accel),
-    Gpu(GpuGather),
+    Gpu(Box<GpuGather>),
 }
 
 impl Gatherer<'_> {

@@ -197,13 +197,21 @@ fn final_gather(
 ) -> Result<gather::Gathered, FmmError> {
     let rays = gather::GatherRays::new(p.gather_rays, vmap.meta().params.self_hit);
     let how = gather::Selection::of(p);
-    if rays.strata == 0 || gather::candidates(view, &vmap.view(), how).is_empty() {
+    let leaves = match rays.strata {
+        0 => Vec::new(),
+        _ => gather::candidates(view, &vmap.view(), how),
+    };
+    if leaves.is_empty() {
         return Ok(Default::default());
     }
     let gatherer = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
-        |ctx| Ok::<_, FmmError>(gather::Gatherer::Gpu(gather::GpuGather::new(ctx, view)?)),
+        |ctx| {
+            Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(gather::GpuGather::new(
+                ctx, view,
+            )?)))
+        },
         || {
             Ok(gather::Gatherer::Cpu(
                 view,
@@ -220,7 +228,15 @@ fn final_gather(
         active: &pts.active,
     };
     let through = |splats: &[u32]| specular.as_ref().map(|s| s.at_splats(unknowns, splats));
-    let g = gather::run(view, &vmap.view(), solved, how, rays, &gatherer, &through)?;
+    let g = gather::run(
+        &vmap.view(),
+        &leaves,
+        solved,
+        how,
+        rays,
+        &gatherer,
+        &through,
+    )?;
     for (&i, l) in g.splats.iter().zip(&g.radiance) {
         radiance[i as usize] = *l;
     }

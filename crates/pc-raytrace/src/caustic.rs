@@ -81,7 +81,8 @@ impl Occupied {
         }
         let (lo, hi) = ((x - 1.001 * r) / self.side, (x + 1.001 * r) / self.side);
         let (lo, hi) = (lo.floor().to_array(), hi.floor().to_array());
-        if (0..3).any(|k| !(hi[k] - lo[k] <= 1.0)) {
+        let within = |k: usize| (hi[k] - lo[k]).partial_cmp(&1.0).is_some_and(|o| o.is_le());
+        if !(0..3).all(within) {
             return true; // rounding far from the origin, or not finite: ask the tree
         }
         let range = |k: usize| lo[k] as i64..=hi[k] as i64;

@@ -150,7 +150,8 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
     let gatherer = gather::Gatherer::Cpu(&view, pc_tree::accel::Accel::new(&view));
     let rays = gather::GatherRays::new(p.gather_rays, 0.5);
     let how = gather::Selection::of(&p);
-    let g = gather::run(&view, &sc.vmap(), solved, how, rays, &gatherer, &|_| None).unwrap();
+    let leaves = gather::candidates(&view, &sc.vmap(), how);
+    let g = gather::run(&sc.vmap(), &leaves, solved, how, rays, &gatherer, &|_| None).unwrap();
     for (&i, l) in g.splats.iter().zip(&g.radiance) {
         radiance[i as usize] = *l;
     }
