@@ -67,6 +67,10 @@ impl Selection {
 /// Rays per splat of the pilot gather that ranks the candidates (a 4 × 4 grid).
 pub const PILOT_RAYS: u32 = 16;
 
+/// The pilot visits at most this many times the splats the gather may take (`gather_share`):
+/// the candidates the V-map suspects most, where many are (a scan's rough surfaces).
+const PILOT_BUDGET: usize = 4;
+
 /// Splats of a candidate leaf whose pilot differences are summed before their magnitude is
 /// taken (consecutive in Morton order, so close together): the error under a ball changes
 /// sign across a leaf, and the pilot's noise mostly cancels within a group.
@@ -84,10 +88,19 @@ pub struct Solved<'a> {
     pub active: &'a [bool],
 }
 
+/// A V-map leaf the final gather considers ([`candidates`]), with how strongly the V-map
+/// suspects its links: its contact share, or the worst relative misstatement of a node in it
+/// (at most 1), whichever is larger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    pub slot: u32,
+    pub suspicion: f32,
+}
+
 /// The V-map leaves whose links may misstate their splats' light (pc-vmap's `smear` section):
 /// a node in the leaf misstated beyond `how.error` (significant at [`Z`]), or a contact share
 /// of at least `how.contact`. Ascending node-pool slots.
-pub fn candidates(view: &OctreeView, vmap: &VmapView, how: Selection) -> Vec<u32> {
+pub fn candidates(view: &OctreeView, vmap: &VmapView, how: Selection) -> Vec<Candidate> {
     let mut leaves = Vec::new();
     let mut stack: Vec<u32> = if view.nodes.is_empty() {
         vec![]
@@ -96,15 +109,17 @@ pub fn candidates(view: &OctreeView, vmap: &VmapView, how: Selection) -> Vec<u32
     };
     while let Some(slot) = stack.pop() {
         if vmap.vnode[slot as usize] != 0 {
-            let contact = vmap.smear[slot as usize].contact >= how.contact;
-            if contact || misstated(view, vmap, slot, how.error) {
-                leaves.push(slot);
+            let contact = vmap.smear[slot as usize].contact;
+            let contact = (contact >= how.contact).then_some(contact);
+            let misstated = misstatement(view, vmap, slot, how.error);
+            if let Some(suspicion) = contact.into_iter().chain(misstated).reduce(f32::max) {
+                leaves.push(Candidate { slot, suspicion });
             }
             continue;
         }
         stack.extend(children(view, slot));
     }
-    leaves.sort_unstable();
+    leaves.sort_unstable_by_key(|c| c.slot);
     leaves
 }
 
@@ -133,7 +148,7 @@ pub type SpecularAt<'a> = &'a dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>;
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     vmap: &VmapView,
-    leaves: &[u32],
+    candidates: &[Candidate],
     solved: Solved,
     how: Selection,
     rays: GatherRays,
@@ -145,9 +160,11 @@ pub fn run(
         let [lo, hi] = vmap.node_range[slot as usize];
         (lo..hi).filter(move |&i| active[i as usize])
     };
+    let budget = (how.share as f64 * active.iter().filter(|&&a| a).count() as f64) as usize;
+    let leaves = piloted(vmap, candidates, solved, PILOT_BUDGET * budget);
     let pilot_splats: Vec<u32> = leaves.iter().flat_map(|&l| own(l)).collect();
     let mut out = Gathered {
-        candidates: leaves.len() as u64,
+        candidates: candidates.len() as u64,
         piloted: pilot_splats.len() as u64,
         ..Default::default()
     };
@@ -166,8 +183,7 @@ pub fn run(
         gathered: &g,
         specular: through.as_deref(),
     };
-    let budget = (how.share as f64 * active.iter().filter(|&&a| a).count() as f64) as usize;
-    for (_, leaf) in rank(vmap, leaves, pilot, solved, how.error) {
+    for (_, leaf) in rank(vmap, &leaves, pilot, solved, how.error) {
         let n = own(leaf).count();
         if out.splats.len() + n <= budget {
             out.splats.extend(own(leaf));
@@ -190,6 +206,50 @@ pub fn run(
         })
         .collect();
     Ok(out)
+}
+
+/// The candidates the pilot visits (ascending slots): the most suspect first ([`Candidate`]),
+/// times the share of their light that came through the solve's transport (what the gather
+/// replaces: a leaf lit mostly directly, or hidden and dark, has little to gain), while their
+/// splats fit `splats`.
+fn piloted(vmap: &VmapView, candidates: &[Candidate], solved: Solved, splats: usize) -> Vec<u32> {
+    let lum = |c: &[f32; 3]| (c[0] + c[1] + c[2]) as f64;
+    let active = solved.active;
+    let count = active.iter().filter(|&&a| a).count().max(1);
+    let mean = (0..active.len())
+        .filter(|&i| active[i])
+        .map(|i| lum(&solved.radiance[i]))
+        .sum::<f64>()
+        / count as f64;
+    let mut ranked: Vec<(f64, u32, usize)> = candidates
+        .iter()
+        .map(|c| {
+            let [lo, hi] = vmap.node_range[c.slot as usize];
+            let (mut transported, mut light, mut n) = (0.0f64, 0.0f64, 0);
+            for i in (lo..hi).map(|i| i as usize).filter(|&i| active[i]) {
+                let (l, e) = (&solved.radiance[i], &solved.source[i]);
+                transported += (lum(l) - lum(e)).max(0.0);
+                light += lum(l).max(0.0) + 0.01 * mean;
+                n += 1;
+            }
+            let share = if light > 0.0 {
+                transported / light
+            } else {
+                0.0
+            };
+            (c.suspicion as f64 * share, c.slot, n)
+        })
+        .collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let (mut taken, mut leaves) = (0usize, Vec::new());
+    for (_, slot, n) in ranked {
+        if taken + n <= splats {
+            taken += n;
+            leaves.push(slot);
+        }
+    }
+    leaves.sort_unstable();
+    leaves
 }
 
 /// Splat `i`'s radiance with `transported` light (`G + S`): its source plus its albedo times it.
@@ -256,17 +316,20 @@ fn rank(
     ranked
 }
 
-/// Whether a node in the subtree of `slot` is misstated by more than `error` of its transfer
-/// beyond [`Z`] deviations.
-fn misstated(view: &OctreeView, vmap: &VmapView, slot: u32, error: f32) -> bool {
+/// The worst relative misstatement (at most 1) of a node in the subtree of `slot` misstated by
+/// more than `error` of its transfer beyond [`Z`] deviations; `None` where none is.
+fn misstatement(view: &OctreeView, vmap: &VmapView, slot: u32, error: f32) -> Option<f32> {
+    let mut worst = None;
     let mut stack = vec![slot];
     while let Some(s) = stack.pop() {
-        if vmap.smear[s as usize].exceeds(error, Z) {
-            return true;
+        let m = &vmap.smear[s as usize];
+        if m.exceeds(error, Z) {
+            let rel = (m.error.abs() / m.transfer.max(f32::MIN_POSITIVE)).min(1.0);
+            worst = Some(worst.map_or(rel, |w: f32| w.max(rel)));
         }
         stack.extend(children(view, s));
     }
-    false
+    worst
 }
 
 /// The non-empty children of `slot`.
