@@ -259,7 +259,7 @@ pub struct CausticsParams {
 impl Default for CausticsParams {
     fn default() -> Self {
         CausticsParams {
-            photons: 1_000_000,
+            photons: 8_000_000,
             max_bounces: 8,
             self_hit: 0.5,
             seed: 0,
