@@ -365,7 +365,7 @@ impl Default for FmmParams {
             gather_rays: 256,
             gather_error: 0.02,
             gather_contact: 0.25,
-            gather_share: 0.03,
+            gather_share: 0.02,
         }
     }
 }

@@ -7,9 +7,10 @@
 //! says some node's visible transfer differs from what its links give it by more than
 //! `gather_error` of it, beyond [`Z`] standard deviations of the V-map's sampling, or that at
 //! least `gather_contact` of the leaf's probes found another surface close over it
-//! ([`candidates`]). A pilot of a few rays per splat measures how far off each candidate's
-//! light is; those off by more than `gather_error` are gathered, the worst first, at most
-//! `gather_share` of the active splats ([`run`]).
+//! ([`candidates`]). A pilot of a few rays per splat measures how far off the light of each
+//! group of [`GROUP`] neighbouring splats in them is; the groups off by more than
+//! `gather_error` are gathered, the worst first, at most `gather_share` of the active splats
+//! ([`run`]).
 //!
 //! How: each splat casts a stratified grid of cosine-distributed rays from its centre, with the
 //! surface-aware self-hit rule, and averages the reflected radiance `L − Lₑ` of the splats they
@@ -48,7 +49,7 @@ pub struct Selection {
     /// A candidate, too: at least this share of the leaf's probes blocked by a surface close
     /// over it.
     pub contact: f32,
-    /// At most this share of the active splats is gathered in all, the leaves the pilot finds
+    /// At most this share of the active splats is gathered in all, the groups the pilot finds
     /// most off first.
     pub share: f32,
 }
@@ -71,9 +72,10 @@ pub const PILOT_RAYS: u32 = 16;
 /// the candidates the V-map suspects most, where many are (a scan's rough surfaces).
 const PILOT_BUDGET: usize = 4;
 
-/// Splats of a candidate leaf whose pilot differences are summed before their magnitude is
-/// taken (consecutive in Morton order, so close together): the error under a ball changes
-/// sign across a leaf, and the pilot's noise mostly cancels within a group.
+/// The unit the gather takes or leaves: splats of a candidate leaf consecutive in Morton order
+/// (so close together), whose pilot differences are summed before their magnitude is taken
+/// (the error under a ball changes sign across a leaf, and the pilot's noise mostly cancels
+/// within a group). Smaller than a V-map leaf, which holds up to 1,280 splats at 20M.
 const GROUP: usize = 8;
 
 /// What the solve gave each splat (per splat, RGB).
@@ -141,8 +143,9 @@ pub struct Gathered {
 pub type SpecularAt<'a> = &'a dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>;
 
 /// The final gather over the candidate `leaves` ([`candidates`]): a pilot of [`PILOT_RAYS`] rays
-/// per splat measures how far off each leaf's light is ([`rank`]); the leaves off by more than
-/// `how.error` are gathered with `rays`, the most off first, at most `how.share` of the active
+/// per splat measures how far off the light of each group of [`GROUP`] neighbouring splats is
+/// ([`rank`]); the groups off by more than `how.error` are gathered with `rays`, the most off
+/// first, at most `how.share` of the active
 /// splats. Each gathered splat's radiance becomes its source plus its albedo times its gathered
 /// light and what `specular` brings it through mirrors and glass.
 #[allow(clippy::too_many_arguments)]
@@ -183,10 +186,9 @@ pub fn run(
         gathered: &g,
         specular: through.as_deref(),
     };
-    for (_, leaf) in rank(vmap, &leaves, pilot, solved, how.error) {
-        let n = own(leaf).count();
-        if out.splats.len() + n <= budget {
-            out.splats.extend(own(leaf));
+    for (_, group) in rank(vmap, &leaves, pilot, solved, how.error) {
+        if out.splats.len() + group.len() <= budget {
+            out.splats.extend(group.map(|k| pilot_splats[k]));
         }
     }
     out.splats.sort_unstable();
@@ -266,17 +268,18 @@ struct Pilot<'a> {
     specular: Option<&'a [[f32; 3]]>,
 }
 
-/// The candidate `leaves` whose light the pilot finds off by more than `error`, the most off
-/// first, with that relative error: the difference of each splat's radiance with its pilot's
-/// light from the solve's, summed over groups of [`GROUP`] splats before the magnitude is taken,
-/// over `|L| + 1 %` of the scene's mean (the terms of the per-pixel relative error).
+/// The groups of [`GROUP`] splats of the candidate `leaves` (ranges of the pilot's splats)
+/// whose light the pilot finds off by more than `error`, the most off first, with that
+/// relative error: the difference of their radiance with the pilot's light from the solve's,
+/// summed before the magnitude is taken, over `Σ |L| + 1 %` of the scene's mean (the terms of
+/// the per-pixel relative error).
 fn rank(
     vmap: &VmapView,
     leaves: &[u32],
     pilot: Pilot,
     solved: Solved,
     error: f32,
-) -> Vec<(f64, u32)> {
+) -> Vec<(f64, std::ops::Range<usize>)> {
     let lum = |c: Vec3| (c.x + c.y + c.z) as f64;
     let active = solved.active;
     let count = active.iter().filter(|&&a| a).count();
@@ -302,18 +305,17 @@ fn rank(
         let n = (lo..hi).filter(|&i| active[i as usize]).count();
         let ks: Vec<usize> = (at..at + n).collect();
         at += n;
-        let diff: f64 = ks
-            .chunks(GROUP)
-            .map(|c| c.iter().map(|&k| off(k)).sum::<f64>().abs())
-            .sum();
-        let light: f64 = ks.iter().map(|&k| light(k)).sum();
-        let rel = if light > 0.0 { diff / light } else { 0.0 };
-        if rel > error as f64 {
-            ranked.push((rel, leaf));
+        for g in ks.chunks(GROUP) {
+            let diff = g.iter().map(|&k| off(k)).sum::<f64>().abs();
+            let light: f64 = g.iter().map(|&k| light(k)).sum();
+            let rel = if light > 0.0 { diff / light } else { 0.0 };
+            if rel > error as f64 {
+                ranked.push((rel, g[0], g.len()));
+            }
         }
     }
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    ranked
+    ranked.into_iter().map(|(r, k, n)| (r, k..k + n)).collect()
 }
 
 /// The worst relative misstatement (at most 1) of a node in the subtree of `slot` misstated by
