@@ -72,8 +72,10 @@ fn room_photons(n: usize) -> Vec<Photon> {
         .collect()
 }
 
+/// The hashed grid (the fixed-radius estimate of both renderers) against the brute-force sum over
+/// every photon, at 4,000 points of the room's floor and back wall.
 #[test]
-fn the_hashed_grid_finds_the_kd_trees_photons() {
+fn the_hashed_grid_finds_every_photon_within_the_radius() {
     let dir = tempfile::tempdir().unwrap();
     let photons = room_photons(40_000);
     let a = photon_file(&dir.path().join("photons.pcgi"), &photons);
@@ -102,22 +104,42 @@ fn the_hashed_grid_finds_the_kd_trees_photons() {
                 Vec3::Y,
             )
         };
-        let (a, b) = (c.irradiance(x, n), grid.irradiance(x, n));
+        let (a, b) = (brute(&photons, x, n, c.radius), c.irradiance(x, n));
         if a.x > 0.0 {
             lit += 1;
         }
         assert!(
             (a - b).abs().max_element() <= 1e-5 * a.max_element() + 1e-9,
-            "at {x}: kd-tree {a}, grid {b}"
+            "at {x}: every photon {a}, grid {b}"
         );
+        assert_eq!(b, grid.irradiance(x, n));
     }
     assert!(lit > 2000, "{lit} lookups found photons");
 }
 
-/// The lookup skips the tree where no photon's cell is near (most shaded hits): it must still
-/// find a lone photon just inside the radius, from every side, at any scale of coordinates.
+/// The fixed-radius estimate by brute force over every photon: those within `r` of `x` that
+/// arrived from the front of the surface of normal `n` and lie within a quarter radius of its
+/// tangent plane, under the Epanechnikov kernel.
+fn brute(photons: &[Photon], x: Vec3, n: Vec3, r: f32) -> Vec3 {
+    photons
+        .iter()
+        .filter(|q| Vec3::from(q.dir).dot(n) < 0.0)
+        .map(|q| {
+            let d2 = (Vec3::from(q.position) - x).length_squared();
+            let off = (Vec3::from(q.position) - x).dot(n).abs();
+            match d2 <= r * r && off <= 0.25 * r {
+                true => Vec3::from(q.power) * (1.0 - d2 / (r * r)).max(0.0),
+                false => Vec3::ZERO,
+            }
+        })
+        .sum::<Vec3>()
+        * (2.0 / (std::f32::consts::PI * r * r))
+}
+
+/// The grid finds a lone photon just inside the radius, from every side, at any scale of
+/// coordinates, and nothing far from every photon.
 #[test]
-fn the_empty_space_filter_never_hides_a_photon() {
+fn the_grid_never_hides_a_photon() {
     let mut rng = Pcg64::seed_from_u64(12);
     for (scale, r) in [(1.0f32, 0.03f32), (300.0, 0.5), (0.01, 1e-4)] {
         let photons: Vec<Photon> = room_photons(300)
@@ -134,19 +156,7 @@ fn the_empty_space_filter_never_hides_a_photon() {
             let a = rng.random_range(0.0f32..std::f32::consts::TAU);
             let d = r * rng.random_range(0.9f32..0.9999);
             let x = Vec3::from(p.position) + Vec3::new(d * a.cos(), 0.0, d * a.sin());
-            let brute: Vec3 = photons
-                .iter()
-                .filter(|q| Vec3::from(q.dir).dot(Vec3::Y) < 0.0)
-                .map(|q| {
-                    let d2 = (Vec3::from(q.position) - x).length_squared();
-                    let off = (Vec3::from(q.position) - x).dot(Vec3::Y).abs();
-                    match d2 <= r * r && off <= 0.25 * r {
-                        true => Vec3::from(q.power) * (1.0 - d2 / (r * r)).max(0.0),
-                        false => Vec3::ZERO,
-                    }
-                })
-                .sum::<Vec3>()
-                * (2.0 / (std::f32::consts::PI * r * r));
+            let brute = brute(&photons, x, Vec3::Y, r);
             let e = c.irradiance(x, Vec3::Y);
             assert!(
                 (e - brute).abs().max_element() <= 1e-3 * brute.max_element(),
