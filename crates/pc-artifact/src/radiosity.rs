@@ -61,11 +61,13 @@ pub struct RadiosityMeta {
     pub emitter_rays: u64,
     #[serde(default)]
     pub emitter_settled: u64,
-    /// The final gather (docs/fmm.md, "Final gather"): the splats of its candidate leaves,
-    /// which its pilot gathered, the splats whose light it took from rays of their own, and
-    /// every ray it cast.
+    /// The final gather (docs/fmm.md, "Final gather"): the splats of its candidate leaves, of
+    /// those the ones its pilot visited, the splats whose light it took from rays of their own,
+    /// and every ray it cast.
     #[serde(default)]
     pub gather_candidates: u64,
+    #[serde(default)]
+    pub gather_piloted: u64,
     #[serde(default)]
     pub gathered_splats: u64,
     #[serde(default)]

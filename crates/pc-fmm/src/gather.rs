@@ -85,9 +85,22 @@ pub struct Solved<'a> {
     /// The source term: the light that reaches a splat other than through `T` and `S`.
     pub source: &'a [[f32; 3]],
     pub albedo: &'a [[f32; 3]],
-    /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
-    pub reflected: &'a [[f32; 3]],
     pub active: &'a [bool],
+}
+
+impl Solved<'_> {
+    /// The active splats and the mean luminance (`r + g + b`) of their radiance.
+    fn active_mean(&self) -> (usize, f64) {
+        let active = (0..self.active.len()).filter(|&i| self.active[i]);
+        let count = active.clone().count();
+        let sum: f64 = active.map(|i| lum(self.radiance[i].into())).sum();
+        (count, sum / count.max(1) as f64)
+    }
+}
+
+/// The luminance the gather ranks by: `r + g + b`.
+fn lum(c: Vec3) -> f64 {
+    (c.x + c.y + c.z) as f64
 }
 
 /// A V-map leaf the final gather considers ([`candidates`]), with how strongly the V-map
@@ -131,7 +144,7 @@ pub struct Gathered {
     /// The gathered splats (ascending data-pool indices) and their new radiance.
     pub splats: Vec<u32>,
     pub radiance: Vec<[f32; 3]>,
-    /// Candidate leaves and the splats the pilot gathered in them.
+    /// The active splats of the candidate leaves, and those the pilot visited.
     pub candidates: u64,
     pub piloted: u64,
     /// Rays cast, the pilot's and the gather's.
@@ -163,11 +176,12 @@ pub fn run(
         let [lo, hi] = vmap.node_range[slot as usize];
         (lo..hi).filter(move |&i| active[i as usize])
     };
-    let budget = (how.share as f64 * active.iter().filter(|&&a| a).count() as f64) as usize;
-    let leaves = piloted(vmap, candidates, solved, PILOT_BUDGET * budget);
+    let (count, mean) = solved.active_mean();
+    let budget = (how.share as f64 * count as f64) as usize;
+    let leaves = piloted(vmap, candidates, solved, mean, PILOT_BUDGET * budget);
     let pilot_splats: Vec<u32> = leaves.iter().flat_map(|&l| own(l)).collect();
     let mut out = Gathered {
-        candidates: candidates.len() as u64,
+        candidates: candidates.iter().map(|c| own(c.slot).count() as u64).sum(),
         piloted: pilot_splats.len() as u64,
         ..Default::default()
     };
@@ -178,7 +192,7 @@ pub fn run(
         strata: PILOT_RAYS.isqrt(),
         ..rays
     };
-    let g = gatherer.gather(solved.reflected, pilot, &pilot_splats)?;
+    let g = gatherer.gather(pilot, &pilot_splats)?;
     let through = specular(&pilot_splats);
     out.rays += pilot_splats.len() as u64 * PILOT_RAYS as u64;
     let pilot = Pilot {
@@ -186,25 +200,26 @@ pub fn run(
         gathered: &g,
         specular: through.as_deref(),
     };
-    for (_, group) in rank(vmap, &leaves, pilot, solved, how.error) {
-        if out.splats.len() + group.len() <= budget {
-            out.splats.extend(group.map(|k| pilot_splats[k]));
+    // Pilot index of each gathered splat, for what the specular links bring it.
+    let mut taken: Vec<usize> = Vec::new();
+    for (_, group) in rank(vmap, &leaves, pilot, solved, mean, how.error) {
+        if taken.len() + group.len() <= budget {
+            taken.extend(group);
         }
     }
-    out.splats.sort_unstable();
+    taken.sort_unstable_by_key(|&k| pilot_splats[k]);
+    out.splats = taken.iter().map(|&k| pilot_splats[k]).collect();
     if out.splats.is_empty() {
         return Ok(out);
     }
-    let light = gatherer.gather(solved.reflected, rays, &out.splats)?;
-    let through = specular(&out.splats);
+    let light = gatherer.gather(rays, &out.splats)?;
     out.rays += out.splats.len() as u64 * (rays.strata * rays.strata) as u64;
-    out.radiance = out
-        .splats
+    out.radiance = taken
         .iter()
-        .enumerate()
-        .map(|(k, &i)| {
-            let s = through.as_ref().map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
-            radiance_with(solved, i as usize, Vec3::from(light[k]) + s).into()
+        .zip(&light)
+        .map(|(&k, l)| {
+            let s = pilot.specular.map_or(Vec3::ZERO, |s| Vec3::from(s[k]));
+            radiance_with(solved, pilot_splats[k] as usize, Vec3::from(*l) + s).into()
         })
         .collect();
     Ok(out)
@@ -214,22 +229,21 @@ pub fn run(
 /// times the share of their light that came through the solve's transport (what the gather
 /// replaces: a leaf lit mostly directly, or hidden and dark, has little to gain), while their
 /// splats fit `splats`.
-fn piloted(vmap: &VmapView, candidates: &[Candidate], solved: Solved, splats: usize) -> Vec<u32> {
-    let lum = |c: &[f32; 3]| (c[0] + c[1] + c[2]) as f64;
+fn piloted(
+    vmap: &VmapView,
+    candidates: &[Candidate],
+    solved: Solved,
+    mean: f64,
+    splats: usize,
+) -> Vec<u32> {
     let active = solved.active;
-    let count = active.iter().filter(|&&a| a).count().max(1);
-    let mean = (0..active.len())
-        .filter(|&i| active[i])
-        .map(|i| lum(&solved.radiance[i]))
-        .sum::<f64>()
-        / count as f64;
     let mut ranked: Vec<(f64, u32, usize)> = candidates
         .iter()
         .map(|c| {
             let [lo, hi] = vmap.node_range[c.slot as usize];
             let (mut transported, mut light, mut n) = (0.0f64, 0.0f64, 0);
             for i in (lo..hi).map(|i| i as usize).filter(|&i| active[i]) {
-                let (l, e) = (&solved.radiance[i], &solved.source[i]);
+                let (l, e) = (solved.radiance[i].into(), solved.source[i].into());
                 transported += (lum(l) - lum(e)).max(0.0);
                 light += lum(l).max(0.0) + 0.01 * mean;
                 n += 1;
@@ -278,16 +292,10 @@ fn rank(
     leaves: &[u32],
     pilot: Pilot,
     solved: Solved,
+    mean: f64,
     error: f32,
 ) -> Vec<(f64, std::ops::Range<usize>)> {
-    let lum = |c: Vec3| (c.x + c.y + c.z) as f64;
     let active = solved.active;
-    let count = active.iter().filter(|&&a| a).count();
-    let mean = (0..active.len())
-        .filter(|&i| active[i])
-        .map(|i| lum(solved.radiance[i].into()))
-        .sum::<f64>()
-        / count.max(1) as f64;
     // Splat k of the pilot: its radiance with the pilot's light against the solve's, and the
     // solve's with the margin.
     let off = |k: usize| {
@@ -424,30 +432,43 @@ pub fn gather_cpu(
         .collect()
 }
 
-/// The gather on the device it was made for.
+/// The gather on the device it was made for, of one solution's reflected radiance.
 pub enum Gatherer<'a> {
-    Cpu(&'a OctreeView<'a>, Accel),
+    Cpu {
+        view: &'a OctreeView<'a>,
+        accel: Accel,
+        /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
+        reflected: Vec<[f32; 3]>,
+    },
     Gpu(Box<GpuGather>),
 }
 
-impl Gatherer<'_> {
+impl<'a> Gatherer<'a> {
+    /// The CPU gather of `reflected` (per splat, [`reflected`]).
+    pub fn cpu(view: &'a OctreeView<'a>, reflected: Vec<[f32; 3]>) -> Gatherer<'a> {
+        Gatherer::Cpu {
+            view,
+            accel: Accel::new(view),
+            reflected,
+        }
+    }
+
     /// [`gather_cpu`] or [`GpuGather::gather`].
-    pub fn gather(
-        &self,
-        reflected: &[[f32; 3]],
-        rays: GatherRays,
-        splats: &[u32],
-    ) -> Result<Vec<[f32; 3]>, GpuError> {
+    pub fn gather(&self, rays: GatherRays, splats: &[u32]) -> Result<Vec<[f32; 3]>, GpuError> {
         match self {
-            Gatherer::Cpu(view, accel) => Ok(gather_cpu(view, accel, reflected, rays, splats)),
-            Gatherer::Gpu(g) => g.gather(reflected, rays, splats),
+            Gatherer::Cpu {
+                view,
+                accel,
+                reflected,
+            } => Ok(gather_cpu(view, accel, reflected, rays, splats)),
+            Gatherer::Gpu(g) => g.gather(rays, splats),
         }
     }
 
     /// What runs it, for reports.
     pub fn device(&self) -> String {
         match self {
-            Gatherer::Cpu(..) => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Gatherer::Cpu { .. } => format!("CPU ({} threads)", rayon::current_num_threads()),
             Gatherer::Gpu(g) => g.device(),
         }
     }
@@ -499,20 +520,31 @@ pub struct GpuGather {
     ctx: GpuContext,
     kernel: Kernel,
     octree: GpuOctree,
+    /// `L − Lₑ` of every splat, padded to `vec4`.
+    reflected: pc_gpu::Buffer,
 }
 
 impl GpuGather {
-    pub fn new(ctx: GpuContext, view: &OctreeView) -> Result<GpuGather, GpuError> {
+    /// Upload the octree (its shading parts too: the shared `optics.wgsl` declares them) and
+    /// the reflected radiance to gather, `reflected` ([`reflected`]).
+    pub fn new(
+        ctx: GpuContext,
+        view: &OctreeView,
+        reflected: &[[f32; 3]],
+    ) -> Result<GpuGather, GpuError> {
         let mut b = vec![Binding::Uniform];
         b.extend([Binding::ReadOnly; 7]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
         let kernel = ctx.kernel("fmm/gather", &gpu_source()?, "main", &b)?;
         let octree = GpuOctree::upload(&ctx, view, OctreeParts::Shade)?;
+        let padded: Vec<[f32; 4]> = reflected.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
+        let reflected = ctx.storage("reflected", bytemuck::cast_slice(&padded))?;
         Ok(GpuGather {
             ctx,
             kernel,
             octree,
+            reflected,
         })
     }
 
@@ -522,15 +554,9 @@ impl GpuGather {
     }
 
     /// [`gather_cpu`] on the GPU.
-    pub fn gather(
-        &self,
-        reflected: &[[f32; 3]],
-        rays: GatherRays,
-        splats: &[u32],
-    ) -> Result<Vec<[f32; 3]>, GpuError> {
+    pub fn gather(&self, rays: GatherRays, splats: &[u32]) -> Result<Vec<[f32; 3]>, GpuError> {
         let ctx = &self.ctx;
-        let padded: Vec<[f32; 4]> = reflected.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
-        let rb = ctx.storage("reflected", bytemuck::cast_slice(&padded))?;
+        let rb = &self.reflected;
         let mut out = Vec::with_capacity(splats.len());
         for chunk in splats.chunks(SPLATS_PER_DISPATCH) {
             let slots: Vec<GpuSlot> = chunk
@@ -548,8 +574,7 @@ impl GpuGather {
                 _pad: 0,
             };
             let pb = ctx.uniform("gather_params", bytemuck::bytes_of(&params));
-            let binds: Vec<&pc_gpu::Buffer> =
-                self.octree.buffers().chain([&rb, &pb, &sb]).collect();
+            let binds: Vec<&pc_gpu::Buffer> = self.octree.buffers().chain([rb, &pb, &sb]).collect();
             self.kernel.run(ctx, &binds, grid(chunk.len() as u32, 64))?;
             let size = std::mem::size_of_val(slots.as_slice()) as u64;
             let bytes = ctx.read(&sb, size)?;

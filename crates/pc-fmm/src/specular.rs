@@ -73,8 +73,8 @@ impl<'a> SpecularTransfer<'a> {
     }
 
     /// Each bin's density estimate of the light `radiance` (reflected radiance of the unknowns)
-    /// sends through the specular chains.
-    fn density(&self, radiance: &[[f32; 3]]) -> Vec<Vec3> {
+    /// sends through the specular chains (what [`SpecularTransfer::at_splats`] reads).
+    pub fn density(&self, radiance: &[[f32; 3]]) -> Vec<Vec3> {
         let l = &self.links;
         let sent = |j: u32| {
             self.unknown(j as usize)
@@ -109,12 +109,12 @@ impl<'a> SpecularTransfer<'a> {
             .sum()
     }
 
-    /// `(S radiance)` at each of `splats` (splat indices, also in a clustered solve).
-    pub fn at_splats(&self, radiance: &[[f32; 3]], splats: &[u32]) -> Vec<[f32; 3]> {
-        let density = self.density(radiance);
+    /// `(S radiance)` at each of `splats` (splat indices, also in a clustered solve), from the
+    /// bins' [`SpecularTransfer::density`] of `radiance`.
+    pub fn at_splats(&self, density: &[Vec3], splats: &[u32]) -> Vec<[f32; 3]> {
         splats
             .par_iter()
-            .map(|&i| self.gathered(&density, i as usize).into())
+            .map(|&i| self.gathered(density, i as usize).into())
             .collect()
     }
 
@@ -147,7 +147,7 @@ impl<'a> SpecularTransfer<'a> {
 /// An operator and the specular transfer: `T + S`.
 pub struct WithSpecular<'a> {
     pub inner: Box<dyn Operator + 'a>,
-    pub transfer: SpecularTransfer<'a>,
+    pub transfer: &'a SpecularTransfer<'a>,
 }
 
 impl Operator for WithSpecular<'_> {

@@ -180,9 +180,9 @@ fn solve(
 }
 
 /// The final gather (crate::gather): the splats of the V-map leaves whose links misstate their
-/// light take it from rays of their own, in `radiance` (per splat, solved); `unknowns` is the
-/// reflected radiance of the solve's unknowns, which `specular` carries through mirrors and
-/// glass.
+/// light take it from rays of their own, in `radiance` (per splat, solved); `specular` is the
+/// specular links' transfer with its bins' density of the solution, which carries light to them
+/// through mirrors and glass.
 #[allow(clippy::too_many_arguments)]
 fn final_gather(
     view: &OctreeView,
@@ -190,8 +190,7 @@ fn final_gather(
     pts: &Points,
     sys: &System,
     radiance: &mut [[f32; 3]],
-    unknowns: &[[f32; 3]],
-    specular: Option<SpecularTransfer>,
+    specular: Option<(&SpecularTransfer, Vec<Vec3>)>,
     p: &FmmParams,
     backend: Backend,
 ) -> Result<gather::Gathered, FmmError> {
@@ -204,30 +203,28 @@ fn final_gather(
     if leaves.is_empty() {
         return Ok(Default::default());
     }
+    let reflected = gather::reflected(radiance, &sys.emission, &pts.active);
     let gatherer = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
         |ctx| {
-            Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(gather::GpuGather::new(
-                ctx, view,
-            )?)))
+            let g = gather::GpuGather::new(ctx, view, &reflected)?;
+            Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(g)))
         },
-        || {
-            Ok(gather::Gatherer::Cpu(
-                view,
-                pc_tree::accel::Accel::new(view),
-            ))
-        },
+        || Ok(gather::Gatherer::cpu(view, reflected.clone())),
     )?;
-    let reflected = gather::reflected(radiance, &sys.emission, &pts.active);
+    drop(reflected);
     let solved = gather::Solved {
         radiance,
         source: &sys.source,
         albedo: &sys.albedo,
-        reflected: &reflected,
         active: &pts.active,
     };
-    let through = |splats: &[u32]| specular.as_ref().map(|s| s.at_splats(unknowns, splats));
+    let through = |splats: &[u32]| {
+        specular
+            .as_ref()
+            .map(|(s, density)| s.at_splats(density, splats))
+    };
     let g = gather::run(
         &vmap.view(),
         &leaves,
@@ -306,15 +303,15 @@ pub fn run(
     let plan = plan::build(s_tree, s_pts, v.link_offsets, v.links, plan_params);
     time("plan", t);
 
-    let basis = Basis::new(p.order as usize);
-    let mut op = operator(backend, &basis, s_tree, s_pts, &plan)?;
     // Light through mirrors and glass between diffuse splats: pc-caustics' specular links.
     let links = photons
         .as_ref()
         .map(|f| f.view().specular)
         .unwrap_or_default();
     let specular = SpecularTransfer::new(links, &pts, clusters.as_ref());
-    if let Some(transfer) = SpecularTransfer::new(links, &pts, clusters.as_ref()) {
+    let basis = Basis::new(p.order as usize);
+    let mut op = operator(backend, &basis, s_tree, s_pts, &plan)?;
+    if let Some(transfer) = &specular {
         op = Box::new(WithSpecular {
             inner: op,
             transfer,
@@ -324,7 +321,11 @@ pub fn run(
     progress.phase("solve");
     let t = Instant::now();
     let mut sol = solve(op.as_mut(), &s_sys, s_pts, &p, progress)?;
-    let unknowns = gather::reflected(&sol.radiance, &s_sys.emission, &s_pts.active);
+    // What the links carry of the solution, for the final gather's splats.
+    let specular = specular.as_ref().map(|s| {
+        let unknowns = gather::reflected(&sol.radiance, &s_sys.emission, &s_pts.active);
+        (s, s.density(&unknowns))
+    });
     let mut solved = match &clusters {
         Some(c) => c.radiance(op.as_mut(), &sol, &s_sys, &sys)?,
         None => std::mem::take(&mut sol.radiance),
@@ -335,17 +336,7 @@ pub fn run(
 
     progress.phase("final gather");
     let t = Instant::now();
-    let gathered = final_gather(
-        &view,
-        &vmap,
-        &pts,
-        &sys,
-        &mut solved,
-        &unknowns,
-        specular,
-        &p,
-        backend,
-    )?;
+    let gathered = final_gather(&view, &vmap, &pts, &sys, &mut solved, specular, &p, backend)?;
     time("final gather", t);
     timings.push((
         "per iteration".to_string(),
@@ -390,7 +381,8 @@ pub fn run(
         emitter_samples: emitter.samples,
         emitter_rays: emitter.cast,
         emitter_settled: emitter.settled,
-        gather_candidates: gathered.piloted,
+        gather_candidates: gathered.candidates,
+        gather_piloted: gathered.piloted,
         gathered_splats: gathered.splats.len() as u64,
         gather_rays_cast: gathered.rays,
         device,

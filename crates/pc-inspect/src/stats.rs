@@ -205,8 +205,8 @@ pub(crate) fn radiosity(f: &RadiosityFile) -> String {
     if meta.gather_candidates > 0 {
         let _ = writeln!(
             s,
-            "gather      {} of the {} splats of the candidate leaves took their light from rays of their own ({} rays with the pilot's; final gather)",
-            meta.gathered_splats, meta.gather_candidates, meta.gather_rays_cast
+            "gather      {} of the {} splats of the candidate leaves ({} piloted) took their light from rays of their own ({} rays with the pilot's; final gather)",
+            meta.gathered_splats, meta.gather_candidates, meta.gather_piloted, meta.gather_rays_cast
         );
     }
     let _ = writeln!(s, "device      {}", meta.device);

@@ -49,10 +49,10 @@ impl Smear {
             (pairs / (drawn as f64 * std::f64::consts::PI)) as f32 * if same { 0.5 } else { 1.0 };
         for (s, &v) in samples.iter().zip(visible) {
             let x = sigma * s.weight;
-            if !x.is_finite() {
-                continue;
-            }
             let err = x * (v as u32 as f32 - fraction);
+            if !(err * err).is_finite() || !(x * fraction).is_finite() {
+                continue; // a pair of splats nearly on top of each other: no estimate
+            }
             for end in s.ends {
                 let acc = &mut self.per_splat[end as usize];
                 acc[0] += err;
@@ -76,7 +76,12 @@ impl Smear {
                 if hi <= lo || hi >= prefix.len() {
                     return NodeSmear::default();
                 }
-                let d = |k: usize| (prefix[hi][k] - prefix[lo][k]) as f32;
+                // Sums past f32's range (the reader refuses what is not finite) say nothing.
+                let d = |k: usize| {
+                    Some((prefix[hi][k] - prefix[lo][k]) as f32)
+                        .filter(|v| v.is_finite())
+                        .unwrap_or(0.0)
+                };
                 NodeSmear {
                     error: d(0),
                     transfer: d(1).max(0.0),

@@ -144,10 +144,9 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
         radiance: &radiance,
         source: &sys.source,
         albedo: &sys.albedo,
-        reflected: &reflected,
         active: &pts.active,
     };
-    let gatherer = gather::Gatherer::Cpu(&view, pc_tree::accel::Accel::new(&view));
+    let gatherer = gather::Gatherer::cpu(&view, reflected);
     let rays = gather::GatherRays::new(p.gather_rays, 0.5);
     let how = gather::Selection::of(&p);
     let leaves = gather::candidates(&view, &sc.vmap(), how);

@@ -303,9 +303,9 @@ fn gpu_gather_matches_the_cpu() {
     let rays = pc_fmm::gather::GatherRays::new(64, 0.5);
     let accel = pc_tree::accel::Accel::new(&view);
     let cpu = pc_fmm::gather::gather_cpu(&view, &accel, &radiance, rays, &splats);
-    let gpu = pc_fmm::gather::GpuGather::new(ctx, &view)
+    let gpu = pc_fmm::gather::GpuGather::new(ctx, &view, &radiance)
         .unwrap()
-        .gather(&radiance, rays, &splats)
+        .gather(rays, &splats)
         .unwrap();
     assert_eq!(cpu.len(), gpu.len());
     // A ray that grazes a disk's rim may hit on one side and miss on the other: at most a ray

@@ -79,13 +79,13 @@ pub(crate) fn solve_full(
 ) -> (pc_fmm::tree::Points, pc_fmm::System, Vec<[f32; 3]>) {
     let (t, p, plan) = tree_and_plan(sc, 0.5, 1e-4);
     let basis = Basis::new(4);
+    let transfer = links.map(|l| SpecularTransfer::new(l.view(), &p, None).expect("links"));
     let mut op: Box<dyn Operator> = Box::new(CpuOperator {
         fmm: CpuFmm::new(&basis, &t, &p, &plan),
         times: Default::default(),
         applications: 0,
     });
-    if let Some(l) = links {
-        let transfer = SpecularTransfer::new(l.view(), &p, None).expect("links");
+    if let Some(transfer) = &transfer {
         op = Box::new(WithSpecular {
             inner: op,
             transfer,
@@ -107,6 +107,7 @@ pub(crate) fn solve_full(
     .unwrap();
     assert!(sol.converged);
     drop(op);
+    drop(transfer);
     (p, sys, sol.radiance)
 }
 
