@@ -332,7 +332,10 @@ pub fn run(
     };
     let solve_s = t.elapsed().as_secs_f64();
     time("solve", t);
+    // The operator and its plan (GBs at 20M splats) make room for the final gather's walk.
     drop(op);
+    let counts = plan.counts;
+    drop(plan);
 
     progress.phase("final gather");
     let t = Instant::now();
@@ -373,11 +376,11 @@ pub fn run(
         orders: sol.orders.clone(),
         active_splats: pts.active.iter().filter(|&&a| a).count() as u64,
         elements,
-        m2l: plan.counts.m2l,
-        p2l: plan.counts.p2l,
-        m2p: plan.counts.m2p,
-        p2p: plan.counts.p2p,
-        p2p_pairs: plan.counts.p2p_pairs,
+        m2l: counts.m2l,
+        p2l: counts.p2l,
+        m2p: counts.m2p,
+        p2p: counts.p2p,
+        p2p_pairs: counts.p2p_pairs,
         emitter_samples: emitter.samples,
         emitter_rays: emitter.cast,
         emitter_settled: emitter.settled,
