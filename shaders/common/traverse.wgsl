@@ -37,6 +37,38 @@ const CELL: f32 = 4.76837158203125e-7; // 2^-21, exact
 // Twin of OctreeView::walk: integer cell coordinates, exact face stepping, and the descent
 // (§8.5.11) resumed from the deepest common ancestor of consecutive cells.
 fn trace(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) -> Hit {
+    let none = Own(vec3<f32>(0.0), INVALID);
+    return trace_between(o, dir, t_min, t_max, any_hit, Ends(none, none, vec2<f32>(-3.40282347e38, 3.40282347e38), vec2<f32>(0.0)));
+}
+
+// An end's own surface (pc_tree::between::Own): splats of `material` facing like `normal`.
+struct Own {
+    normal: vec3<f32>,
+    material: u32,
+}
+
+// The surfaces a segment's ends ignore (pc_tree::between::Between): each end's own surface, and
+// where the first end's own zone ends and the second's begins.
+struct Ends {
+    own0: Own,
+    own1: Own,
+    zones: vec2<f32>,
+    _pad: vec2<f32>,
+}
+
+// Twin of Own::is.
+fn is_own(o: Own, s: Splat) -> bool {
+    return dot(s.normal, o.normal) > SAME_SURFACE_COS && s.material == o.material;
+}
+
+// Whether a hit at t on splat s is an end's own surface (twin of Between::ignores).
+fn ignored(e: Ends, t: f32, s: Splat) -> bool {
+    return (t < e.zones.x && is_own(e.own0, s)) || (t > e.zones.y && is_own(e.own1, s));
+}
+
+// `trace`, passing over the hits `ignored` names. Twin of pc_tree::accel::Accel's walk with a
+// Between (visible_between).
+fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool, ends: Ends) -> Hit {
     var none = Hit(0.0, 0u, 0u, false);
     let qo = (o - octree_frame.origin) * octree_frame.inv_size;
     let qd = dir * octree_frame.inv_size + vec3<f32>(0.0);
@@ -91,7 +123,11 @@ fn trace(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool) ->
                 if k >= end - begin {
                     i = begin_end[off + 2u + (k - (end - begin))];
                 }
-                let th = intersect_splat(o, dir, splats[i]);
+                let s = splats[i];
+                let th = intersect_splat(o, dir, s);
+                if th >= t_min && th <= limit && ignored(ends, th, s) {
+                    continue;
+                }
                 if th >= t_min && th <= limit && (!best.found || th < best.t) && th >= 0.0 {
                     best = Hit(th, i, w, true);
                     if any_hit {

@@ -3,11 +3,13 @@
 // visibility). Used by the renderer's benchmark and by the V-map's visibility rays.
 // CPU twin: pc_tree::OctreeView::intersect / occluded. Driven by crates/pc-tree/src/gpu.rs.
 
+// With the surfaces its ends ignore (pc_tree::gpu::RayIn, pc_tree::between; a plain ray: none).
 struct RayIn {
     origin: vec3<f32>,
     t_min: f32,
     dir: vec3<f32>,
     t_max: f32,
+    ends: Ends,
 }
 
 struct CastParams {
@@ -32,7 +34,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let r = rays[i];
-    let h = trace(r.origin, r.dir, r.t_min, r.t_max, cast_params.any_hit != 0u);
+    let h = trace_between(r.origin, r.dir, r.t_min, r.t_max, cast_params.any_hit != 0u, r.ends);
     if h.found {
         hits[i] = vec2<u32>(bitcast<u32>(h.t), h.splat);
     } else {

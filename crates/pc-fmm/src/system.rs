@@ -9,7 +9,7 @@ use pc_artifact::vmap::VmapView;
 use pc_artifact::PointLight;
 use pc_gpu::GpuError;
 use pc_tree::caster::Caster;
-use pc_tree::{OctreeView, Ray};
+use pc_tree::{Between, OctreeView, Ray};
 
 use crate::tree::Points;
 
@@ -107,15 +107,17 @@ pub fn system(
                 if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
                     continue;
                 }
-                rays.push(Ray {
+                let ray = Ray {
                     origin: x,
                     dir: d / len,
                     t_min: seen.self_hit * s.radius,
                     t_max: len * (1.0 - 1e-4),
-                });
+                };
+                // Past the splat's own rough surface, like the V-map's light lists.
+                rays.push(Between::leaving(ray, s));
                 who.push(i);
             }
-            let vis = tester.visible(&rays)?;
+            let vis = tester.visible_between(&rays)?;
             lit.extend(who.iter().zip(&vis).filter(|(_, &v)| v).map(|(&i, _)| i));
         }
         for i in lit {

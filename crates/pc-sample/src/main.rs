@@ -73,6 +73,11 @@ struct Args {
     /// scan only: the file format (the file is `hall.<format>`).
     #[arg(long, value_enum, default_value = "laz")]
     format: FormatArg,
+
+    /// scan only: the range noise's standard deviation in metres at zero range (it grows by a
+    /// tenth of this per metre); 0 for a noiseless scan.
+    #[arg(long, default_value_t = 0.002)]
+    range_noise: f64,
 }
 
 fn parse_count(s: &str) -> std::result::Result<usize, String> {
@@ -111,7 +116,17 @@ fn run_scan(args: &Args) -> Result<()> {
         FormatArg::Laz => ScanFormat::Laz,
         FormatArg::E57 => ScanFormat::E57,
     };
-    let params = ScanParams::hall(args.points as u64, args.seed);
+    if !(args.range_noise.is_finite() && (0.0..=1.0).contains(&args.range_noise)) {
+        bail!(
+            "--range-noise {}: a standard deviation of 0 to 1 m",
+            args.range_noise
+        );
+    }
+    let params = ScanParams {
+        noise: args.range_noise,
+        noise_per_metre: 0.1 * args.range_noise,
+        ..ScanParams::hall(args.points as u64, args.seed)
+    };
     let name = format!("hall.{}", format.extension());
     let path = args.out.join(&name);
     let n = write_scan(&Room::hall(), &params, format, &path)

@@ -25,6 +25,7 @@
 use pc_artifact::octree::{node, within_clip};
 use rayon::prelude::*;
 
+use crate::between::Between;
 use crate::ray::{Hit, Ray, Slab, TraversalStats};
 use crate::OctreeView;
 
@@ -246,6 +247,7 @@ impl Accel {
         w: u32,
         limit: f32,
         any: bool,
+        between: Option<(&Between, &[pc_artifact::octree::Splat])>,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
         let leaf = &self.leaves[node::ptr(w) as usize];
@@ -267,6 +269,11 @@ impl Accel {
                 }
                 let cold = &self.cold[(a + ci) * LANES + l];
                 let (p, n) = ([c.px[l], c.py[l], c.pz[l]], [c.nx[l], c.ny[l], c.nz[l]]);
+                if let Some((b, splats)) = between {
+                    if b.ignores(t[l], n, splats[cold.splat as usize].material) {
+                        continue;
+                    }
+                }
                 let x = [ox + dx * t[l], oy + dy * t[l], oz + dz * t[l]];
                 if within_clip(p, n, cold.clip, x) {
                     best = Some(Hit {
@@ -299,7 +306,7 @@ impl Accel {
             }
         };
         crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            self.test(ray, w, limit, false, st)
+            self.test(ray, w, limit, false, None, st)
         })
     }
 
@@ -312,6 +319,28 @@ impl Accel {
 
     /// Same as [`OctreeView::occluded`].
     pub fn occluded(&self, view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
+        self.walk_any(view, ray, None, stats)
+    }
+
+    /// Visibility of many segments between surfaces (rayon across segments): `true` where
+    /// nothing but the ends' own surfaces lies between ([`Between::ignores`]).
+    pub fn visible_between(&self, view: &OctreeView, segs: &[Between]) -> Vec<bool> {
+        segs.par_iter()
+            .map_init(TraversalStats::default, |st, s| {
+                !self.walk_any(view, &s.ray, Some(s), st)
+            })
+            .collect()
+    }
+
+    /// Whether a disk blocks the ray, passing over those `between` ignores. WGSL twin:
+    /// `trace_between`, shaders/common/traverse.wgsl.
+    fn walk_any(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        between: Option<&Between>,
+        stats: &mut TraversalStats,
+    ) -> bool {
         let nodes = bytemuck::cast_slice(&self.nodes);
         let slab = |w| {
             if self.slabs {
@@ -320,8 +349,9 @@ impl Accel {
                 None
             }
         };
+        let between = between.map(|b| (b, view.splats));
         crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            self.test(ray, w, limit, true, st)
+            self.test(ray, w, limit, true, between, st)
         })
         .is_some()
     }

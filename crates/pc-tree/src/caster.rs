@@ -3,12 +3,15 @@
 
 use pc_gpu::GpuError;
 
-use crate::{OctreeView, Ray};
+use crate::{Between, OctreeView, Ray};
 
 /// Casts batches of visibility rays: `true` where the segment `[t_min, t_max]` is unoccluded.
 /// Only a GPU can fail (a dispatch or a readback).
 pub trait Caster: Sync {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError>;
+    /// Visibility of segments between surfaces, past the ends' own roughness
+    /// ([`crate::between`]): `true` where nothing else lies between.
+    fn visible_between(&self, segs: &[Between]) -> Result<Vec<bool>, GpuError>;
     fn name(&self) -> String;
 }
 
@@ -31,6 +34,9 @@ impl Caster for CpuCaster<'_> {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
         Ok(self.accel.visible(self.view, rays))
     }
+    fn visible_between(&self, segs: &[Between]) -> Result<Vec<bool>, GpuError> {
+        Ok(self.accel.visible_between(self.view, segs))
+    }
     fn name(&self) -> String {
         format!("CPU, {} threads", rayon::current_num_threads())
     }
@@ -45,6 +51,11 @@ pub struct GpuCaster {
 impl Caster for GpuCaster {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
         let input: Vec<crate::gpu::RayIn> = rays.iter().map(Into::into).collect();
+        let hits = self.caster.cast(&self.ctx, &input, true)?;
+        Ok(hits.iter().map(Option::is_none).collect())
+    }
+    fn visible_between(&self, segs: &[Between]) -> Result<Vec<bool>, GpuError> {
+        let input: Vec<crate::gpu::RayIn> = segs.iter().map(Into::into).collect();
         let hits = self.caster.cast(&self.ctx, &input, true)?;
         Ok(hits.iter().map(Option::is_none).collect())
     }

@@ -59,7 +59,8 @@ pub fn cast_source() -> Result<String, GpuError> {
     pc_gpu::shaders::source("tree/cast.wgsl")
 }
 
-/// One ray as the kernel reads it (WGSL `RayIn`).
+/// One ray as the kernel reads it (WGSL `RayIn`), with the surfaces its ends ignore
+/// ([`crate::between::Between`]; a plain ray: none).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct RayIn {
@@ -67,15 +68,43 @@ pub struct RayIn {
     pub t_min: f32,
     pub dir: [f32; 3],
     pub t_max: f32,
+    /// Per end: its own surface.
+    pub own: [OwnIn; 2],
+    /// Where the first end's own zone ends and the second's begins.
+    pub zones: [f32; 2],
+    pub _pad: [f32; 2],
+}
+
+/// An end's own surface as the kernel reads it (WGSL `Own`; [`crate::between::Own`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct OwnIn {
+    pub normal: [f32; 3],
+    pub material: u32,
 }
 
 impl From<&Ray> for RayIn {
     fn from(r: &Ray) -> RayIn {
+        RayIn::from(&crate::between::Between::plain(*r))
+    }
+}
+
+impl From<&crate::between::Between> for RayIn {
+    fn from(b: &crate::between::Between) -> RayIn {
+        let r = &b.ray;
+        let own = b.ends.map(|e| OwnIn {
+            normal: e.normal.into(),
+            material: e.material,
+        });
         RayIn {
             origin: r.origin.into(),
             t_min: r.t_min,
             dir: r.dir.into(),
             t_max: r.t_max.min(f32::MAX),
+            own,
+            // (Infinite zones become the largest floats: WGSL has no infinities.)
+            zones: b.zones.map(|z| z.clamp(-f32::MAX, f32::MAX)),
+            _pad: [0.0; 2],
         }
     }
 }

@@ -11,12 +11,14 @@ use glam::Vec3;
 use pc_artifact::octree::{tangent_frame, Frame, NodeInfo, Splat};
 
 pub mod accel;
+pub mod between;
 pub mod caster;
 pub mod gpu;
 pub mod nodes;
 pub mod optics;
 pub mod ray;
 pub mod rng;
+pub use between::Between;
 pub use pc_artifact::octree::{locate_normalized, Located, OctreeView};
 pub use ray::{
     covering, first_hit_leaving, intersect, intersect_splat, occluded, Hit, Ray, TraversalStats,

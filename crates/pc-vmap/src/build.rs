@@ -11,7 +11,7 @@ use pc_artifact::octree::node;
 use pc_artifact::params::VmapParams;
 use pc_artifact::vmap::Link;
 use pc_tree::rng::{pcg, rand};
-use pc_tree::{OctreeView, Ray};
+use pc_tree::{Between, OctreeView, Ray};
 use rayon::prelude::*;
 
 // The casters live in pc-tree, shared with pc-fmm's shadow rays; re-exported here, where the
@@ -225,12 +225,7 @@ fn pair_rays(
         let t_max = (len - p.self_hit * rb).max(t_min);
         let w = view.splat_area[ia as usize] * view.splat_area[ib as usize] * ca * cb / (len * len);
         out.push(Sample {
-            ray: Ray {
-                origin: xa,
-                dir,
-                t_min,
-                t_max,
-            },
+            ray: Between::splats(si, sj, dir, len, t_min, t_max),
             weight: w,
             ends: [ia, ib],
         });
@@ -242,7 +237,7 @@ fn pair_rays(
 /// the form-factor sum, and the two splats (data-pool indices).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
-    pub ray: Ray,
+    pub ray: Between,
     pub weight: f32,
     pub ends: [u32; 2],
 }
@@ -364,7 +359,7 @@ fn decide(
     //    probe rays of the others.
     let probing =
         |(r, _, fate): &(Vec<Sample>, u32, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
-    let first: Vec<Ray> = per_pair
+    let first: Vec<Between> = per_pair
         .iter()
         .flat_map(|x| {
             let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
@@ -374,11 +369,11 @@ fn decide(
             all.map(|i| x.0[i].ray)
         })
         .collect();
-    let seen_first = caster.visible(&first)?;
+    let seen_first = caster.visible_between(&first)?;
     // 2. The rest, where the probes do not settle the pair.
     let mut visible: Vec<Vec<bool>> = Vec::with_capacity(per_pair.len());
     let mut settled: Vec<bool> = Vec::with_capacity(per_pair.len());
-    let mut rest: Vec<Ray> = Vec::new();
+    let mut rest: Vec<Between> = Vec::new();
     let mut at = 0;
     for x in &per_pair {
         let r = &x.0;
@@ -411,7 +406,7 @@ fn decide(
         visible.push(vis);
         settled.push(done);
     }
-    let seen_rest = caster.visible(&rest)?;
+    let seen_rest = caster.visible_between(&rest)?;
     let mut at = 0;
     for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
         if probing(x) && !done {
@@ -438,8 +433,14 @@ fn decide(
                 // All rays blocked. With at least half the samples carrying light, a visible
                 // share above about a tenth would have shown (0.9^16 < 0.2): drop the pair.
                 // With fewer informative samples (nodes whose splats mostly face away), refine
-                // instead, unless both are V-map leaves.
-                if !near && total * 2 < p.rays as usize && !(va.vleaf && vb.vleaf) {
+                // instead, unless both are V-map leaves or the pair's form factor is below the
+                // importance threshold (what a partly visible pair would keep unrefined): two
+                // patches of one rough surface, whose few facing samples graze it.
+                if !near
+                    && total * 2 < p.rays as usize
+                    && !(va.vleaf && vb.vleaf)
+                    && form_factors(va, vb, r) >= p.refine_form_factor
+                {
                     split(view, vn, a, b, &mut next);
                 }
                 continue;
@@ -498,8 +499,8 @@ fn exact_partial(
                 (r, drawn)
             })
             .collect();
-        let rays: Vec<Ray> = per_pair.iter().flat_map(|r| &r.0).map(|r| r.ray).collect();
-        let visible = caster.visible(&rays)?;
+        let rays: Vec<Between> = per_pair.iter().flat_map(|r| &r.0).map(|r| r.ray).collect();
+        let visible = caster.visible_between(&rays)?;
         links.rays += rays.len() as u64;
         let mut at = 0;
         for (&(a, b), (r, drawn)) in partial.iter().zip(&per_pair) {
@@ -736,32 +737,33 @@ pub fn light_lists(
             }
         }
         leaves.sort_unstable();
-        let per: Vec<Vec<Ray>> = leaves
+        let per: Vec<Vec<Between>> = leaves
             .par_iter()
             .map(|&a| {
                 let v = &vn[a as usize];
                 let stream = pcg(a ^ pcg(0x5151 + li as u32));
                 let mut r = Vec::new();
                 for k in 0..p.rays {
-                    let (_, x, n, rad) = sample(view, v, p.seed, stream, k, p.rays);
+                    let (i, x, n, rad) = sample(view, v, p.seed, stream, k, p.rays);
                     let d = pos - x;
                     let len = d.length();
                     if len <= 1e-9 || n.dot(d) <= 0.0 {
                         continue;
                     }
-                    r.push(Ray {
+                    let ray = Ray {
                         origin: x,
                         dir: d / len,
                         t_min: p.self_hit * rad,
                         t_max: len * (1.0 - 1e-4),
-                    });
+                    };
+                    r.push(Between::leaving(ray, &view.splats[i as usize]));
                 }
                 r
             })
             .collect();
         let mut list = Vec::new();
-        let rays: Vec<Ray> = per.iter().flatten().copied().collect();
-        let visible = caster.visible(&rays)?;
+        let rays: Vec<Between> = per.iter().flatten().copied().collect();
+        let visible = caster.visible_between(&rays)?;
         let mut at = 0;
         for (&a, r) in leaves.iter().zip(&per) {
             let total = r.len();

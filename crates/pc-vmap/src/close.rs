@@ -11,7 +11,7 @@ use pc_artifact::params::VmapParams;
 use pc_gpu::GpuError;
 use pc_tree::caster::Caster;
 use pc_tree::rng::{pcg, rand};
-use pc_tree::{OctreeView, Ray};
+use pc_tree::{Between, OctreeView, Ray};
 use rayon::prelude::*;
 
 use crate::build::{children, sample, VNode, RAYS_PER_BATCH};
@@ -62,7 +62,7 @@ pub fn close_occluders(
             last += 1;
         }
         let batch = &nodes[first..last];
-        let rays: Vec<Ray> = batch
+        let rays: Vec<Between> = batch
             .par_iter()
             .flat_map_iter(|(a, kids)| {
                 let reach = vn[*a as usize].radius;
@@ -71,7 +71,7 @@ pub fn close_occluders(
                 })
             })
             .collect();
-        let visible = caster.visible(&rays)?;
+        let visible = caster.visible_between(&rays)?;
         let mut at = 0;
         for (a, kids) in batch {
             let n = kids.len() * PROBES as usize;
@@ -87,14 +87,14 @@ pub fn close_occluders(
 /// Whether the blocked shares of the back and the front layer of the probes (their origins'
 /// heights along the node's normal, split at the widest gap) differ by at least [`STEP`]. Nodes
 /// whose normals span every direction have no normal and are left to the children's test.
-fn step_between_layers(v: &VNode, probes: &[Ray], seen: &[bool]) -> bool {
+fn step_between_layers(v: &VNode, probes: &[Between], seen: &[bool]) -> bool {
     if v.cone_cos <= 0.0 || v.axis.length_squared() == 0.0 {
         return false;
     }
     let mut h: Vec<(f32, bool)> = probes
         .iter()
         .zip(seen)
-        .map(|(r, &s)| ((r.origin - v.center).dot(v.axis), s))
+        .map(|(r, &s)| ((r.ray.origin - v.center).dot(v.axis), s))
         .collect();
     h.sort_by(|x, y| x.0.total_cmp(&y.0));
     // Split at the widest gap between consecutive heights, with at least a quarter on each side;
@@ -150,7 +150,7 @@ pub fn contact_shares(
     let mut share = vec![0.0f32; vn.len()];
     let per_batch = (RAYS_PER_BATCH / CONTACT_PROBES as u64).max(1) as usize;
     for batch in leaves.chunks(per_batch) {
-        let rays: Vec<Ray> = batch
+        let rays: Vec<Between> = batch
             .par_iter()
             .flat_map_iter(|&a| {
                 let v = &vn[a as usize];
@@ -158,7 +158,7 @@ pub fn contact_shares(
                 (0..CONTACT_PROBES).map(move |k| probe(view, v, a, (k, CONTACT_PROBES), reach, p))
             })
             .collect();
-        let visible = caster.visible(&rays)?;
+        let visible = caster.visible_between(&rays)?;
         for (&a, seen) in batch.iter().zip(visible.chunks(CONTACT_PROBES as usize)) {
             share[a as usize] = seen.iter().filter(|&&s| !s).count() as f32 / seen.len() as f32;
         }
@@ -167,7 +167,8 @@ pub fn contact_shares(
 }
 
 /// The k-th of m probes of node `v` (slot `c`): from the centre of one of its splats (the k-th
-/// of m strata of its range), cosine-distributed about the splat's normal, out to `reach`.
+/// of m strata of its range), cosine-distributed about the splat's normal, out to `reach`,
+/// past the splat's own surface ([`pc_tree::between`]).
 fn probe(
     view: &OctreeView,
     v: &VNode,
@@ -175,9 +176,9 @@ fn probe(
     (k, m): (u32, u32),
     reach: f32,
     p: &VmapParams,
-) -> Ray {
+) -> Between {
     let stream = pcg(c ^ 0x27d4_eb2f);
-    let (_, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, m);
+    let (i, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, m);
     let (u1, u2) = (rand(p.seed, stream, k, 1), rand(p.seed, stream, k, 2));
     let (tu, tv) = tangent_frame(n.into());
     let (s, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
@@ -186,10 +187,11 @@ fn probe(
         + n * (1.0 - u1).max(0.0).sqrt())
     .normalize_or(n);
     let t_min = p.self_hit * r;
-    Ray {
+    let ray = Ray {
         origin: x,
         dir,
         t_min,
         t_max: reach.max(t_min),
-    }
+    };
+    Between::leaving(ray, &view.splats[i as usize])
 }

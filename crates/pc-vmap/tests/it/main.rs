@@ -11,6 +11,7 @@ use pc_vmap::build::{build_links, csr, light_lists, vnodes, Caster, CpuCaster, V
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
+mod rough;
 mod stage;
 
 pub use pc_testkit::Soa;

@@ -1,0 +1,220 @@
+//! Visibility between two surface points, past the roughness of the surfaces themselves
+//! (docs/vmap.md, "Rough surfaces").
+//!
+//! A scanned wall is flat, but its splats are not: range noise moves each centre off the
+//! surface and the normals fitted to noisy neighbours tilt each disk, so disks stand a fraction
+//! of their radius proud of their neighbours. A ray leaving such a surface at a shallow angle
+//! meets those neighbours and reads the scanner's noise as an occluder: on a 1M-point virtual
+//! scan half the V-map's rays were blocked, two thirds of them by a disk facing like the end it
+//! left, 88 % of those within half a radius of that end's tangent plane and 99 % within one,
+//! against 1 blocked ray in 50 on the smooth Cornell box (`examples/blockers.rs` in pc-vmap
+//! measures it).
+//!
+//! The rule: along a ray from a splat of normal `n` and radius `r`, the point at distance `t`
+//! stands `t · cos θ` above the splat's tangent plane (θ between the ray and `n`). Up to the
+//! distance where that height passes [`OWN_HEIGHT`]` · r + `[`OWN_SLOPE`]` · t` (at most
+//! [`OWN_REACH`]` · r`), the ray is within the surface's own roughness, its *own zone*, where
+//! hits on splats of the end's material facing like `n` (cosine above
+//! [`crate::ray::SAME_SURFACE_COS`]) are the surface itself and are ignored. Any other surface
+//! there still blocks: the wall at a room's corner, a ball resting on the floor. `OWN_SLOPE`
+//! allows for the end's own normal being off by about 6°, which tilts its tangent plane away
+//! from the surface's.
+//!
+//! Why the material: at a splat's resolution a separate surface a fraction of a radius above
+//! another, facing the same way, looks exactly like roughness. The scene tells them apart where
+//! it can: an emitter panel hung 1 cm under a ceiling (the Cornell box's light, half a ceiling
+//! radius at 100k splats), a rug on a floor, a painting on a wall are other materials and keep
+//! blocking; a scan, one material, is one rough surface.
+//!
+//! A [`Between`] is cast as one any-hit walk that passes over the hits [`Between::ignores`]:
+//! the CPU's [`crate::accel::Accel::visible_between`] and its WGSL twin `trace_between` in
+//! shaders/common/traverse.wgsl (driven by [`crate::caster::GpuCaster`]).
+
+use glam::Vec3;
+use pc_artifact::octree::Splat;
+
+use crate::ray::Ray;
+
+/// An end's own zone reaches until the ray stands this many of the end's radii above the end's
+/// tangent plane (plus [`OWN_SLOPE`] of the distance): the scan's noise stood within half a
+/// radius for 88 % of the blocked rays, within one for 99 %.
+pub const OWN_HEIGHT: f32 = 1.0;
+
+/// The tangent plane's allowance per unit of distance (about 6°: an end's fitted normal is off
+/// the surface's by that much on a noisy scan).
+pub const OWN_SLOPE: f32 = 0.1;
+
+/// An own zone reaches at most this many of the end's radii, however shallow the ray.
+pub const OWN_REACH: f32 = 32.0;
+
+/// What a piece of a segment ignores: hits on splats of `material` facing like `normal`
+/// (cosine above [`crate::ray::SAME_SURFACE_COS`]). [`Own::NONE`] ignores nothing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Own {
+    pub normal: Vec3,
+    pub material: u32,
+}
+
+impl Own {
+    /// The surface of splat `s`.
+    pub fn of(s: &Splat) -> Own {
+        Own {
+            normal: s.normal.into(),
+            material: s.material,
+        }
+    }
+
+    pub const NONE: Own = Own {
+        normal: Vec3::ZERO,
+        material: u32::MAX,
+    };
+
+    /// Whether a splat of normal `n` and material `m` is this surface.
+    #[inline(always)]
+    pub fn is(&self, n: [f32; 3], m: u32) -> bool {
+        n[0] * self.normal.x + n[1] * self.normal.y + n[2] * self.normal.z
+            > crate::ray::SAME_SURFACE_COS
+            && m == self.material
+    }
+}
+
+/// How far along a ray leaving a splat of radius `radius` at cosine `cos` to its normal the
+/// splat's own zone reaches.
+pub fn own_zone(radius: f32, cos: f32) -> f32 {
+    let reach = OWN_REACH * radius;
+    let rise = cos - OWN_SLOPE;
+    if rise * reach <= OWN_HEIGHT * radius {
+        reach
+    } else {
+        OWN_HEIGHT * radius / rise
+    }
+}
+
+/// A visibility segment between two surface points: `ray` from the first end (at `t = 0`)
+/// toward the second, whose own zones end at `t = zones[0]` (hits before it on the surface
+/// `ends[0]` are ignored) and begin at `t = zones[1]` (after it, on `ends[1]`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Between {
+    pub ray: Ray,
+    pub ends: [Own; 2],
+    pub zones: [f32; 2],
+}
+
+impl Between {
+    /// The segment from the splat `a` to the splat `b`, `len` apart along `dir`, both ends'
+    /// own zones set by the rule above, and `t_min`, `t_max` the ray's interval.
+    pub fn splats(a: &Splat, b: &Splat, dir: Vec3, len: f32, t_min: f32, t_max: f32) -> Between {
+        let (na, nb) = (Vec3::from(a.normal), Vec3::from(b.normal));
+        let (ca, cb) = (na.dot(dir), -nb.dot(dir));
+        Between {
+            ray: Ray {
+                origin: a.position.into(),
+                dir,
+                t_min,
+                t_max,
+            },
+            ends: [Own::of(a), Own::of(b)],
+            zones: [own_zone(a.radius, ca), len - own_zone(b.radius, cb)],
+        }
+    }
+
+    /// A plain ray: no end ignores anything.
+    pub fn plain(ray: Ray) -> Between {
+        Between {
+            ray,
+            ends: [Own::NONE; 2],
+            zones: [f32::NEG_INFINITY, f32::INFINITY],
+        }
+    }
+
+    /// A ray leaving the splat `a` (from its centre), the far end no surface (a point light, a
+    /// probe's reach).
+    pub fn leaving(ray: Ray, a: &Splat) -> Between {
+        Between {
+            ray,
+            ends: [Own::of(a), Own::NONE],
+            zones: [
+                own_zone(a.radius, Vec3::from(a.normal).dot(ray.dir)),
+                f32::INFINITY,
+            ],
+        }
+    }
+
+    /// Whether a hit at `t` on a splat of normal `n` and material `m` is an end's own surface:
+    /// within that end's zone, and that surface ([`Own::is`]). Where the zones overlap, either
+    /// end's surface is its own.
+    #[inline(always)]
+    pub fn ignores(&self, t: f32, n: [f32; 3], m: u32) -> bool {
+        (t < self.zones[0] && self.ends[0].is(n, m)) || (t > self.zones[1] && self.ends[1].is(n, m))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_own_zone_shrinks_as_the_ray_rises() {
+        // Straight up: the height, and a little for the slope.
+        let up = own_zone(1.0, 1.0);
+        assert!((up - OWN_HEIGHT / (1.0 - OWN_SLOPE)).abs() < 1e-6);
+        // Along the surface, or rising no faster than the allowance: the whole reach.
+        assert_eq!(own_zone(2.0, 0.0), 2.0 * OWN_REACH);
+        assert_eq!(own_zone(2.0, OWN_SLOPE), 2.0 * OWN_REACH);
+        // In between, where the rise meets the allowance.
+        let t = own_zone(1.0, 0.5);
+        assert!(t > up && t < OWN_REACH);
+        assert!((t * 0.5 - (OWN_HEIGHT + OWN_SLOPE * t)).abs() < 1e-5);
+    }
+
+    fn splat(p: Vec3, n: Vec3, r: f32) -> Splat {
+        Splat {
+            position: p.into(),
+            radius: r,
+            normal: n.into(),
+            material: 0,
+            albedo: [1.0; 3],
+            source: 0,
+            clip: [0.0; 4],
+        }
+    }
+
+    #[test]
+    fn an_end_ignores_its_own_surface_within_its_zone_only() {
+        let (a, b) = (Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0));
+        let up = [0.0, 1.0, 0.0];
+        let s = Between::splats(
+            &splat(a, Vec3::Y, 0.1),
+            &splat(b, -Vec3::Y, 0.1),
+            b.normalize(),
+            b.length(),
+            0.05,
+            0.97,
+        );
+        let za = own_zone(0.1, Vec3::Y.dot(b.normalize()));
+        assert!(s.ignores(0.9 * za, up, 0));
+        assert!(!s.ignores(1.1 * za, up, 0), "past the zone");
+        assert!(!s.ignores(0.9 * za, up, 1), "another material");
+        assert!(
+            !s.ignores(0.9 * za, [0.0, -1.0, 0.0], 0),
+            "the other end's side"
+        );
+        assert!(s.ignores(b.length() - 0.9 * za, [0.0, -1.0, 0.0], 0));
+        // A ray leaving a splat: no far end.
+        let r = Between::leaving(s.ray, &splat(a, Vec3::Y, 0.1));
+        assert!(r.ignores(0.9 * za, up, 0) && !r.ignores(1e30, [0.0, -1.0, 0.0], u32::MAX));
+    }
+
+    #[test]
+    fn only_the_ends_material_facing_its_way_is_its_own() {
+        let own = Own {
+            normal: Vec3::Y,
+            material: 3,
+        };
+        assert!(own.is([0.0, 1.0, 0.0], 3));
+        assert!(own.is([0.6, 0.8, 0.0], 3));
+        assert!(!own.is([0.0, 1.0, 0.0], 2), "another material");
+        assert!(!own.is([1.0, 0.0, 0.0], 3), "another orientation");
+        assert!(!Own::NONE.is([0.0, 1.0, 0.0], u32::MAX));
+    }
+}

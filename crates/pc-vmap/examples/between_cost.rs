@@ -1,0 +1,52 @@
+//! What the own-zone rule costs per ray: random facing splat pairs of an octree, cast plain and
+//! as segments between surfaces. `cargo run --release -p pc-vmap --example between_cost -- OCTREE`
+use glam::Vec3;
+use pc_artifact::octree::OctreeFile;
+use pc_tree::accel::Accel;
+use pc_tree::{Between, Ray};
+use rand::{Rng, SeedableRng};
+
+fn main() {
+    let path = std::env::args().nth(1).unwrap();
+    let f = OctreeFile::open(&path).unwrap();
+    let view = f.view();
+    let accel = Accel::new(&view);
+    let n = view.splats.len();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
+    let mut segs = Vec::new();
+    while segs.len() < 400_000 {
+        let (ia, ib) = (rng.random_range(0..n), rng.random_range(0..n));
+        let (si, sj) = (&view.splats[ia], &view.splats[ib]);
+        let d = Vec3::from(sj.position) - Vec3::from(si.position);
+        let len = d.length();
+        if len < 1e-6 {
+            continue;
+        }
+        let dir = d / len;
+        if Vec3::from(si.normal).dot(dir) <= 0.0 || Vec3::from(sj.normal).dot(-dir) <= 0.0 {
+            continue;
+        }
+        segs.push(Between::splats(
+            si,
+            sj,
+            dir,
+            len,
+            0.5 * si.radius,
+            len - 0.5 * sj.radius,
+        ));
+    }
+    let rays: Vec<Ray> = segs.iter().map(|s| s.ray).collect();
+    for _ in 0..2 {
+        let t = std::time::Instant::now();
+        let v = accel.visible(&view, &rays);
+        let a = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let w = accel.visible_between(&view, &segs);
+        let b = t.elapsed().as_secs_f64();
+        let (va, vb) = (
+            v.iter().filter(|&&x| x).count(),
+            w.iter().filter(|&&x| x).count(),
+        );
+        println!("plain {a:.2} s ({va} visible), between {b:.2} s ({vb} visible)");
+    }
+}
