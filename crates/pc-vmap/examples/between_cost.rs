@@ -1,5 +1,7 @@
-//! What the own-zone rule costs per ray: random facing splat pairs of an octree, cast plain and
-//! as segments between surfaces. `cargo run --release -p pc-vmap --example between_cost -- OCTREE`
+//! What the own-zone rule costs per ray (pc_tree::between): `cargo run --release -p pc-vmap
+//! --example between_cost -- OCTREE` casts 400,000 segments between random facing splats of an
+//! octree, as plain rays and as segments between surfaces, twice each, and prints the times.
+
 use glam::Vec3;
 use pc_artifact::octree::OctreeFile;
 use pc_tree::accel::Accel;
@@ -7,8 +9,17 @@ use pc_tree::{Between, Ray};
 use rand::{Rng, SeedableRng};
 
 fn main() {
-    let path = std::env::args().nth(1).unwrap();
-    let f = OctreeFile::open(&path).unwrap();
+    let Some(path) = std::env::args().nth(1) else {
+        eprintln!("usage: between_cost OCTREE");
+        std::process::exit(2);
+    };
+    let f = match OctreeFile::open(&path) {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("between_cost: {e}");
+            std::process::exit(1);
+        }
+    };
     let view = f.view();
     let accel = Accel::new(&view);
     let n = view.splats.len();
