@@ -82,6 +82,11 @@ pub fn system(
             sys.emission[i] = m.radiance;
         }
     }
+    // Each octree leaf's roughness, for the shadow rays' own zones.
+    let rough = match lights.is_empty() {
+        true => Vec::new(),
+        false => pc_tree::between::leaf_roughness(view),
+    };
     for (l, light) in lights.iter().enumerate() {
         let light_position = Vec3::from(light.position);
         let list = seen.vmap.light_list(l);
@@ -114,7 +119,10 @@ pub fn system(
                     t_max: len * (1.0 - 1e-4),
                 };
                 // Past the splat's own rough surface, like the V-map's light lists.
-                rays.push(Between::leaving(ray, s));
+                rays.push(Between::leaving(
+                    ray,
+                    (s, rough[view.splat_leaf[i as usize] as usize]),
+                ));
                 who.push(i);
             }
             let vis = tester.visible_between(&rays)?;

@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Mat3, Vec3};
 
-use crate::estimate::{try_estimate_normals, try_estimate_radii, Orientation};
+use crate::estimate::{
+    try_estimate_normals, try_estimate_normals_and_radii, try_estimate_radii, Orientation,
+};
 use crate::points::{read_points, round_origin, Format, PlyOptions, PointSet};
 use crate::ImportError;
 use pc_artifact::PointLight;
@@ -273,45 +275,52 @@ fn albedo_factors(
 
 /// Normals for a model that has none, and how they were oriented: toward the model's
 /// `scanner` (file frame), else the file's stations, else `import.sensor` (scene frame), else
-/// by propagation. `from_scene` maps a scene-frame point to the file's offsets.
+/// by propagation. `from_scene` maps a scene-frame point to the file's offsets. With
+/// `radius_k`, the radii too, from the same neighbour pass.
 fn model_normals(
     cfg: &LoadedConfig,
     m: &ModelConfig,
     path: &Path,
     pts: &PointSet,
     from_scene: impl Fn(Vec3) -> Vec3,
-) -> Result<(Vec<Vec3>, Oriented), ImportError> {
+    radius_k: Option<usize>,
+) -> Result<(Vec<Vec3>, Oriented, Option<Vec<f32>>), ImportError> {
     let k = cfg.config.import.normal_neighbors;
     let local = |p: DVec3| (p - pts.origin).as_vec3();
+    let estimate = |orient| match radius_k {
+        Some(kr) => try_estimate_normals_and_radii(path, &pts.positions, k, orient, kr)
+            .map(|(n, r)| (n, Some(r))),
+        None => try_estimate_normals(path, &pts.positions, k, orient).map(|n| (n, None)),
+    };
     match m.scanners.as_deref() {
         Some([s]) => {
             let s = local(DVec3::from(*s));
-            let n = try_estimate_normals(path, &pts.positions, k, Orientation::Sensor(s))?;
-            return Ok((n, Oriented::Scanner));
+            let (n, r) = estimate(Orientation::Sensor(s))?;
+            return Ok((n, Oriented::Scanner, r));
         }
         Some(list) if !list.is_empty() => {
             let of = scanner_of_points(path, pts, list.len())?;
-            let mut n = try_estimate_normals(path, &pts.positions, k, Orientation::Unoriented)?;
+            let (mut n, r) = estimate(Orientation::Unoriented)?;
             let stations: Vec<Vec3> = list.iter().map(|&s| local(DVec3::from(s))).collect();
             face_stations(&mut n, &pts.positions, &stations, &of);
-            return Ok((n, Oriented::Stations(list.len())));
+            return Ok((n, Oriented::Stations(list.len()), r));
         }
         _ => {}
     }
     if let Some(of) = &pts.station_of {
-        let mut n = try_estimate_normals(path, &pts.positions, k, Orientation::Unoriented)?;
+        let (mut n, r) = estimate(Orientation::Unoriented)?;
         let stations: Vec<Vec3> = pts.stations.iter().map(|&s| local(s)).collect();
         face_stations(&mut n, &pts.positions, &stations, of);
-        return Ok((n, Oriented::Stations(pts.stations.len())));
+        return Ok((n, Oriented::Stations(pts.stations.len()), r));
     }
     if let Some(s) = cfg.config.import.sensor {
         // import.sensor is in the scene frame: bring it into the file's offsets.
         let sensor = Orientation::Sensor(from_scene(Vec3::from(s)));
-        let n = try_estimate_normals(path, &pts.positions, k, sensor)?;
-        return Ok((n, Oriented::Scanner));
+        let (n, r) = estimate(sensor)?;
+        return Ok((n, Oriented::Scanner, r));
     }
-    let n = try_estimate_normals(path, &pts.positions, k, Orientation::Propagate)?;
-    Ok((n, Oriented::Propagated))
+    let (n, r) = estimate(Orientation::Propagate)?;
+    Ok((n, Oriented::Propagated, r))
 }
 
 /// Each point's index into a model's `scanners`: its LAS `point_source_id`.
@@ -445,13 +454,16 @@ fn add_model(
     let from_scene = |x: Vec3| rot.transpose() * (x - t) / s - shift;
     let estimated_normals = pts.normals.is_none();
     let estimated_radii = pts.radii.is_none();
-    let (normals, oriented) = match &pts.normals {
-        Some(nrm) => (nrm.clone(), Oriented::Given),
-        None => model_normals(cfg, m, path, &pts, from_scene)?,
+    // Radii missing too: estimated in the normals' neighbour pass.
+    let radius_k = estimated_radii.then_some(c.import.radius_neighbors);
+    let (normals, oriented, radii) = match &pts.normals {
+        Some(nrm) => (nrm.clone(), Oriented::Given, None),
+        None => model_normals(cfg, m, path, &pts, from_scene, radius_k)?,
     };
-    let radii = match &pts.radii {
-        Some(r) => r.clone(),
-        None => try_estimate_radii(path, &pts.positions, c.import.radius_neighbors)?,
+    let radii = match (&pts.radii, radii) {
+        (Some(r), _) => r.clone(),
+        (None, Some(r)) => r,
+        (None, None) => try_estimate_radii(path, &pts.positions, c.import.radius_neighbors)?,
     };
     // Per-point colors multiply the material's color; without them the factor is 1, so a
     // material's albedo can change without rebuilding the octree.

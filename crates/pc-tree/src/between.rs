@@ -12,8 +12,9 @@
 //!
 //! The rule: along a ray from a splat of normal `n` and radius `r`, the point at distance `t`
 //! stands `t · cos θ` above the splat's tangent plane (θ between the ray and `n`). Up to the
-//! distance where that height passes [`OWN_HEIGHT`]` · r + `[`OWN_SLOPE`]` · t` (at most
-//! [`OWN_REACH`]` · r`), the ray is within the surface's own roughness, its *own zone*, where
+//! distance where that height passes `h + `[`OWN_SLOPE`]` · t`, with `h = `[`OWN_HEIGHT`]` · r +
+//! `[`OWN_ROUGH`]` · σ` (σ the roughness of the splat's octree leaf, [`leaf_roughness`]), and at
+//! most [`OWN_REACH`]` · h`, the ray is within the surface's own roughness, its *own zone*, where
 //! hits on splats of the end's material facing like `n` (cosine above
 //! [`crate::ray::SAME_SURFACE_COS`]) are the surface itself and are ignored. Any other surface
 //! there still blocks: the wall at a room's corner, a ball resting on the floor. `OWN_SLOPE`
@@ -34,6 +35,7 @@ use glam::Vec3;
 use pc_artifact::octree::Splat;
 
 use crate::ray::Ray;
+use crate::OctreeView;
 
 /// An end's own zone reaches until the ray stands this many of the end's radii above the end's
 /// tangent plane (plus [`OWN_SLOPE`] of the distance): the scan's noise stood within half a
@@ -44,7 +46,12 @@ pub const OWN_HEIGHT: f32 = 1.0;
 /// the surface's by that much on a noisy scan).
 pub const OWN_SLOPE: f32 = 0.1;
 
-/// An own zone reaches at most this many of the end's radii, however shallow the ray.
+/// And this many times the roughness of its octree leaf: the noise is the scanner's, a few
+/// millimetres whatever the spacing, so at 20M points of the hall scan (3.7 mm splats) it stood
+/// more than a radius proud and a tolerance in radii alone passed over too little of it.
+pub const OWN_ROUGH: f32 = 3.0;
+
+/// An own zone reaches at most this many times its height tolerance, however shallow the ray.
 pub const OWN_REACH: f32 = 32.0;
 
 /// What a piece of a segment ignores: hits on splats of `material` facing like `normal`
@@ -78,16 +85,41 @@ impl Own {
     }
 }
 
-/// How far along a ray leaving a splat of radius `radius` at cosine `cos` to its normal the
-/// splat's own zone reaches.
-pub fn own_zone(radius: f32, cos: f32) -> f32 {
-    let reach = OWN_REACH * radius;
+/// How far along a ray leaving a splat of radius `radius`, on a leaf of roughness `rough`
+/// ([`leaf_roughness`]), at cosine `cos` to its normal the splat's own zone reaches.
+pub fn own_zone(radius: f32, rough: f32, cos: f32) -> f32 {
+    let h = OWN_HEIGHT * radius + OWN_ROUGH * rough;
+    let reach = OWN_REACH * h;
     let rise = cos - OWN_SLOPE;
-    if rise * reach <= OWN_HEIGHT * radius {
+    if rise * reach <= h {
         reach
     } else {
-        OWN_HEIGHT * radius / rise
+        h / rise
     }
+}
+
+/// The roughness of every octree leaf, per node-pool slot (zero elsewhere): the RMS height of
+/// its own splats' centres above the plane through its centroid about its mean normal. Range
+/// noise and the tilt of fitted normals show here; a leaf is small enough that a surface's
+/// curvature mostly does not. A leaf whose normals cancel (no mean normal) gets zero.
+pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
+    let mut sum = vec![(0.0f64, 0u32); view.nodes.len()];
+    for (s, &l) in view.splats.iter().zip(view.splat_leaf) {
+        let info = &view.node_info[l as usize];
+        let h = (Vec3::from(s.position) - Vec3::from(info.centroid)).dot(Vec3::from(info.normal));
+        let e = &mut sum[l as usize];
+        e.0 += (h as f64) * (h as f64);
+        e.1 += 1;
+    }
+    sum.into_iter()
+        .map(|(h2, n)| {
+            if n == 0 {
+                0.0
+            } else {
+                (h2 / n as f64).sqrt() as f32
+            }
+        })
+        .collect()
 }
 
 /// A visibility segment between two surface points: `ray` from the first end (at `t = 0`)
@@ -101,9 +133,17 @@ pub struct Between {
 }
 
 impl Between {
-    /// The segment from the splat `a` to the splat `b`, `len` apart along `dir`, both ends'
-    /// own zones set by the rule above, and `t_min`, `t_max` the ray's interval.
-    pub fn splats(a: &Splat, b: &Splat, dir: Vec3, len: f32, t_min: f32, t_max: f32) -> Between {
+    /// The segment from the splat `a` to the splat `b` (each with its leaf's roughness),
+    /// `len` apart along `dir`, both ends' own zones set by the rule above, and `t_min`,
+    /// `t_max` the ray's interval.
+    pub fn splats(
+        (a, rough_a): (&Splat, f32),
+        (b, rough_b): (&Splat, f32),
+        dir: Vec3,
+        len: f32,
+        t_min: f32,
+        t_max: f32,
+    ) -> Between {
         let (na, nb) = (Vec3::from(a.normal), Vec3::from(b.normal));
         let (ca, cb) = (na.dot(dir), -nb.dot(dir));
         Between {
@@ -114,7 +154,10 @@ impl Between {
                 t_max,
             },
             ends: [Own::of(a), Own::of(b)],
-            zones: [own_zone(a.radius, ca), len - own_zone(b.radius, cb)],
+            zones: [
+                own_zone(a.radius, rough_a, ca),
+                len - own_zone(b.radius, rough_b, cb),
+            ],
         }
     }
 
@@ -127,14 +170,15 @@ impl Between {
         }
     }
 
-    /// A ray leaving the splat `a` (from its centre), the far end no surface (a point light, a
+    /// A ray leaving the splat `a` (from its centre, on a leaf of roughness `rough`), the far
+    /// end no surface (a point light, a
     /// probe's reach).
-    pub fn leaving(ray: Ray, a: &Splat) -> Between {
+    pub fn leaving(ray: Ray, (a, rough): (&Splat, f32)) -> Between {
         Between {
             ray,
             ends: [Own::of(a), Own::NONE],
             zones: [
-                own_zone(a.radius, Vec3::from(a.normal).dot(ray.dir)),
+                own_zone(a.radius, rough, Vec3::from(a.normal).dot(ray.dir)),
                 f32::INFINITY,
             ],
         }
@@ -156,15 +200,19 @@ mod tests {
     #[test]
     fn the_own_zone_shrinks_as_the_ray_rises() {
         // Straight up: the height, and a little for the slope.
-        let up = own_zone(1.0, 1.0);
+        let up = own_zone(1.0, 0.0, 1.0);
         assert!((up - OWN_HEIGHT / (1.0 - OWN_SLOPE)).abs() < 1e-6);
         // Along the surface, or rising no faster than the allowance: the whole reach.
-        assert_eq!(own_zone(2.0, 0.0), 2.0 * OWN_REACH);
-        assert_eq!(own_zone(2.0, OWN_SLOPE), 2.0 * OWN_REACH);
+        assert_eq!(own_zone(2.0, 0.0, 0.0), 2.0 * OWN_REACH);
+        assert_eq!(own_zone(2.0, 0.0, OWN_SLOPE), 2.0 * OWN_REACH);
         // In between, where the rise meets the allowance.
-        let t = own_zone(1.0, 0.5);
+        let t = own_zone(1.0, 0.0, 0.5);
         assert!(t > up && t < OWN_REACH);
         assert!((t * 0.5 - (OWN_HEIGHT + OWN_SLOPE * t)).abs() < 1e-5);
+        // A rough leaf raises the tolerance, and the reach with it.
+        let h = OWN_HEIGHT + OWN_ROUGH * 0.5;
+        assert!((own_zone(1.0, 0.5, 1.0) - h / (1.0 - OWN_SLOPE)).abs() < 1e-5);
+        assert_eq!(own_zone(1.0, 0.5, 0.0), OWN_REACH * h);
     }
 
     fn splat(p: Vec3, n: Vec3, r: f32) -> Splat {
@@ -184,14 +232,14 @@ mod tests {
         let (a, b) = (Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0));
         let up = [0.0, 1.0, 0.0];
         let s = Between::splats(
-            &splat(a, Vec3::Y, 0.1),
-            &splat(b, -Vec3::Y, 0.1),
+            (&splat(a, Vec3::Y, 0.1), 0.0),
+            (&splat(b, -Vec3::Y, 0.1), 0.0),
             b.normalize(),
             b.length(),
             0.05,
             0.97,
         );
-        let za = own_zone(0.1, Vec3::Y.dot(b.normalize()));
+        let za = own_zone(0.1, 0.0, Vec3::Y.dot(b.normalize()));
         assert!(s.ignores(0.9 * za, up, 0));
         assert!(!s.ignores(1.1 * za, up, 0), "past the zone");
         assert!(!s.ignores(0.9 * za, up, 1), "another material");
@@ -201,7 +249,7 @@ mod tests {
         );
         assert!(s.ignores(b.length() - 0.9 * za, [0.0, -1.0, 0.0], 0));
         // A ray leaving a splat: no far end.
-        let r = Between::leaving(s.ray, &splat(a, Vec3::Y, 0.1));
+        let r = Between::leaving(s.ray, (&splat(a, Vec3::Y, 0.1), 0.0));
         assert!(r.ignores(0.9 * za, up, 0) && !r.ignores(1e30, [0.0, -1.0, 0.0], u32::MAX));
     }
 

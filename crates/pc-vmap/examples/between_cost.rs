@@ -22,6 +22,7 @@ fn main() {
     };
     let view = f.view();
     let accel = Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
     let n = view.splats.len();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
     let mut segs = Vec::new();
@@ -38,8 +39,8 @@ fn main() {
             continue;
         }
         segs.push(Between::splats(
-            si,
-            sj,
+            (si, rough[view.splat_leaf[ia] as usize]),
+            (sj, rough[view.splat_leaf[ib] as usize]),
             dir,
             len,
             0.5 * si.radius,

@@ -36,6 +36,9 @@ pub struct VNode {
     pub vleaf: bool,
     /// The summed areas of its splats (in data-pool order, as f64).
     pub area: f64,
+    /// For an octree leaf, its roughness (`pc_tree::between::leaf_roughness`), which sets its
+    /// splats' own zones; zero elsewhere.
+    pub rough: f32,
 }
 
 impl VNode {
@@ -48,11 +51,13 @@ impl VNode {
 pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
     let ranges = pc_tree::nodes::subtree_ranges(view);
     let cones = pc_tree::nodes::normal_cones(view, &ranges);
+    let rough = pc_tree::between::leaf_roughness(view);
     ranges
         .par_iter()
         .zip(&cones)
+        .zip(&rough)
         .enumerate()
-        .map(|(slot, (&[lo, hi], &cone_cos))| {
+        .map(|(slot, ((&[lo, hi], &cone_cos), &rough))| {
             if lo >= hi {
                 return VNode {
                     cone_cos: -1.0,
@@ -75,9 +80,15 @@ pub fn vnodes(view: &OctreeView, leaf_splats: u32) -> Vec<VNode> {
                     .iter()
                     .map(|&a| a as f64)
                     .sum(),
+                rough,
             }
         })
         .collect()
+}
+
+/// The roughness of the octree leaf that owns splat `i` (its own zone's tolerance).
+pub(crate) fn end_rough(view: &OctreeView, vn: &[VNode], i: u32) -> f32 {
+    vn[view.splat_leaf[i as usize] as usize].rough
 }
 
 /// Non-empty children of an internal node.
@@ -225,7 +236,14 @@ fn pair_rays(
         let t_max = (len - p.self_hit * rb).max(t_min);
         let w = view.splat_area[ia as usize] * view.splat_area[ib as usize] * ca * cb / (len * len);
         out.push(Sample {
-            ray: Between::splats(si, sj, dir, len, t_min, t_max),
+            ray: Between::splats(
+                (si, end_rough(view, vn, ia)),
+                (sj, end_rough(view, vn, ib)),
+                dir,
+                len,
+                t_min,
+                t_max,
+            ),
             weight: w,
             ends: [ia, ib],
         });
@@ -756,7 +774,10 @@ pub fn light_lists(
                         t_min: p.self_hit * rad,
                         t_max: len * (1.0 - 1e-4),
                     };
-                    r.push(Between::leaving(ray, &view.splats[i as usize]));
+                    r.push(Between::leaving(
+                        ray,
+                        (&view.splats[i as usize], end_rough(view, vn, i)),
+                    ));
                 }
                 r
             })

@@ -14,7 +14,7 @@ use pc_tree::rng::{pcg, rand};
 use pc_tree::{Between, OctreeView, Ray};
 use rayon::prelude::*;
 
-use crate::build::{children, sample, VNode, RAYS_PER_BATCH};
+use crate::build::{children, end_rough, sample, VNode, RAYS_PER_BATCH};
 use glam::Vec3;
 
 /// A partial pair with a marked node is refined on that node's side while its form factor is
@@ -67,7 +67,7 @@ pub fn close_occluders(
             .flat_map_iter(|(a, kids)| {
                 let reach = vn[*a as usize].radius;
                 kids.iter().flat_map(move |&c| {
-                    (0..PROBES).map(move |k| probe(view, &vn[c as usize], c, (k, PROBES), reach, p))
+                    (0..PROBES).map(move |k| probe(view, vn, c, (k, PROBES), reach, p))
                 })
             })
             .collect();
@@ -155,7 +155,7 @@ pub fn contact_shares(
             .flat_map_iter(|&a| {
                 let v = &vn[a as usize];
                 let reach = CONTACT_REACH * v.radius;
-                (0..CONTACT_PROBES).map(move |k| probe(view, v, a, (k, CONTACT_PROBES), reach, p))
+                (0..CONTACT_PROBES).map(move |k| probe(view, vn, a, (k, CONTACT_PROBES), reach, p))
             })
             .collect();
         let visible = caster.visible_between(&rays)?;
@@ -171,14 +171,14 @@ pub fn contact_shares(
 /// past the splat's own surface ([`pc_tree::between`]).
 fn probe(
     view: &OctreeView,
-    v: &VNode,
+    vn: &[VNode],
     c: u32,
     (k, m): (u32, u32),
     reach: f32,
     p: &VmapParams,
 ) -> Between {
     let stream = pcg(c ^ 0x27d4_eb2f);
-    let (i, x, n, r) = sample(view, v, p.seed ^ 0x5bd1_e995, stream, k, m);
+    let (i, x, n, r) = sample(view, &vn[c as usize], p.seed ^ 0x5bd1_e995, stream, k, m);
     let (u1, u2) = (rand(p.seed, stream, k, 1), rand(p.seed, stream, k, 2));
     let (tu, tv) = tangent_frame(n.into());
     let (s, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
@@ -193,5 +193,5 @@ fn probe(
         t_min,
         t_max: reach.max(t_min),
     };
-    Between::leaving(ray, &view.splats[i as usize])
+    Between::leaving(ray, (&view.splats[i as usize], end_rough(view, vn, i)))
 }

@@ -4,7 +4,8 @@ use std::path::Path;
 
 use glam::Vec3;
 use pc_import::estimate::{
-    estimate_normals, estimate_radii, try_estimate_normals, try_estimate_radii, Orientation,
+    estimate_normals, estimate_normals_and_radii, estimate_radii, try_estimate_normals,
+    try_estimate_normals_and_radii, try_estimate_radii, Orientation,
 };
 use pc_import::ImportError;
 use rand::{Rng, SeedableRng};
@@ -333,5 +334,48 @@ fn exact_copies_share_the_estimate_of_their_position() {
     assert!(
         n.iter().all(|v| v.z > 0.999),
         "normals face the sensor above the plane"
+    );
+}
+
+#[test]
+fn one_neighbour_pass_gives_what_two_give() {
+    // Normals and radii from one query per point equal those of separate passes, whichever
+    // asks for more neighbours, with copies of points and every orientation.
+    let mut pts = random_sphere(3000, Vec3::new(1.0, -2.0, 0.5), 2.0);
+    for k in 0..40 {
+        pts.push(pts[7 * k]);
+    }
+    for (kn, kr) in [(16, 8), (8, 20), (12, 12)] {
+        for orient in [
+            Orientation::Propagate,
+            Orientation::Unoriented,
+            Orientation::Sensor(Vec3::new(1.0, -2.0, 0.5)),
+        ] {
+            let (n, r) = estimate_normals_and_radii(&pts, kn, orient, kr);
+            let (n1, r1) = (estimate_normals(&pts, kn, orient), estimate_radii(&pts, kr));
+            assert_eq!(r, r1, "radii, k {kn}/{kr}");
+            let off = n
+                .iter()
+                .zip(&n1)
+                .map(|(a, b)| (*a - *b).length())
+                .fold(0.0, f32::max);
+            assert!(
+                off < 1e-6,
+                "normals differ by {off}, k {kn}/{kr}, {orient:?}"
+            );
+        }
+    }
+    let err = try_estimate_normals_and_radii(
+        Path::new("cloud.laz"),
+        &pts[..5],
+        16,
+        Orientation::Unoriented,
+        8,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("cloud.laz") && err.contains("16 neighbours"),
+        "{err}"
     );
 }

@@ -81,6 +81,8 @@ fn floor_to_wall(noise: f32) -> (f64, f64, f64, f64) {
     let (mut all, mut linked, mut plain) = (0.0, 0.0, 0.0);
     let mut st = TraversalStats::default();
     let accel = pc_tree::accel::Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let rough = |i: usize| rough[view.splat_leaf[i] as usize];
     let mut between = 0.0;
     for i in (0..n).filter(|&i| is_floor(i)) {
         for j in (0..n).filter(|&j| !is_floor(j)) {
@@ -98,7 +100,8 @@ fn floor_to_wall(noise: f32) -> (f64, f64, f64, f64) {
             if t > 0.0 && !pc_tree::occluded(&view, &ray, &mut st) {
                 plain += t;
             }
-            let seg = Between::splats(si, sj, d / len, len, ray.t_min, ray.t_max);
+            let (a, b) = ((si, rough(i)), (sj, rough(j)));
+            let seg = Between::splats(a, b, d / len, len, ray.t_min, ray.t_max);
             if t > 0.0 && accel.visible_between(&view, &[seg])[0] {
                 between += t;
             }
@@ -167,16 +170,24 @@ fn gpu_segments_match_the_cpu() {
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(9);
     let n = view.splats.len();
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let rough = |i: usize| rough[view.splat_leaf[i] as usize];
     let segs: Vec<Between> = (0..20_000)
         .filter_map(|_| {
-            let (a, b) = (
-                &view.splats[rng.random_range(0..n)],
-                &view.splats[rng.random_range(0..n)],
-            );
+            let (i, j) = (rng.random_range(0..n), rng.random_range(0..n));
+            let (a, b, ra, rb) = (&view.splats[i], &view.splats[j], rough(i), rough(j));
             let d = Vec3::from(b.position) - Vec3::from(a.position);
             let len = d.length();
-            (len > 1e-3)
-                .then(|| Between::splats(a, b, d / len, len, 0.5 * a.radius, len - 0.5 * b.radius))
+            (len > 1e-3).then(|| {
+                Between::splats(
+                    (a, ra),
+                    (b, rb),
+                    d / len,
+                    len,
+                    0.5 * a.radius,
+                    len - 0.5 * b.radius,
+                )
+            })
         })
         .collect();
     let cpu = CpuCaster::new(&view).visible_between(&segs).unwrap();
