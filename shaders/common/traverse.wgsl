@@ -56,9 +56,12 @@ struct Ends {
     _pad: vec2<f32>,
 }
 
+// Twin of pc_tree::between::OWN_COS.
+const OWN_COS: f32 = 0.85;
+
 // Twin of Own::is.
 fn is_own(o: Own, s: Splat) -> bool {
-    return dot(s.normal, o.normal) > SAME_SURFACE_COS && s.material == o.material;
+    return dot(s.normal, o.normal) > OWN_COS && s.material == o.material;
 }
 
 // Whether a hit at t on splat s is an end's own surface (twin of Between::ignores).

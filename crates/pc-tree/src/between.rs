@@ -16,7 +16,7 @@
 //! `[`OWN_ROUGH`]` · σ` (σ the roughness of the splat's octree leaf, [`leaf_roughness`]), and at
 //! most [`OWN_REACH`]` · h`, the ray is within the surface's own roughness, its *own zone*, where
 //! hits on splats of the end's material facing like `n` (cosine above
-//! [`crate::ray::SAME_SURFACE_COS`]) are the surface itself and are ignored. Any other surface
+//! [`OWN_COS`]) are the surface itself and are ignored. Any other surface
 //! there still blocks: the wall at a room's corner, a ball resting on the floor. `OWN_SLOPE`
 //! allows for the end's own normal being off by about 6°, which tilts its tangent plane away
 //! from the surface's.
@@ -51,11 +51,17 @@ pub const OWN_SLOPE: f32 = 0.1;
 /// more than a radius proud and a tolerance in radii alone passed over too little of it.
 pub const OWN_ROUGH: f32 = 3.0;
 
+/// A splat is an end's own surface only where its normal is within about 30° of the end's:
+/// noise tilts two splats of one wall apart by up to about 15°, while splats fitted across an
+/// edge blend its two faces (45° from each), and a wall's top splats then counted the
+/// ceiling's edge as their own and let a low sun through it (the hall scan at 300k).
+pub const OWN_COS: f32 = 0.85;
+
 /// An own zone reaches at most this many times its height tolerance, however shallow the ray.
 pub const OWN_REACH: f32 = 32.0;
 
 /// What a piece of a segment ignores: hits on splats of `material` facing like `normal`
-/// (cosine above [`crate::ray::SAME_SURFACE_COS`]). [`Own::NONE`] ignores nothing.
+/// (cosine above [`OWN_COS`]). [`Own::NONE`] ignores nothing.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Own {
     pub normal: Vec3,
@@ -79,8 +85,7 @@ impl Own {
     /// Whether a splat of normal `n` and material `m` is this surface.
     #[inline(always)]
     pub fn is(&self, n: [f32; 3], m: u32) -> bool {
-        n[0] * self.normal.x + n[1] * self.normal.y + n[2] * self.normal.z
-            > crate::ray::SAME_SURFACE_COS
+        n[0] * self.normal.x + n[1] * self.normal.y + n[2] * self.normal.z > OWN_COS
             && m == self.material
     }
 }
@@ -101,26 +106,37 @@ pub fn own_zone(radius: f32, rough: f32, cos: f32) -> f32 {
 /// The roughness of every octree leaf, per node-pool slot (zero elsewhere): the RMS height of
 /// its own splats' centres above the plane through its centroid about its mean normal. Range
 /// noise and the tilt of fitted normals show here; a leaf is small enough that a surface's
-/// curvature mostly does not. A leaf whose normals cancel (no mean normal) gets zero.
+/// curvature mostly does not. A leaf whose normals cancel (no mean normal) or spread
+/// ([`ROUGH_SPREAD`]: an edge) gets zero.
 pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
-    let mut sum = vec![(0.0f64, 0u32); view.nodes.len()];
+    // Per leaf: Σ h², Σ (1 − n·n̄), count.
+    let mut sum = vec![(0.0f64, 0.0f64, 0u32); view.nodes.len()];
     for (s, &l) in view.splats.iter().zip(view.splat_leaf) {
         let info = &view.node_info[l as usize];
-        let h = (Vec3::from(s.position) - Vec3::from(info.centroid)).dot(Vec3::from(info.normal));
+        let axis = Vec3::from(info.normal);
+        let h = (Vec3::from(s.position) - Vec3::from(info.centroid)).dot(axis);
         let e = &mut sum[l as usize];
         e.0 += (h as f64) * (h as f64);
-        e.1 += 1;
+        e.1 += (1.0 - Vec3::from(s.normal).dot(axis)) as f64;
+        e.2 += 1;
     }
     sum.into_iter()
-        .map(|(h2, n)| {
-            if n == 0 {
-                0.0
-            } else {
+        .map(|(h2, spread, n)| {
+            let flat = n > 0 && spread / (n as f64) < ROUGH_SPREAD as f64;
+            if flat {
                 (h2 / n as f64).sqrt() as f32
+            } else {
+                0.0
             }
         })
         .collect()
 }
+
+/// A leaf counts as one rough surface only where its splats' normals agree, their mean
+/// `1 − n·n̄` below this (about 20°): a leaf across an edge (a wall meeting the ceiling) has
+/// heights about its mean plane as large as itself, which are geometry, not noise, and its
+/// splats' fitted normals blend the two faces; its own zones stay a radius high.
+const ROUGH_SPREAD: f32 = 0.06;
 
 /// A visibility segment between two surface points: `ray` from the first end (at `t = 0`)
 /// toward the second, whose own zones end at `t = zones[0]` (hits before it on the surface
@@ -260,7 +276,8 @@ mod tests {
             material: 3,
         };
         assert!(own.is([0.0, 1.0, 0.0], 3));
-        assert!(own.is([0.6, 0.8, 0.0], 3));
+        assert!(own.is([0.45, 0.89, 0.0], 3));
+        assert!(!own.is([0.6, 0.8, 0.0], 3), "an edge's blended normal");
         assert!(!own.is([0.0, 1.0, 0.0], 2), "another material");
         assert!(!own.is([1.0, 0.0, 0.0], 3), "another orientation");
         assert!(!Own::NONE.is([0.0, 1.0, 0.0], u32::MAX));
