@@ -273,6 +273,9 @@ fn albedo_factors(
     Ok((factors, source, clamped))
 }
 
+/// Estimated normals, how they were oriented, and the radii when asked for.
+type Estimated = (Vec<Vec3>, Oriented, Option<Vec<f32>>);
+
 /// Normals for a model that has none, and how they were oriented: toward the model's
 /// `scanner` (file frame), else the file's stations, else `import.sensor` (scene frame), else
 /// by propagation. `from_scene` maps a scene-frame point to the file's offsets. With
@@ -284,7 +287,7 @@ fn model_normals(
     pts: &PointSet,
     from_scene: impl Fn(Vec3) -> Vec3,
     radius_k: Option<usize>,
-) -> Result<(Vec<Vec3>, Oriented, Option<Vec<f32>>), ImportError> {
+) -> Result<Estimated, ImportError> {
     let k = cfg.config.import.normal_neighbors;
     let local = |p: DVec3| (p - pts.origin).as_vec3();
     let estimate = |orient| match radius_k {
