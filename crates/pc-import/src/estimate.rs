@@ -114,66 +114,41 @@ fn estimate_distinct(
         _ => 0,
     };
     let tree = build_tree(positions);
-    let mut out_n = vec![Vec3::ZERO; if normals.is_some() { n } else { 0 }];
-    let mut out_r = vec![0.0f32; if radii.is_some() { n } else { 0 }];
-    let mut graph = vec![u32::MAX; n * kg];
+    // Both outputs and a graph row per point whatever is asked (what is not is dropped at the
+    // end: 4 to 12 bytes a point for a while), so that one parallel pass serves every case.
+    let (want_n, want_r) = (normals.is_some(), radii.is_some());
+    let mut out_n = vec![Vec3::ZERO; n];
+    let mut out_r = vec![0.0f32; n];
+    let row = kg.max(1);
+    let mut graph = vec![u32::MAX; n * row];
     let kq = kn.max(kr);
-    // One point: its neighbours once, then what is asked of them.
-    let one = |buf: &mut Vec<(u32, f32)>,
-               i: usize,
-               nrm: Option<&mut Vec3>,
-               r: Option<&mut f32>,
-               g: &mut [u32]| {
-        neighbours(&tree, positions, i, kq, buf);
-        if let Some(nrm) = nrm {
-            *nrm = pca_normal(positions, i, &buf[..kn.min(buf.len())]);
-        }
-        if let Some(r) = r {
-            let near = &buf[..kr.min(buf.len())];
-            let sum: f64 = near.iter().map(|&(_, d2)| d2 as f64).sum();
-            let mean = sum / near.len().max(1) as f64;
-            *r = (2.0 * std::f64::consts::PI * mean / kr as f64).sqrt() as f32;
-        }
-        for (g, &(j, _)) in g.iter_mut().zip(buf.iter()) {
-            *g = j;
-        }
-    };
-    // Rayon over whichever outputs exist (an empty one zipped would stop the others).
-    match (out_n.is_empty(), out_r.is_empty(), kg) {
-        (false, false, 0) => out_n
-            .par_iter_mut()
-            .zip(out_r.par_iter_mut())
-            .enumerate()
-            .for_each_init(Vec::new, |b, (i, (x, r))| {
-                one(b, i, Some(x), Some(r), &mut [])
-            }),
-        (false, false, _) => out_n
-            .par_iter_mut()
-            .zip(out_r.par_iter_mut())
-            .zip(graph.par_chunks_mut(kg))
-            .enumerate()
-            .for_each_init(Vec::new, |b, (i, ((x, r), g))| {
-                one(b, i, Some(x), Some(r), g)
-            }),
-        (false, true, 0) => out_n
-            .par_iter_mut()
-            .enumerate()
-            .for_each_init(Vec::new, |b, (i, x)| one(b, i, Some(x), None, &mut [])),
-        (false, true, _) => out_n
-            .par_iter_mut()
-            .zip(graph.par_chunks_mut(kg))
-            .enumerate()
-            .for_each_init(Vec::new, |b, (i, (x, g))| one(b, i, Some(x), None, g)),
-        (true, _, _) => out_r
-            .par_iter_mut()
-            .enumerate()
-            .for_each_init(Vec::new, |b, (i, r)| one(b, i, None, Some(r), &mut [])),
+    out_n
+        .par_iter_mut()
+        .zip(out_r.par_iter_mut())
+        .zip(graph.par_chunks_mut(row))
+        .enumerate()
+        .for_each_init(Vec::new, |buf, (i, ((nrm, r), g))| {
+            neighbours(&tree, positions, i, kq, buf);
+            if want_n {
+                *nrm = pca_normal(positions, i, &buf[..kn.min(buf.len())]);
+            }
+            if want_r {
+                let near = &buf[..kr.min(buf.len())];
+                let sum: f64 = near.iter().map(|&(_, d2)| d2 as f64).sum();
+                let mean = sum / near.len().max(1) as f64;
+                *r = (2.0 * std::f64::consts::PI * mean / kr as f64).sqrt() as f32;
+            }
+            for (g, &(j, _)) in g.iter_mut().take(kg).zip(buf.iter()) {
+                *g = j;
+            }
+        });
+    match orient {
+        Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
+        None => out_n = Vec::new(),
     }
-    if let Some(orient) = orient {
-        orient_normals(positions, &mut out_n, orient, &graph, kg);
-    }
-    if !out_r.is_empty() {
-        replace_bad_radii(&mut out_r);
+    match want_r {
+        true => replace_bad_radii(&mut out_r),
+        false => out_r = Vec::new(),
     }
     (out_n, out_r)
 }
