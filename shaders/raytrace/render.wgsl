@@ -40,7 +40,10 @@ struct Params {
     grid_mask: u32,
     photon_count: u32,
     grid_cell: f32,
-    _pad: vec2<u32>,
+    // 1: out_pixels holds three words of four per pixel (colour and depth, normal and splat,
+    // albedo: PixelOut's layout), 0: one (colour and depth), a third of the bytes to read back.
+    aovs: u32,
+    _pad: u32,
 }
 
 // A stored photon (twin of pc_artifact::photons::Photon).
@@ -74,7 +77,7 @@ struct PixelOut {
 // Emitter table: x = data-pool index, y = bits of the inclusive CDF.
 @group(0) @binding(9) var<storage, read> emitters: array<vec2<u32>>;
 @group(0) @binding(10) var<uniform> params: Params;
-@group(0) @binding(11) var<storage, read_write> out_pixels: array<PixelOut>;
+@group(0) @binding(11) var<storage, read_write> out_pixels: array<vec4<u32>>;
 // Per splat outgoing diffuse radiance (RGB, three floats per splat, as the radiosity artifact
 // holds it) when params.stored_radiance == 1.
 @group(0) @binding(12) var<storage, read> radiance: array<f32>;
@@ -398,6 +401,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             first = r;
         }
     }
-    first.rgb = acc / f32(params.spp);
-    out_pixels[row * params.width + px] = first;
+    let j = row * params.width + px;
+    let colour = vec4<u32>(bitcast<vec3<u32>>(acc / f32(params.spp)), bitcast<u32>(first.depth));
+    if params.aovs == 0u {
+        out_pixels[j] = colour;
+        return;
+    }
+    out_pixels[3u * j] = colour;
+    out_pixels[3u * j + 1u] = vec4<u32>(bitcast<vec3<u32>>(first.normal), first.splat);
+    out_pixels[3u * j + 2u] = vec4<u32>(bitcast<vec3<u32>>(first.albedo), 0u);
 }

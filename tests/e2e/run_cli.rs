@@ -227,10 +227,12 @@ fn a_killed_stage_leaves_its_previous_output_and_the_next_run_redoes_it() {
         "--set",
         "raytrace.spp=64",
     ];
+    // On one CPU thread: a GPU (an H100 rendered it in 0.3 s) or many cores finish too soon.
     let mut child = Command::new(bin("pc-raytrace"))
-        .args(["--quiet", "--if-stale", "--config"])
+        .args(["--quiet", "--if-stale", "--backend", "cpu", "--config"])
         .arg(&cfg)
         .args(slow)
+        .env("RAYON_NUM_THREADS", "1")
         .spawn()
         .unwrap();
     let started = Instant::now();

@@ -226,6 +226,15 @@ where
     I: IntoIterator<Item = S>,
     S: AsRef<std::ffi::OsStr>,
 {
+    run_limited_env(bin, args, limit, &[])
+}
+
+/// [`run_limited`] with these environment variables set for the child.
+pub fn run_limited_env<I, S>(bin: &Path, args: I, limit: Limit, env: &[(&str, &str)]) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
     let (resource, limit): (Resource, u64) = match limit {
         Limit::FileSize(n) => (libc::RLIMIT_FSIZE, n),
         Limit::AddressSpace(n) => (libc::RLIMIT_AS, n),
@@ -233,7 +242,7 @@ where
     use std::os::unix::process::CommandExt;
     let args: Vec<std::ffi::OsString> = args.into_iter().map(|a| a.as_ref().into()).collect();
     let mut cmd = Command::new(bin);
-    cmd.args(&args);
+    cmd.args(&args).envs(env.iter().copied());
     // SAFETY: between fork and exec the closure only makes two async-signal-safe calls.
     unsafe {
         cmd.pre_exec(move || {

@@ -569,8 +569,7 @@ impl Device {
             return Ok(());
         }
         let (ctx, b) = (&self.ctx, &self.buffers);
-        ctx.queue
-            .write_buffer(&b.radiance, 0, bytemuck::cast_slice(radiance));
+        ctx.write(&b.radiance, bytemuck::cast_slice(radiance));
         for step in &self.steps {
             let buffers = [
                 &step.params,

@@ -6,8 +6,12 @@
 //! `PC_REQUIRE_GPU=1` a missing adapter fails the test instead of skipping it.
 
 use std::sync::mpsc;
+use std::time::Instant;
 
 pub mod shaders;
+mod times;
+
+pub use times::{times, GpuTimes};
 
 /// A GPU buffer (wgpu's), as kernels bind it: stage crates name it through here and never
 /// depend on wgpu themselves.
@@ -139,6 +143,13 @@ impl GpuContext {
     }
 
     fn storage_unchecked(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+        let started = Instant::now();
+        let buffer = self.storage_init(label, bytes);
+        times::count(times::Op::Upload(bytes.len() as u64), started);
+        buffer
+    }
+
+    fn storage_init(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
         let usage = wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_SRC
             | wgpu::BufferUsages::COPY_DST;
@@ -174,6 +185,13 @@ impl GpuContext {
         }))
     }
 
+    /// Overwrite the start of `buffer` with `bytes` (queued; done before the next dispatch).
+    pub fn write(&self, buffer: &wgpu::Buffer, bytes: &[u8]) {
+        let started = Instant::now();
+        self.queue.write_buffer(buffer, 0, bytes);
+        times::count(times::Op::Upload(bytes.len() as u64), started);
+    }
+
     /// A uniform buffer holding `bytes`.
     pub fn uniform(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
         self.device
@@ -189,6 +207,7 @@ impl GpuContext {
         if size == 0 {
             return Ok(Vec::new());
         }
+        let started = Instant::now();
         let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -219,6 +238,7 @@ impl GpuContext {
         let out = view[..size as usize].to_vec();
         drop(view);
         staging.unmap();
+        times::count(times::Op::Read(size), started);
         Ok(out)
     }
 
@@ -231,6 +251,7 @@ impl GpuContext {
         entry: &str,
         bindings: &[Binding],
     ) -> Result<Kernel, GpuError> {
+        let started = Instant::now();
         validate_wgsl(source).map_err(|e| match e {
             GpuError::Shader { msg, .. } => GpuError::Shader {
                 label: label.to_string(),
@@ -300,6 +321,7 @@ impl GpuContext {
                 msg: e.to_string(),
             });
         }
+        times::count(times::Op::Build, started);
         Ok(Kernel {
             label: label.to_string(),
             pipeline,
@@ -367,6 +389,7 @@ impl Kernel {
         binds: &[Bind],
         groups: (u32, u32, u32),
     ) -> Result<(), GpuError> {
+        let started = Instant::now();
         // Validation errors come back as errors instead of wgpu's default panic.
         let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let entries: Vec<wgpu::BindGroupEntry> = binds
@@ -413,6 +436,7 @@ impl Kernel {
         ctx.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Readback(e.to_string()))?;
+        times::count(times::Op::Dispatch, started);
         Ok(())
     }
 }

@@ -49,7 +49,9 @@ struct Args {
 fn main() -> ExitCode {
     let a = Args::parse();
     if let Some(frames) = a.frames {
-        return pc_stage::exit("pc-raytrace", walkthrough(&a, frames));
+        let threads = pc_stage::threads::start()
+            .map_err(|e| anyhow::anyhow!("cannot start a worker thread: {e}"));
+        return pc_stage::exit("pc-raytrace", threads.and_then(|_| walkthrough(&a, frames)));
     }
     pc_stage::main(&a.stage, |cfg| {
         Ok(RaytraceStage {
@@ -91,6 +93,6 @@ fn walkthrough(a: &Args, frames: usize) -> anyhow::Result<()> {
         a.stage.quiet,
         a.stage.stats_json.as_deref(),
     )?;
-    pc_stage::say(&w);
+    pc_stage::say(&pc_stage::with_gpu_times(w.to_string()));
     Ok(())
 }

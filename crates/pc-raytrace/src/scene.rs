@@ -108,7 +108,9 @@ pub struct Params {
     pub grid_mask: u32,
     pub photon_count: u32,
     pub grid_cell: f32,
-    pub _pad: [u32; 2],
+    /// 1: the GPU kernel writes each pixel's AOVs too (48 bytes), 0: its colour alone (16).
+    pub aovs: u32,
+    pub _pad: u32,
 }
 
 /// Everything a render reads.

@@ -13,9 +13,10 @@ pub mod lock;
 pub mod oom;
 pub mod progress;
 pub mod stage;
+pub mod threads;
 
 pub use args::StageArgs;
 pub use device::{gpu_for, gpu_or_cpu};
 pub use input::OptionalInput;
 pub use progress::{Progress, Silent};
-pub use stage::{artifact_key, exit, main, peak_rss_bytes, say, Stage};
+pub use stage::{artifact_key, exit, main, peak_rss_bytes, say, with_gpu_times, Stage};

@@ -2,6 +2,7 @@
 //! visibility use (pc-vmap's links and light lists, pc-fmm's shadow rays, tests).
 
 use pc_gpu::GpuError;
+use rayon::prelude::*;
 
 use crate::{Between, OctreeView, Ray};
 
@@ -48,18 +49,60 @@ pub struct GpuCaster {
     pub caster: crate::gpu::RayCaster,
 }
 
+// The records are made and the answers read on all cores: on the H100 these serial loops over
+// 41M rays took longer than the kernels (docs/gpu.md).
 impl Caster for GpuCaster {
     fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
-        let input: Vec<crate::gpu::RayIn> = rays.iter().map(Into::into).collect();
-        let hits = self.caster.cast(&self.ctx, &input, true)?;
-        Ok(hits.iter().map(Option::is_none).collect())
+        let input: Vec<crate::gpu::RayIn> = rays.par_iter().map(Into::into).collect();
+        self.caster.visible(&self.ctx, &input)
     }
     fn visible_between(&self, segs: &[Between]) -> Result<Vec<bool>, GpuError> {
-        let input: Vec<crate::gpu::RayIn> = segs.iter().map(Into::into).collect();
-        let hits = self.caster.cast(&self.ctx, &input, true)?;
-        Ok(hits.iter().map(Option::is_none).collect())
+        let input: Vec<crate::gpu::RayIn> = segs.par_iter().map(Into::into).collect();
+        self.caster.visible(&self.ctx, &input)
     }
     fn name(&self) -> String {
         self.ctx.describe()
+    }
+}
+
+/// A caster that adds up the wall time spent in another's casts, so a stage can tell its rays'
+/// time from the rest (pc-vmap's `casting` timing).
+pub struct Timed<'a> {
+    pub inner: &'a dyn Caster,
+    nanos: std::sync::atomic::AtomicU64,
+}
+
+impl<'a> Timed<'a> {
+    pub fn new(inner: &'a dyn Caster) -> Self {
+        Timed {
+            inner,
+            nanos: Default::default(),
+        }
+    }
+
+    /// Seconds spent in casts so far.
+    pub fn seconds(&self) -> f64 {
+        self.nanos.load(std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9
+    }
+
+    fn timed<T>(&self, f: impl FnOnce() -> T) -> T {
+        let t = std::time::Instant::now();
+        let out = f();
+        let ns = t.elapsed().as_nanos() as u64;
+        self.nanos
+            .fetch_add(ns, std::sync::atomic::Ordering::Relaxed);
+        out
+    }
+}
+
+impl Caster for Timed<'_> {
+    fn visible(&self, rays: &[Ray]) -> Result<Vec<bool>, GpuError> {
+        self.timed(|| self.inner.visible(rays))
+    }
+    fn visible_between(&self, segs: &[Between]) -> Result<Vec<bool>, GpuError> {
+        self.timed(|| self.inner.visible_between(segs))
+    }
+    fn name(&self) -> String {
+        self.inner.name()
     }
 }

@@ -4,6 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
+use rayon::prelude::*;
 
 use crate::{OctreeView, Ray};
 
@@ -150,6 +151,34 @@ impl RayCaster {
         any_hit: bool,
     ) -> Result<Vec<Option<(f32, u32)>>, GpuError> {
         let mut out = Vec::with_capacity(rays.len());
+        self.dispatch(ctx, rays, any_hit, |words| {
+            out.par_extend(
+                words
+                    .par_iter()
+                    .map(|w| (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]))),
+            )
+        })?;
+        Ok(out)
+    }
+
+    /// Whether each ray's segment is free of hits (any-hit rays).
+    pub fn visible(&self, ctx: &GpuContext, rays: &[RayIn]) -> Result<Vec<bool>, GpuError> {
+        let mut out = Vec::with_capacity(rays.len());
+        self.dispatch(ctx, rays, true, |words| {
+            out.par_extend(words.par_iter().map(|w| w[1] == u32::MAX))
+        })?;
+        Ok(out)
+    }
+
+    /// Cast `rays` in dispatches of at most [`RAYS_PER_DISPATCH`]; `take` reads each
+    /// dispatch's hits in order ([t bits, data-pool index or `u32::MAX`] per ray).
+    fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        rays: &[RayIn],
+        any_hit: bool,
+        mut take: impl FnMut(&[[u32; 2]]),
+    ) -> Result<(), GpuError> {
         for chunk in rays.chunks(RAYS_PER_DISPATCH) {
             let params = CastParams {
                 count: chunk.len() as u32,
@@ -163,13 +192,8 @@ impl RayCaster {
             let binds: Vec<&pc_gpu::Buffer> = self.tree.buffers().chain([&rb, &pb, &hb]).collect();
             self.kernel.run(ctx, &binds, grid(chunk.len() as u32, 64))?;
             let bytes = ctx.read(&hb, size)?;
-            let words: &[[u32; 2]] = bytemuck::cast_slice(&bytes);
-            out.extend(
-                words
-                    .iter()
-                    .map(|w| (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]))),
-            );
+            take(bytemuck::cast_slice(&bytes));
         }
-        Ok(out)
+        Ok(())
     }
 }

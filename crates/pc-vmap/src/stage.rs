@@ -116,7 +116,10 @@ pub fn run(
     let leaf_splats = p.leaf_splats_for(view.splats.len());
     let vn = vnodes(&view, leaf_splats);
     timings.push(("nodes and cones".to_string(), t.elapsed().as_secs_f64()));
-    let caster = caster(&view, backend)?;
+    let t = Instant::now();
+    let device = caster(&view, backend)?;
+    timings.push(("device setup".to_string(), t.elapsed().as_secs_f64()));
+    let caster = pc_tree::caster::Timed::new(device.as_ref());
     let t = Instant::now();
     let links = match reusable(out, &lkey, view.nodes.len()) {
         Some(r) => r,
@@ -125,7 +128,7 @@ pub fn run(
             let mut round = |level: usize, frontier: usize| {
                 progress.phase(&format!("links, round {level}: {frontier} node pairs next"))
             };
-            let l = build_links(&view, &vn, p, caster.as_ref(), &mut round)?;
+            let l = build_links(&view, &vn, p, &caster, &mut round)?;
             let smear = l.smear.per_node(&vn, &l.contact);
             let (offsets, links) = csr(view.nodes.len(), l.pairs);
             Links {
@@ -152,7 +155,7 @@ pub fn run(
     progress.phase("light lists");
     let t = Instant::now();
     let positions: Vec<Vec3> = lights.iter().map(|l| Vec3::from(l.position)).collect();
-    let lists = light_lists(&view, &vn, &positions, p, caster.as_ref())?;
+    let lists = light_lists(&view, &vn, &positions, p, &caster)?;
     let mut light_offsets = vec![0u32];
     let mut light_links = Vec::new();
     for l in &lists {
@@ -160,6 +163,8 @@ pub fn run(
         light_offsets.push(light_links.len() as u32);
     }
     timings.push(("light lists".to_string(), t.elapsed().as_secs_f64()));
+    // Of the links' and the lists' time, the casts' (the rest builds and decides the rays).
+    timings.push(("casting".to_string(), caster.seconds()));
     let meta = VmapMeta {
         octree_key: octree.key().to_string(),
         links_key: lkey.to_string(),

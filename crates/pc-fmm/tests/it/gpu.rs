@@ -287,8 +287,15 @@ fn gpu_relaxed_products_match_the_cpus() {
 }
 
 /// The final gather's WGSL twin (shaders/fmm/gather.wgsl) casts the same rays from the same
-/// random numbers as the CPU's: on the box scene with varied radiance, every splat gathered by
-/// both, splat by splat.
+/// random numbers as the CPU's: on the box scene with radiance varying over its surfaces, every
+/// splat gathered by both, splat by splat.
+///
+/// The radiance is a smooth function of where a splat lies, not of its index. A face's disks
+/// overlap in one plane, so where a ray meets two of them their distances tie to rounding, and
+/// which one wins depends on whether the device fuses multiply-adds (NVIDIA's Vulkan driver
+/// does; the CPU and llvmpipe do not). On the H100, radiance by index made 90 of 1844 splats
+/// differ (relative L2 2.6e-3) from such ties alone; by place, two tied disks see nearly the
+/// same light, as in any real solution.
 #[test]
 fn gpu_gather_matches_the_cpu() {
     let Some(ctx) = pc_gpu::test_context() else {
@@ -298,7 +305,18 @@ fn gpu_gather_matches_the_cpu() {
     let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
     let view = sc.octree.view();
     let n = view.splats.len();
-    let radiance = varied_radiance(n);
+    let radiance: Vec<[f32; 3]> = view
+        .splats
+        .iter()
+        .map(|s| {
+            let p = glam::Vec3::from(s.position);
+            [
+                1.0 + 0.5 * (2.0 * p.x + p.z).sin(),
+                0.5 + 0.4 * (1.5 * p.y - p.z).cos(),
+                0.2,
+            ]
+        })
+        .collect();
     let splats: Vec<u32> = (0..n as u32).step_by(3).collect();
     let rays = pc_fmm::gather::GatherRays::new(64, 0.5);
     let accel = pc_tree::accel::Accel::new(&view);
@@ -308,12 +326,13 @@ fn gpu_gather_matches_the_cpu() {
         .gather(rays, &splats)
         .unwrap();
     assert_eq!(cpu.len(), gpu.len());
-    // A ray that grazes a disk's rim may hit on one side and miss on the other: at most a ray
-    // or two of a splat's 64 differ.
+    // A tie moves a splat's value by a fraction of one ray's share (1/64), a ray that grazes a
+    // disk's rim and hits on one side but misses on the other by up to one share: few splats
+    // may differ by half a share or more.
     let differ = cpu
         .iter()
         .zip(&gpu)
-        .filter(|(c, g)| (0..3).any(|k| (c[k] - g[k]).abs() > 1e-4 * (1.0 + c[k].abs())))
+        .filter(|(c, g)| (0..3).any(|k| (c[k] - g[k]).abs() > 0.5 / 64.0 * (0.1 + c[k].abs())))
         .count();
     let e = rel_l2(&gpu, &cpu);
     println!(

@@ -18,7 +18,8 @@ pub fn source() -> Result<String, GpuError> {
     pc_gpu::shaders::source("raytrace/render.wgsl")
 }
 
-/// One output pixel (WGSL `PixelOut`).
+/// One output pixel (WGSL `PixelOut`), as the kernel writes it when AOVs are asked for: three
+/// words of four; without AOVs it writes the first word alone (colour and depth).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct PixelOut {
@@ -131,7 +132,12 @@ impl GpuRenderer {
         let (w, h) = (sc.params.width, sc.params.height);
         let per_row = w as u64 * sc.params.spp as u64;
         let band = (SAMPLES_PER_DISPATCH / per_row.max(1)).clamp(1, h as u64) as u32;
-        let out_size = (w as u64) * (band as u64) * std::mem::size_of::<PixelOut>() as u64;
+        // The kernel writes PixelOut with AOVs, else one word of four a pixel (its first).
+        let pixel_bytes = match with_aovs {
+            true => std::mem::size_of::<PixelOut>(),
+            false => std::mem::size_of::<[u32; 4]>(),
+        } as u64;
+        let out_size = (w as u64) * (band as u64) * pixel_bytes;
         let out = ctx.output("pixels", out_size)?;
         let mut img = Image::new(w, h);
         let mut aovs = with_aovs.then(|| Aovs {
@@ -152,6 +158,7 @@ impl GpuRenderer {
                 grid_mask: g.grid_mask,
                 photon_count: g.photon_count,
                 grid_cell: g.grid_cell,
+                aovs: with_aovs as u32,
                 ..sc.params
             };
             let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
@@ -164,19 +171,24 @@ impl GpuRenderer {
             bind.push(&self.grid_offsets);
             self.kernel
                 .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
-            let bytes = ctx.read(
-                &out,
-                (w * rows) as u64 * std::mem::size_of::<PixelOut>() as u64,
-            )?;
-            let px: &[PixelOut] = bytemuck::cast_slice(&bytes);
-            for (i, p) in px.iter().enumerate() {
-                let idx = (row * w) as usize + i;
-                img.rgb[idx] = p.rgb;
-                if let Some(a) = aovs.as_mut() {
-                    a.depth[idx] = p.depth;
-                    a.normal[idx] = p.normal;
-                    a.albedo[idx] = p.albedo;
-                    a.splat[idx] = p.splat;
+            let bytes = ctx.read(&out, (w * rows) as u64 * pixel_bytes)?;
+            let at = (row * w) as usize;
+            match aovs.as_mut() {
+                Some(a) => {
+                    let px: &[PixelOut] = bytemuck::cast_slice(&bytes);
+                    for (i, p) in px.iter().enumerate() {
+                        img.rgb[at + i] = p.rgb;
+                        a.depth[at + i] = p.depth;
+                        a.normal[at + i] = p.normal;
+                        a.albedo[at + i] = p.albedo;
+                        a.splat[at + i] = p.splat;
+                    }
+                }
+                None => {
+                    let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+                    for (i, p) in px.iter().enumerate() {
+                        img.rgb[at + i] = [p[0], p[1], p[2]];
+                    }
                 }
             }
             row += rows;

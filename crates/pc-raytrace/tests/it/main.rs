@@ -263,10 +263,12 @@ fn cpu_and_gpu_render_the_same_image() {
     let mut sc = RenderScene::new(o.view(), mats, &[light], &cam, &p);
     sc.prepare_cpu(); // the packed leaf lists the stage uses on the CPU
     let (cpu, _) = pc_raytrace::cpu::render(&sc, true, &|| {});
-    let gpu = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc)
-        .unwrap()
-        .render(&ctx, &sc, true)
-        .unwrap();
+    let renderer = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc).unwrap();
+    let gpu = renderer.render(&ctx, &sc, true).unwrap();
+    // Without AOVs the kernel writes a third of the bytes: the same colours.
+    let plain = renderer.render(&ctx, &sc, false).unwrap();
+    assert!(plain.aovs.is_none());
+    assert_eq!(plain.rgb, gpu.rgb);
     let c = pc_raytrace::image::compare(&gpu, &cpu).unwrap();
     let (ca, ga) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
     let same_first_hit = ca
@@ -330,6 +332,7 @@ fn wgsl_records_match_rust_layouts() {
         std::mem::offset_of!(Params, photon_count)
     );
     assert_eq!(off("grid_cell"), std::mem::offset_of!(Params, grid_cell));
+    assert_eq!(off("aovs"), std::mem::offset_of!(Params, aovs));
     let (_, members) = pc_gpu::wgsl_struct_layout(&module, "Material").unwrap();
     assert_eq!(
         members.iter().find(|m| m.0 == "phong").unwrap().1 as usize,
