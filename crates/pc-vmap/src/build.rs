@@ -347,6 +347,7 @@ fn decide(
     close: &[bool],
     tested: &[(u32, u32, bool)],
     links: &mut Links,
+    segs: &mut Segments,
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
     let mut next = Vec::new();
     let mut partial = Vec::new();
@@ -377,21 +378,21 @@ fn decide(
     //    probe rays of the others.
     let probing =
         |(r, _, fate): &(Vec<Sample>, u32, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
-    let first: Vec<Between> = per_pair
-        .iter()
-        .flat_map(|x| {
-            let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
-                true => Box::new(probes(x.0.len())),
-                false => Box::new(0..x.0.len()),
-            };
-            all.map(|i| x.0[i].ray)
-        })
-        .collect();
-    let seen_first = caster.visible_between(&first)?;
+    let first = &mut segs.first;
+    first.clear();
+    first.extend(per_pair.iter().flat_map(|x| {
+        let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
+            true => Box::new(probes(x.0.len())),
+            false => Box::new(0..x.0.len()),
+        };
+        all.map(|i| x.0[i].ray)
+    }));
+    let seen_first = caster.visible_between(first)?;
     // 2. The rest, where the probes do not settle the pair.
     let mut visible: Vec<Vec<bool>> = Vec::with_capacity(per_pair.len());
     let mut settled: Vec<bool> = Vec::with_capacity(per_pair.len());
-    let mut rest: Vec<Between> = Vec::new();
+    let rest = &mut segs.rest;
+    rest.clear();
     let mut at = 0;
     for x in &per_pair {
         let r = &x.0;
@@ -424,7 +425,7 @@ fn decide(
         visible.push(vis);
         settled.push(done);
     }
-    let seen_rest = caster.visible_between(&rest)?;
+    let seen_rest = caster.visible_between(rest)?;
     let mut at = 0;
     for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
         if probing(x) && !done {
@@ -651,6 +652,15 @@ fn split(view: &OctreeView, vn: &[VNode], a: u32, b: u32, out: &mut Vec<(u32, u3
     }
 }
 
+/// The segments of a batch's two casts, kept from batch to batch: allocated afresh, a
+/// batch's few hundred megabytes came from the system as new pages each time, and faulting them
+/// in cost as much as filling them.
+#[derive(Default)]
+struct Segments {
+    first: Vec<Between>,
+    rest: Vec<Between>,
+}
+
 /// Build the links of the octree. `round` is called after each round with the frontier size.
 pub fn build_links(
     view: &OctreeView,
@@ -670,6 +680,7 @@ pub fn build_links(
     links.close = close.iter().filter(|&&c| c).count() as u64;
     links.contact = crate::close::contact_shares(view, vn, p, caster)?;
     let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
+    let mut segs = Segments::default();
     let mut level = 0;
     while !frontier.is_empty() {
         level += 1;
@@ -706,6 +717,7 @@ pub fn build_links(
                 &close,
                 &tested[first..last],
                 &mut links,
+                &mut segs,
             )?;
             next.extend(more);
             partial.extend(part);
