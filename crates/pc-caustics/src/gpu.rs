@@ -9,7 +9,7 @@
 use bytemuck::{Pod, Zeroable};
 use pc_artifact::octree::MaterialRecord;
 use pc_artifact::photons::Photon;
-use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
+use pc_gpu::{grid, Bind, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::OctreeView;
 
@@ -214,29 +214,42 @@ impl GpuTracer {
         if total == 0 {
             return Ok(());
         }
-        let aims_buf = ctx.storage("aims", bytemuck::cast_slice(&ga))?;
+        // Bound in windows: a dispatch reads only the aims its photon ids fall in, so any
+        // number of aims fits a device's binding limit (llvmpipe's 128 MiB refused the default
+        // budget's 2.4M aims of a small scene).
+        let aims_buf = ctx.storage_windowed("aims", bytemuck::cast_slice(&ga))?;
+        let record = std::mem::size_of::<GpuAim>();
+        let align = (ctx.device.limits().min_storage_buffer_offset_alignment as usize)
+            .div_ceil(record)
+            .max(1);
         let per = PHOTONS_PER_DISPATCH.min(total as u32);
         let size = per as u64 * std::mem::size_of::<Photon>() as u64;
         let photons_buf = ctx.output("photons", size)?;
         let mut done = 0u64;
         while done < total {
             let count = (total - done).min(per as u64) as u32;
+            let (lo, hi) = aim_window(&ga, done, count, align);
             let params = GpuParams {
                 seed: self.seed,
                 max_bounces: self.max_bounces,
                 self_hit: self.self_hit,
-                aim_count: ga.len() as u32,
+                aim_count: (hi - lo) as u32,
                 id_offset: done as u32,
                 count,
                 _pad: [0; 2],
             };
             let pb = ctx.uniform("photon_params", bytemuck::bytes_of(&params));
-            let mut bind: Vec<&pc_gpu::Buffer> =
-                self.octree.buffers().chain(&self.buffers).collect();
-            bind.push(&aims_buf);
-            bind.push(&pb);
-            bind.push(&photons_buf);
-            self.kernel.run(ctx, &bind, grid(count, 64))?;
+            let mut bind: Vec<Bind> = self
+                .octree
+                .buffers()
+                .chain(&self.buffers)
+                .map(Bind::whole)
+                .collect();
+            let bytes = |i: usize| (i * record) as u64;
+            bind.push(Bind::window(&aims_buf, bytes(lo), bytes(hi - lo)));
+            bind.push(Bind::whole(&pb));
+            bind.push(Bind::whole(&photons_buf));
+            self.kernel.run_binds(ctx, &bind, grid(count, 64))?;
             let bytes = ctx.read(
                 &photons_buf,
                 count as u64 * std::mem::size_of::<Photon>() as u64,
@@ -250,9 +263,48 @@ impl GpuTracer {
     }
 }
 
+/// The aims that photon ids `first .. first + count` fall in, `[lo, hi)` with `lo` a multiple of
+/// `align` (the binding offset's alignment, in records): ids are numbered aim after aim
+/// (`first` rising), and the kernel finds an id's aim by binary search within the window.
+fn aim_window(aims: &[GpuAim], first: u64, count: u32, align: usize) -> (usize, usize) {
+    let end = first + count as u64;
+    let lo = aims
+        .partition_point(|a| a.first as u64 <= first)
+        .saturating_sub(1);
+    let hi = aims.partition_point(|a| (a.first as u64) < end);
+    (lo / align * align, hi.max(lo + 1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A window holds every aim its ids fall in, starts aligned, and no more than that.
+    #[test]
+    fn aim_windows_cover_their_ids() {
+        let firsts = [0u32, 3, 4, 10, 11, 20];
+        let aims: Vec<GpuAim> = firsts
+            .iter()
+            .map(|&first| GpuAim {
+                first,
+                ..Default::default()
+            })
+            .collect();
+        let total = 25u64;
+        for align in [1, 2, 4] {
+            for first in 0..total {
+                for count in 1..=(total - first) as u32 {
+                    let (lo, hi) = aim_window(&aims, first, count, align);
+                    assert_eq!(lo % align, 0);
+                    let owner = |id: u64| firsts.iter().rposition(|&f| f as u64 <= id).unwrap();
+                    for id in first..first + count as u64 {
+                        assert!((lo..hi).contains(&owner(id)), "{first} {count} {align}");
+                    }
+                    assert!(hi <= owner(first + count as u64 - 1) + 1);
+                }
+            }
+        }
+    }
 
     /// The kernel validates, and its records have the sizes and offsets of the Rust ones.
     #[test]
