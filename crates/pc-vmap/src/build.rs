@@ -338,7 +338,8 @@ fn is_probe(i: usize, n: usize) -> bool {
 /// light-carrying weight, some blocked) and the pair's fate needs no fraction (finer pairs or the
 /// exhaustive pass), its other rays are never cast. Every other ray is cast in the second, so
 /// the links are exactly those of casting every ray at once (docs/vmap.md, "Cost").
-#[allow(clippy::type_complexity)]
+// (The round's inputs, its output and its reused buffers: eight arguments.)
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 fn decide(
     view: &OctreeView,
     vn: &[VNode],
