@@ -153,6 +153,7 @@ pub fn run(
     let ((traced, spec), device) = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
+        pc_stage::Work::Precompute,
         |ctx| {
             start_tracing();
             let g = crate::gpu::GpuTracer::new(

@@ -445,7 +445,8 @@ pub enum ShadingMode {
 pub enum Backend {
     Cpu,
     Gpu,
-    /// The GPU when an adapter exists, else the CPU.
+    /// A hardware GPU where it pays (rendering always; the V-map, photons and FMM on hosts of
+    /// fewer than 8 threads: docs/gpu.md), else the CPU.
     #[default]
     Auto,
 }

@@ -129,6 +129,7 @@ fn operator<'a>(
     pc_stage::gpu_or_cpu(
         STAGE,
         backend,
+        pc_stage::Work::Precompute,
         |ctx| {
             let g = crate::gpu::GpuFmm::new(ctx, basis, tree, pts, plan)?;
             Ok(Box::new(g) as Box<dyn Operator>)
@@ -207,6 +208,7 @@ fn final_gather(
     let gatherer = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
+        pc_stage::Work::Precompute,
         |ctx| {
             let g = gather::GpuGather::new(ctx, view, &reflected)?;
             Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(g)))

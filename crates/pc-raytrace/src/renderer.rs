@@ -29,6 +29,7 @@ impl Renderer {
         let gpu = pc_stage::gpu_or_cpu(
             crate::stage::STAGE,
             backend,
+            pc_stage::Work::Render,
             |ctx| GpuRenderer::new(&ctx, sc).map(|r| Some((ctx, r))),
             || Ok::<_, pc_gpu::GpuError>(None),
         )?;

@@ -4,31 +4,60 @@
 use pc_config::Backend;
 use pc_gpu::{GpuContext, GpuError};
 
-/// The GPU for `backend`: `cpu` none; `gpu` a context, or the error that there is none;
-/// `auto` a hardware GPU when one exists (a software rasterizer such as llvmpipe is slower than
-/// the CPU), else none.
-pub fn gpu_for(backend: Backend) -> Result<Option<GpuContext>, GpuError> {
+/// What a stage's kernels do, which decides where `auto` runs them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Work {
+    /// Rendering: `auto` takes a hardware GPU whenever there is one. On an NVIDIA H100 the
+    /// renderer ran 1.6× faster than its host's 16 CPU threads (docs/gpu.md).
+    Render,
+    /// The precomputation (V-map, photons, FMM): `auto` takes a hardware GPU only on a host
+    /// with fewer than [`AUTO_GPU_BELOW_THREADS`] worker threads. On the H100's 16-thread host
+    /// the CPU matched or beat the GPU in all three, whose host work (sampling, deciding,
+    /// moving records) is the same on either device (docs/gpu.md).
+    Precompute,
+}
+
+/// Worker threads from which `auto` keeps the precomputation on the CPU ([`Work::Precompute`]).
+/// Measured at 16 (CPU as fast or faster); 2 threads cast the V-map's rays 6× slower than 16,
+/// where a GPU's share stays the same, so a small host gains from a GPU. In between it is a
+/// guess.
+pub const AUTO_GPU_BELOW_THREADS: usize = 8;
+
+/// The GPU for `backend` and `work`: `cpu` none; `gpu` a context, or the error that there is
+/// none; `auto` a hardware GPU when one exists and `work` gains from it ([`Work`]), else none (a
+/// software rasterizer such as llvmpipe is slower than the CPU).
+pub fn gpu_for(backend: Backend, work: Work) -> Result<Option<GpuContext>, GpuError> {
     match backend {
         Backend::Cpu => Ok(None),
         Backend::Gpu => GpuContext::new().map(Some),
+        Backend::Auto if !auto_takes_gpu(work, rayon::current_num_threads()) => Ok(None),
         Backend::Auto => Ok(GpuContext::new().ok().filter(|g| !g.is_software())),
     }
 }
 
+/// Whether `auto` looks for a GPU for `work` on a host with `threads` worker threads.
+pub fn auto_takes_gpu(work: Work, threads: usize) -> bool {
+    match work {
+        Work::Render => true,
+        Work::Precompute => threads < AUTO_GPU_BELOW_THREADS,
+    }
+}
+
 /// Runs the work on the device `backend` asks for: `gpu(context)` when there is a GPU for it
-/// ([`gpu_for`]), else `cpu()`. With `auto`, a GPU that cannot take the work (`gpu` fails: too
+/// ([`gpu_for`] with `work`), else `cpu()`. With `auto`, a GPU that cannot take the work (`gpu` fails: too
 /// large for its buffers, too few bindings) falls back to the CPU with a warning on stderr
 /// naming `stage`; with `gpu` that failure is the error.
 pub fn gpu_or_cpu<T, E>(
     stage: &str,
     backend: Backend,
+    work: Work,
     gpu: impl FnOnce(GpuContext) -> Result<T, E>,
     cpu: impl FnOnce() -> Result<T, E>,
 ) -> Result<T, E>
 where
     E: From<GpuError> + std::fmt::Display,
 {
-    let Some(ctx) = gpu_for(backend)? else {
+    let Some(ctx) = gpu_for(backend, work)? else {
         return cpu();
     };
     let name = ctx.describe();
@@ -45,4 +74,19 @@ where
 /// The warning of a fallback from the GPU `gpu` to the CPU.
 pub fn warn_fallback(stage: &str, gpu: &str, why: &dyn std::fmt::Display) {
     eprintln!("{stage}: warning: running on the CPU: the GPU {gpu} cannot: {why}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_keeps_the_precomputation_on_many_cores_and_renders_on_a_gpu() {
+        assert!(auto_takes_gpu(Work::Render, 64));
+        assert!(auto_takes_gpu(Work::Precompute, 2));
+        assert!(!auto_takes_gpu(Work::Precompute, AUTO_GPU_BELOW_THREADS));
+        assert!(!auto_takes_gpu(Work::Precompute, 16));
+        // `cpu` never opens a device, whatever the work.
+        assert!(gpu_for(Backend::Cpu, Work::Render).unwrap().is_none());
+    }
 }

@@ -88,6 +88,7 @@ fn caster<'v>(
     pc_stage::gpu_or_cpu(
         STAGE,
         backend,
+        pc_stage::Work::Precompute,
         |ctx| {
             let caster = pc_tree::gpu::RayCaster::new(&ctx, view)?;
             Ok(Box::new(GpuCaster { ctx, caster }) as Box<dyn Caster>)
