@@ -124,7 +124,7 @@ fn gpu_backend_renders_the_same_scene() {
     let dir = temp_dir();
     let cfg = scene(dir.path());
     pc_octree(args!["--quiet", "--config", &cfg]).success();
-    run(
+    let cpu = run(
         "pc-raytrace",
         args![
             "--quiet",
@@ -137,7 +137,7 @@ fn gpu_backend_renders_the_same_scene() {
         ],
     )
     .success();
-    run(
+    let gpu = run(
         "pc-raytrace",
         args![
             "--quiet",
@@ -150,6 +150,13 @@ fn gpu_backend_renders_the_same_scene() {
         ],
     )
     .success();
+    // The GPU's share ends the summary, which stays one line (docs/gpu.md).
+    assert!(!cpu.stdout.contains("[GPU:"), "{cpu:?}");
+    assert_eq!(gpu.stdout.lines().count(), 1, "{gpu:?}");
+    assert!(
+        gpu.stdout.contains("[GPU: 1 kernels built in ") && gpu.stdout.contains(" dispatches "),
+        "{gpu:?}"
+    );
     let a = pc_raytrace::image::read_exr(&dir.path().join("cpu.exr")).unwrap();
     let b = pc_raytrace::image::read_exr(&dir.path().join("gpu.exr")).unwrap();
     let c = pc_raytrace::image::compare(&b, &a).unwrap();
