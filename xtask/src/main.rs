@@ -33,7 +33,7 @@ commands:
                                              N frames (default 60) of a camera orbit on it as
                                              out/<scene>/walkthrough-{cpu,gpu}/frame_NNNNN.png,
                                              and report frames per second on the CPU and the GPU
-  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|scale|mitsuba]
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|scale|mitsuba|gpu]
         [--peer embree] [--write]
                                              octree build and ray traversal benchmarks; with
                                              --only rays --peer embree, the same rays traced by
@@ -45,7 +45,12 @@ commands:
                                              and the caustic lookup (default size 1M); with
                                              --only fmm, the radiosity solve (default sizes
                                              100k,1M,4M; best of N runs); with --only chain,
-                                             the whole chain cold and a new view (default 1M)
+                                             the whole chain cold and a new view (default 1M);
+                                             with --only gpu, the chain with every stage on the
+                                             GPU (twice) and on the CPU, each GPU stage's share,
+                                             and GPU frames per second (default 1M; skipped
+                                             without an adapter). PCGI_BENCH_BIN_DIR=DIR runs
+                                             the release binaries in DIR instead of building
                                              (writes BENCHMARKS.md with --write)
 ";
 
@@ -94,8 +99,16 @@ pub(crate) fn root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Build the given binaries in release mode and return the folder they are in.
+/// Build the given binaries in release mode and return the folder they are in; with
+/// `PCGI_BENCH_BIN_DIR` set, that folder as it is (no toolchain needed).
 pub(crate) fn build_release(bins: &[&str]) -> Result<PathBuf> {
+    if let Some(dir) = std::env::var_os("PCGI_BENCH_BIN_DIR") {
+        let dir = PathBuf::from(dir);
+        if let Some(b) = bins.iter().find(|b| !dir.join(b).is_file()) {
+            bail!("PCGI_BENCH_BIN_DIR: {} has no {b}", dir.display());
+        }
+        return Ok(dir);
+    }
     let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     cmd.current_dir(root())
         .args(["build", "--release", "--quiet"]);

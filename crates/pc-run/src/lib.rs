@@ -137,6 +137,8 @@ pub struct StageRun {
     pub output: PathBuf,
     /// The stage process's peak resident memory in bytes (0 where unknown).
     pub peak_rss_bytes: u64,
+    /// Where its GPU time went (`pc_gpu::GpuTimes::json`), when it used a GPU.
+    pub gpu: Option<serde_json::Value>,
 }
 
 /// A stage's `--report` file.
@@ -148,6 +150,8 @@ struct Report {
     key: String,
     #[serde(default)]
     peak_rss_bytes: u64,
+    #[serde(default)]
+    gpu: Option<serde_json::Value>,
 }
 
 /// The folder of the running executable (where `cargo build` puts the stage binaries too).
@@ -220,6 +224,7 @@ pub fn run(opts: &Options, on_done: &mut dyn FnMut(&StageRun)) -> Result<Vec<Sta
             key: r.key,
             output: r.output,
             peak_rss_bytes: r.peak_rss_bytes,
+            gpu: r.gpu,
         };
         on_done(&run);
         done.push(run);
@@ -275,7 +280,7 @@ fn memory(bytes: u64) -> String {
 }
 
 /// The runs as JSON (for scripts and tests): a list of {stage, status, seconds, key, output,
-/// peak_rss_bytes}.
+/// peak_rss_bytes, gpu}.
 pub fn to_json(runs: &[StageRun]) -> String {
     let list: Vec<serde_json::Value> = runs
         .iter()
@@ -287,6 +292,7 @@ pub fn to_json(runs: &[StageRun]) -> String {
                 "key": r.key,
                 "output": r.output.display().to_string(),
                 "peak_rss_bytes": r.peak_rss_bytes,
+                "gpu": r.gpu,
             })
         })
         .collect();
@@ -339,6 +345,7 @@ mod tests {
                 key: String::new(),
                 output: PathBuf::new(),
                 peak_rss_bytes: 1_500_000_000,
+                gpu: None,
             },
             StageRun {
                 stage: Stage::Raytrace,
@@ -347,6 +354,7 @@ mod tests {
                 key: String::new(),
                 output: PathBuf::new(),
                 peak_rss_bytes: 1_500_000_000,
+                gpu: None,
             },
         ];
         assert_eq!(

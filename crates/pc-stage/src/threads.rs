@@ -4,24 +4,59 @@
 //! `The global thread pool has not been initialized` (exit code 101): each thread reserves its
 //! stack, and 16 of them did not fit where 2 did (seen on a 16-core host in the e2e test
 //! `a_stage_out_of_memory_says_so_and_keeps_what_was_published`).
+//!
+//! rayon's global pool can be built once: a build that fails leaves it failed for good. So the
+//! count is found first with plain threads that start and end at once, and only a count the
+//! system granted goes to rayon.
+
+use std::sync::mpsc;
 
 /// Start rayon's global pool with the threads it would start itself (`RAYON_NUM_THREADS`, else
-/// one a core); where the system refuses, halve the count down to one. Returns the threads
-/// started, or the system's answer to a single thread. Call it before anything uses rayon.
+/// one a core), or, where the system refuses that many, the most of the halvings it grants.
+/// Returns the threads started, or the system's answer to a single thread. Call it before
+/// anything uses rayon.
 pub fn start() -> Result<usize, String> {
     let mut want = wanted();
     loop {
-        match rayon::ThreadPoolBuilder::new()
-            .num_threads(want)
-            .build_global()
-        {
-            Ok(()) => return Ok(want),
-            // Started already (rayon was used before): the pool is there.
-            Err(e) if e.to_string().contains("already") => return Ok(want),
+        match try_spawn(want) {
+            Ok(()) => break,
             Err(e) if want <= 1 => return Err(e.to_string()),
             Err(_) => want = (want / 2).max(1),
         }
     }
+    match rayon::ThreadPoolBuilder::new()
+        .num_threads(want)
+        .build_global()
+    {
+        Ok(()) => Ok(want),
+        // Started already (rayon was used before): the pool is there.
+        Err(e) if e.to_string().contains("already") => Ok(rayon::current_num_threads()),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// Whether the system grants `n` threads at once (with the default stack, as rayon's): each
+/// waits until all are there or one was refused, then ends.
+fn try_spawn(n: usize) -> std::io::Result<()> {
+    let mut held = Vec::with_capacity(n);
+    let mut refused = None;
+    for _ in 0..n {
+        let (tx, rx) = mpsc::channel::<()>();
+        match std::thread::Builder::new().spawn(move || {
+            let _ = rx.recv();
+        }) {
+            Ok(handle) => held.push((tx, handle)),
+            Err(e) => {
+                refused = Some(e);
+                break;
+            }
+        }
+    }
+    for (tx, handle) in held {
+        drop(tx);
+        let _ = handle.join();
+    }
+    refused.map_or(Ok(()), Err)
 }
 
 /// The threads rayon starts by default.

@@ -1,10 +1,13 @@
-//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale|mitsuba]
+//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale|mitsuba|gpu]
 //! [--peer embree]`:
-//! the options and which benchmarks run; each benchmark is in its own module.
+//! the options and which benchmarks run; each benchmark is in its own module. With
+//! `PCGI_BENCH_BIN_DIR` set, the benchmarks run the release binaries found there instead of
+//! building them (a machine without a Rust toolchain, such as a lent GPU machine).
 
 mod caustics;
 mod chain;
 mod fmm;
+mod gpu;
 mod harness;
 mod mitsuba;
 mod octree;
@@ -66,7 +69,7 @@ impl Options {
                     o.only = Some(
                         it.next()
                             .context(
-                                "--only needs octree, rays, caustics, fmm, chain, scale or mitsuba",
+                                "--only needs octree, rays, caustics, fmm, chain, scale, mitsuba or gpu",
                             )?
                             .clone(),
                     )
@@ -108,6 +111,8 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
         Some("mitsuba") => mitsuba::bench(write),
         Some("fmm") => fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write),
         Some(what @ ("octree" | "rays")) => octree_or_rays(what, &o.sizes, runs, write),
+        // Not part of the full run: only a machine with a GPU has anything to measure.
+        Some("gpu") => gpu::bench(&o.sizes_or(&[1_000_000]), write),
         // Not part of the full run: the 20M scan alone takes most of an hour on two cores.
         Some("scale") => scale::bench(&o.sizes_or(&[1_000_000, 4_000_000, 20_000_000]), write),
         None => {
@@ -122,7 +127,7 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
             chain::bench(&small, write)
         }
         Some(other) => {
-            bail!("bench: --only takes octree, rays, caustics, fmm, chain, scale or mitsuba, not `{other}`")
+            bail!("bench: --only takes octree, rays, caustics, fmm, chain, scale, mitsuba or gpu, not `{other}`")
         }
     }
 }

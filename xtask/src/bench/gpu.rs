@@ -1,0 +1,206 @@
+//! The GPU against the CPU on the machine at hand (`--only gpu`): the whole chain through pc-run
+//! with every stage on the GPU (twice: the first pass pays the driver's kernel compiles, the
+//! second, in a fresh folder, finds them cached), then on the CPU, then a new view each, and a
+//! GPU walkthrough at 1024×1024, 1 spp. Each GPU stage's share (kernels built, bytes up,
+//! dispatches, bytes back) comes from its report. Without a GPU adapter it says so and skips.
+//! docs/gpu.md holds the first such figures (an NVIDIA H100).
+
+use std::path::Path;
+use std::process::Command;
+
+use anyhow::Result;
+use serde_json::Value;
+
+use super::harness::{bench_scene, ensure_octree, pc_gpu_present, read_json};
+use super::table::{machine, publish, sizes_arg, today};
+use crate::{build_release, run_checked, STAGES};
+
+/// The chain's settings, as `--only chain` has them.
+const BASE: [&str; 3] = ["camera.width=512", "camera.height=512", "raytrace.spp=16"];
+/// The stages with a backend key.
+const DEVICE_STAGES: [&str; 4] = ["vmap", "caustics", "fmm", "raytrace"];
+
+pub(super) fn bench(sizes: &[usize], write: bool) -> Result<()> {
+    let bin = build_release(&[STAGES, &["pc-run", "pc-sample", "pc-raybench"]].concat())?;
+    let mut rows = Vec::new();
+    let mut shares = Vec::new();
+    let mut frames = Vec::new();
+    let mut adapter = String::new();
+    for &n in sizes {
+        let config = bench_scene(&bin, n)?;
+        ensure_octree(&bin, &config)?;
+        if !pc_gpu_present(&bin, &config) {
+            println!("bench gpu: no GPU adapter: skipped");
+            return Ok(());
+        }
+        adapter = gpu_name(&bin, &config);
+        let scene = config.parent().unwrap();
+        for (label, backend, dir) in [
+            ("GPU, first pass", "gpu", "out-gpu"),
+            ("GPU, again", "gpu", "out-gpu2"),
+            ("CPU", "cpu", "out-cpu"),
+        ] {
+            let _ = std::fs::remove_dir_all(scene.join(dir));
+            let (cold, v) = pass(&bin, &config, backend, dir, &[])?;
+            let (view, _) = pass(
+                &bin,
+                &config,
+                backend,
+                dir,
+                &["camera.origin=[0.4, 0.2, 3.8]"],
+            )?;
+            rows.push(format!(
+                "| {} | {label} | {} | {cold:.1} s | {view:.2} s |",
+                count(n),
+                STAGES
+                    .iter()
+                    .map(|s| seconds(&v, s))
+                    .collect::<Vec<_>>()
+                    .join(" | "),
+            ));
+            println!("{}", rows.last().unwrap());
+            if backend == "gpu" {
+                for s in STAGES {
+                    if let Some(g) = stage(&v, s).map(|r| &r["gpu"]).filter(|g| !g.is_null()) {
+                        shares.push(share(n, label, s, g));
+                    }
+                }
+            }
+        }
+        frames.push(walkthrough(&bin, &config, n)?);
+    }
+    let t = table(&adapter, sizes, &rows, &shares, &frames);
+    publish("gpu", "GPU against CPU", &t, write)
+}
+
+/// The adapter's name as pc-raybench reports it (`..., GPU <name> primary ...`).
+fn gpu_name(bin: &Path, config: &Path) -> String {
+    Command::new(bin.join("pc-raybench"))
+        .args(["--width", "8", "--incoherent", "8", "--config"])
+        .arg(config)
+        .output()
+        .ok()
+        .and_then(|o| {
+            let text = String::from_utf8_lossy(&o.stdout).into_owned();
+            let at = text.find(", GPU ")? + 6;
+            let end = text[at..].find(" primary")?;
+            Some(text[at..at + end].to_string())
+        })
+        .unwrap_or_else(|| "a GPU".into())
+}
+
+/// One pc-run with every stage on `backend`, output in `dir`: its wall time and its report.
+fn pass(
+    bin: &Path,
+    config: &Path,
+    backend: &str,
+    dir: &str,
+    extra: &[&str],
+) -> Result<(f64, Value)> {
+    let report = config.with_file_name(format!("{dir}.json"));
+    let mut cmd = Command::new(bin.join("pc-run"));
+    cmd.arg("--quiet").arg("--config").arg(config);
+    let devices = DEVICE_STAGES.map(|s| format!("{s}.backend={backend}"));
+    let out = format!("output.dir={dir}");
+    for s in BASE
+        .iter()
+        .chain(extra)
+        .copied()
+        .chain(devices.iter().map(String::as_str))
+    {
+        cmd.args(["--set", s]);
+    }
+    cmd.args(["--set", &out]).arg("--report").arg(&report);
+    let t = std::time::Instant::now();
+    run_checked(&mut cmd, "pc-run")?;
+    Ok((t.elapsed().as_secs_f64(), read_json(&report)?))
+}
+
+/// Frames per second of a 30-frame GPU walkthrough at 1024², 1 spp, on the first GPU pass's
+/// solution.
+fn walkthrough(bin: &Path, config: &Path, n: usize) -> Result<String> {
+    let stats = config.with_file_name("walkthrough.json");
+    let frames = config.with_file_name("frames");
+    run_checked(
+        Command::new(bin.join("pc-raytrace"))
+            .args(["--quiet", "--backend", "gpu", "--frames", "30", "--config"])
+            .arg(config)
+            .args(["--set", "output.dir=out-gpu", "--set", "camera.width=1024"])
+            .args(["--set", "camera.height=1024", "--set", "raytrace.spp=1"])
+            .arg("--frames-dir")
+            .arg(&frames)
+            .arg("--stats-json")
+            .arg(&stats),
+        "pc-raytrace --frames",
+    )?;
+    let v = read_json(&stats)?;
+    let _ = std::fs::remove_dir_all(&frames);
+    Ok(format!(
+        "{}: {:.1} frames/s",
+        count(n),
+        v["frames_per_second"].as_f64().unwrap_or(f64::NAN)
+    ))
+}
+
+fn stage<'a>(v: &'a Value, name: &str) -> Option<&'a Value> {
+    v.as_array()?.iter().find(|r| r["stage"] == name)
+}
+
+/// A stage's seconds in a report, or "cached".
+fn seconds(v: &Value, name: &str) -> String {
+    match stage(v, name) {
+        Some(r) if r["status"] == "ran" => {
+            format!("{:.2} s", r["seconds"].as_f64().unwrap_or(f64::NAN))
+        }
+        Some(_) => "cached".into(),
+        None => "—".into(),
+    }
+}
+
+/// One row of the GPU shares table.
+fn share(n: usize, pass: &str, name: &str, g: &Value) -> String {
+    let f = |k: &str| g[k].as_f64().unwrap_or(f64::NAN);
+    format!(
+        "| {} | {pass} | {name} | {} in {:.2} s | {:.0} MB in {:.2} s | {} in {:.2} s | {:.0} MB in {:.2} s |",
+        count(n),
+        f("kernels_built"),
+        f("build_seconds"),
+        f("upload_bytes") / 1e6,
+        f("upload_seconds"),
+        f("dispatches"),
+        f("dispatch_seconds"),
+        f("read_bytes") / 1e6,
+        f("read_seconds"),
+    )
+}
+
+fn count(n: usize) -> String {
+    format!("{:.2}M", n as f64 / 1e6)
+}
+
+/// The tables for BENCHMARKS.md's `gpu` block.
+fn table(
+    adapter: &str,
+    sizes: &[usize],
+    rows: &[String],
+    shares: &[String],
+    frames: &[String],
+) -> String {
+    format!(
+        "Machine: {}; GPU: {adapter}. Date: {}. Command: `cargo xtask bench --only gpu --sizes {}`. Cornell box with a \
+glass and a mirror sphere, 512×512, 16 spp, every stage on the device named (`<stage>.backend`); \
+each pass in a fresh output folder, so the V-map's links are never reused. Times are each stage's \
+process wall time as pc-run measured it.\n\n\
+| splats | pass | {} | cold chain | new view |\n|---|---|---|---|---|---|---|---|---|\n{}\n\n\
+The GPU's share of each stage (kernels built, bytes up, dispatches, bytes back; docs/gpu.md):\n\n\
+| splats | pass | stage | kernels built | up | dispatches | back |\n|---|---|---|---|---|---|---|\n{}\n\n\
+Walkthrough on the GPU, 30 frames at 1024×1024, 1 spp (rendering only): {}.\n",
+        machine(),
+        today(),
+        sizes_arg(sizes),
+        STAGES.join(" | "),
+        rows.join("\n"),
+        shares.join("\n"),
+        frames.join("; ")
+    )
+}
