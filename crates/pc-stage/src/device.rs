@@ -8,7 +8,7 @@ use pc_gpu::{GpuContext, GpuError};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Work {
     /// Rendering: `auto` takes a hardware GPU whenever there is one. On an NVIDIA H100 the
-    /// renderer ran 1.6× faster than its host's 16 CPU threads (docs/gpu.md).
+    /// renderer ran 1.4-1.6× faster than its host's 16 CPU threads (docs/gpu.md).
     Render,
     /// The precomputation (V-map, photons, FMM): `auto` takes a hardware GPU only on a host
     /// with fewer than [`AUTO_GPU_BELOW_THREADS`] worker threads. On the H100's 16-thread host
