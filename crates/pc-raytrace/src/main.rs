@@ -49,9 +49,8 @@ struct Args {
 fn main() -> ExitCode {
     let a = Args::parse();
     if let Some(frames) = a.frames {
-        let threads = pc_stage::threads::start()
-            .map_err(|e| anyhow::anyhow!("cannot start a worker thread: {e}"));
-        return pc_stage::exit("pc-raytrace", threads.and_then(|_| walkthrough(&a, frames)));
+        let w = pc_stage::threads::start().and_then(|_| walkthrough(&a, frames));
+        return pc_stage::exit("pc-raytrace", w);
     }
     pc_stage::main(&a.stage, |cfg| {
         Ok(RaytraceStage {

@@ -79,13 +79,10 @@ pub fn main<S: Stage>(
     args: &StageArgs,
     make: impl FnOnce(LoadedConfig) -> anyhow::Result<S>,
 ) -> ExitCode {
-    if let Err(e) = crate::threads::start() {
-        return exit(
-            S::NAME,
-            Err(anyhow::anyhow!("cannot start a worker thread: {e}")),
-        );
-    }
-    exit(S::NAME, run(args, make))
+    exit(
+        S::NAME,
+        crate::threads::start().and_then(|_| run(args, make)),
+    )
 }
 
 /// `result` as an exit code: on error print `name: error: <chain>` on stderr and return 2.

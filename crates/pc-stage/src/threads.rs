@@ -13,14 +13,15 @@ use std::sync::mpsc;
 
 /// Start rayon's global pool with the threads it would start itself (`RAYON_NUM_THREADS`, else
 /// one a core), or, where the system refuses that many, the most of the halvings it grants.
-/// Returns the threads started, or the system's answer to a single thread. Call it before
-/// anything uses rayon.
-pub fn start() -> Result<usize, String> {
+/// Returns the threads started, or `cannot start a worker thread: <the system's answer>`. Call
+/// it before anything uses rayon.
+pub fn start() -> anyhow::Result<usize> {
+    let refused = |e: &dyn std::fmt::Display| anyhow::anyhow!("cannot start a worker thread: {e}");
     let mut want = wanted();
     loop {
         match try_spawn(want) {
             Ok(()) => break,
-            Err(e) if want <= 1 => return Err(e.to_string()),
+            Err(e) if want <= 1 => return Err(refused(&e)),
             Err(_) => want = (want / 2).max(1),
         }
     }
@@ -31,7 +32,7 @@ pub fn start() -> Result<usize, String> {
         Ok(()) => Ok(want),
         // Started already (rayon was used before): the pool is there.
         Err(e) if e.to_string().contains("already") => Ok(rayon::current_num_threads()),
-        Err(e) => Err(e.to_string()),
+        Err(e) => Err(refused(&e)),
     }
 }
 
