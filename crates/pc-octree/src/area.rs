@@ -6,7 +6,7 @@ use glam::Vec3;
 use pc_artifact::octree::{encode_clip, node, tangent_frame, Frame, Splat, MAX_CLIP_TURN};
 use pc_tree::locate_normalized;
 
-use crate::refs::push_children_in_box;
+use crate::refs::{push_children_in_box, CellStack};
 use rayon::prelude::*;
 
 /// Points on the unit disk for the area estimate: a Fibonacci (golden-angle) spiral, area
@@ -91,10 +91,10 @@ pub fn splat_areas(
         dups: &dups,
         pattern: disk_pattern(samples.max(1)).collect(),
         leaf_depth,
-        dirs: std::array::from_fn(|k| {
-            let a = k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32;
-            (a.cos(), a.sin())
-        }),
+        dirs: (
+            std::array::from_fn(|k| (k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32).cos()),
+            std::array::from_fn(|k| (k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32).sin()),
+        ),
     };
     let unclipped = dups.spread(ctx.run(None));
     let borders = dups.spread(ctx.borders(&unclipped));
@@ -123,6 +123,29 @@ pub fn splat_areas(
     (areas, clips)
 }
 
+/// The leaves' own ranges of the data pool: runs of the same owner (the pool is in leaf order).
+fn leaf_runs(splat_leaf: &[u32]) -> Vec<std::ops::Range<usize>> {
+    let n = splat_leaf.len();
+    let mut runs = Vec::new();
+    let mut start = 0;
+    for i in 1..=n {
+        if i == n || splat_leaf[i] != splat_leaf[start] {
+            runs.push(start..i);
+            start = i;
+        }
+    }
+    runs
+}
+
+/// What a worker of [`AreaPass::borders`] reuses from leaf to leaf.
+#[derive(Default)]
+struct Scratch {
+    stack: CellStack,
+    cands: Vec<u32>,
+    near: Vec<u32>,
+    offsets: Vec<(f32, f32)>,
+}
+
 /// Groups of identical splats: each splat's representative (the group's first splat) and, for
 /// a representative, how many splats its group holds. Identical splats have the same Morton
 /// code, so a group lies in one leaf's own range.
@@ -147,16 +170,7 @@ impl Duplicates {
                 s.material,
             ]
         };
-        // The leaves' own ranges: runs of the same owner (the data pool is in leaf order).
-        let mut runs = Vec::new();
-        let mut start = 0;
-        for i in 1..=n {
-            if i == n || splat_leaf[i] != splat_leaf[start] {
-                runs.push(start..i);
-                start = i;
-            }
-        }
-        let groups: Vec<Vec<(u32, u32)>> = runs
+        let groups: Vec<Vec<(u32, u32)>> = leaf_runs(splat_leaf)
             .into_par_iter()
             .filter(|r| r.len() > 1)
             .map(|r| {
@@ -226,7 +240,9 @@ struct AreaPass<'a> {
     dups: &'a Duplicates,
     leaf_depth: &'a [u8],
     pattern: Vec<(f32, f32)>,
-    dirs: [(f32, f32); BORDER_DIRS],
+    /// The border directions' cosines and sines (apart, so loops over them run in vector
+    /// lanes).
+    dirs: ([f32; BORDER_DIRS], [f32; BORDER_DIRS]),
 }
 
 impl AreaPass<'_> {
@@ -259,44 +275,58 @@ impl AreaPass<'_> {
         }
     }
 
-    /// The same-surface splats whose centres lie within √1.25 · 2r_i of splat i (i included):
-    /// the own splats of every leaf the query box reaches (a leaf's reference list only holds
-    /// the disks that reach that leaf's cell, which would cut neighbourhoods at cell walls).
-    fn neighbourhood(&self, i: usize, out: &mut Vec<u32>) {
-        let s = &self.splats[i];
-        let c = Vec3::from(s.position);
-        let n = Vec3::from(s.normal);
-        let reach = 2.0 * s.radius * 1.25f32.sqrt();
+    /// How far splat i's neighbourhood reaches: √1.25 · 2r_i (the farthest centre of a disk of
+    /// the same radius that can overlap it, with the plane tolerance).
+    fn reach(&self, i: usize) -> f32 {
+        2.0 * self.splats[i].radius * 1.25f32.sqrt()
+    }
+
+    /// Splat i's query box in root coordinates.
+    fn query_box(&self, i: usize) -> (Vec3, Vec3) {
+        let c = Vec3::from(self.splats[i].position);
+        let reach = Vec3::splat(self.reach(i));
         let q = |p: Vec3| (p - Vec3::from(self.frame.origin)) * self.frame.inv_size;
-        let (bmin, bmax) = (q(c - Vec3::splat(reach)), q(c + Vec3::splat(reach)));
+        (q(c - reach), q(c + reach))
+    }
+
+    /// The representatives among the own splats of every leaf whose cell meets the box
+    /// `[bmin, bmax]` (root coordinates), depth first. A leaf's reference list only holds the
+    /// disks that reach that leaf's cell, which would cut neighbourhoods at cell walls.
+    fn own_splats_in_box(&self, bmin: Vec3, bmax: Vec3, out: &mut Vec<u32>, stack: &mut CellStack) {
         out.clear();
-        let mut stack = [(0u32, Vec3::ZERO, 0.0f32); 8 * 22];
-        stack[0] = (0, Vec3::ZERO, 1.0);
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let (slot, lo, size) = stack[top];
+        stack.clear();
+        stack.push((0, Vec3::ZERO, 1.0));
+        while let Some((slot, lo, size)) = stack.pop() {
             let w = self.nodes[slot as usize];
             if w & node::EMPTY != 0 {
                 continue;
             }
             if w & node::LEAF != 0 {
                 let (own, _) = self.leaf_list(w);
-                for j in own.filter(|&j| self.dups.is_rep(j)) {
-                    let o = &self.splats[j as usize];
-                    let d = Vec3::from(o.position) - c;
-                    if o.material == s.material
-                        && Vec3::from(o.normal).dot(n) >= 0.5
-                        && d.length_squared() <= reach * reach
-                        && d.dot(n).abs() <= 0.5 * reach
-                    {
-                        out.push(j);
-                    }
-                }
+                out.extend(own.filter(|&j| self.dups.is_rep(j)));
                 continue;
             }
-            push_children_in_box(w, lo, size, bmin, bmax, &mut stack, &mut top);
+            push_children_in_box(w, lo, size, bmin, bmax, stack);
         }
+    }
+
+    /// The same-surface splats whose centres lie within [`Self::reach`] of splat i (i
+    /// included), taken from `cands`, which holds (in the walk's order) the own splats of at
+    /// least every leaf that splat i's query box meets.
+    fn neighbourhood(&self, i: usize, cands: &[u32], out: &mut Vec<u32>) {
+        let s = &self.splats[i];
+        let c = Vec3::from(s.position);
+        let n = Vec3::from(s.normal);
+        let reach = self.reach(i);
+        out.clear();
+        out.extend(cands.iter().copied().filter(|&j| {
+            let o = &self.splats[j as usize];
+            let d = Vec3::from(o.position) - c;
+            o.material == s.material
+                && Vec3::from(o.normal).dot(n) >= 0.5
+                && d.length_squared() <= reach * reach
+                && d.dot(n).abs() <= 0.5 * reach
+        }));
     }
 
     /// Each splat's border status, from its same-surface neighbourhood (one query serves
@@ -305,43 +335,71 @@ impl AreaPass<'_> {
     /// g_i onto it (a smaller offset is the jitter of the border row, not more surface). One arc
     /// of open directions is a stretch of border (or a corner) whose outward direction is the
     /// arc's middle.
+    ///
+    /// The splats of one leaf share one walk of the tree: the own splats of the leaves that
+    /// the union of their query boxes meets, which every splat's own neighbourhood filters.
+    /// Every leaf a splat's box meets, the union meets, and the walk visits the leaves in the
+    /// same order either way, so each neighbourhood is what a walk of its own would give.
     fn borders(&self, unclipped: &[f32]) -> Vec<Border> {
-        (0..self.splats.len())
-            .into_par_iter()
-            .map_init(Vec::new, |near: &mut Vec<u32>, i| {
-                if !self.dups.is_rep(i as u32) {
-                    return Border::Interior; // the representative's, spread afterwards
-                }
-                self.neighbourhood(i, near);
-                let least = near
-                    .iter()
-                    .map(|&j| unclipped[j as usize])
-                    .fold(f32::INFINITY, f32::min);
-                let g = 0.5 * least.max(0.0).sqrt();
-                let s = &self.splats[i];
-                let (u, v) = tangent_frame(s.normal);
-                let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(s.position));
-                let offsets: Vec<(f32, f32)> = near
-                    .iter()
-                    .map(|&j| {
-                        let d = Vec3::from(self.splats[j as usize].position) - c;
-                        (d.dot(u), d.dot(v))
-                    })
-                    .collect();
-                let mut reach = [0.0f32; BORDER_DIRS];
-                for &(a, b) in &offsets {
-                    for (hk, &(ck, sk)) in reach.iter_mut().zip(&self.dirs) {
-                        *hk = hk.max(a * ck + b * sk);
+        let runs = leaf_runs(self.splat_leaf);
+        runs.into_par_iter()
+            .map_init(Scratch::default, |sc, run| {
+                let reps = run.clone().filter(|&i| self.dups.is_rep(i as u32));
+                let (bmin, bmax) = reps.fold(
+                    (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+                    |(lo, hi), i| {
+                        let (a, b) = self.query_box(i);
+                        (lo.min(a), hi.max(b))
+                    },
+                );
+                self.own_splats_in_box(bmin, bmax, &mut sc.cands, &mut sc.stack);
+                run.map(|i| {
+                    if !self.dups.is_rep(i as u32) {
+                        return Border::Interior; // the representative's, spread afterwards
                     }
-                }
-                let mask = reach
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, &h)| h < g)
-                    .fold(0u32, |m, (k, _)| m | 1 << k);
-                border_from_mask(mask, g, &offsets)
+                    self.neighbourhood(i, &sc.cands, &mut sc.near);
+                    self.border(i, &sc.near, unclipped, &mut sc.offsets)
+                })
+                .collect::<Vec<_>>()
             })
+            .flatten_iter()
             .collect()
+    }
+
+    /// Splat i's border status from its neighbourhood `near` ([`Self::borders`]).
+    fn border(
+        &self,
+        i: usize,
+        near: &[u32],
+        unclipped: &[f32],
+        offsets: &mut Vec<(f32, f32)>,
+    ) -> Border {
+        let least = near
+            .iter()
+            .map(|&j| unclipped[j as usize])
+            .fold(f32::INFINITY, f32::min);
+        let g = 0.5 * least.max(0.0).sqrt();
+        let s = &self.splats[i];
+        let (u, v) = tangent_frame(s.normal);
+        let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(s.position));
+        offsets.clear();
+        offsets.extend(near.iter().map(|&j| {
+            let d = Vec3::from(self.splats[j as usize].position) - c;
+            (d.dot(u), d.dot(v))
+        }));
+        let (cos, sin) = &self.dirs;
+        let mut reach = [0.0f32; BORDER_DIRS];
+        for &(a, b) in offsets.iter() {
+            for k in 0..BORDER_DIRS {
+                reach[k] = reach[k].max(a * cos[k] + b * sin[k]);
+            }
+        }
+        let mask = reach
+            .iter()
+            .enumerate()
+            .filter(|(_, &h)| h < g)
+            .fold(0u32, |m, (k, _)| m | 1 << k);
+        border_from_mask(mask, g, offsets)
     }
 
     /// Whether a splat's share reaches the point at (p, q) in its own tangent frame.
@@ -354,7 +412,7 @@ impl AreaPass<'_> {
             }
             Border::Open { mask, gap } => (0..BORDER_DIRS)
                 .filter(|k| mask >> k & 1 != 0)
-                .all(|k| p * self.dirs[k].0 + q * self.dirs[k].1 <= gap),
+                .all(|k| p * self.dirs.0[k] + q * self.dirs.1[k] <= gap),
         }
     }
 

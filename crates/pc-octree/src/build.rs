@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use crate::area::splat_areas;
 use crate::morton;
-use crate::refs::overlapped_cells;
+use crate::refs::{overlapped_cells, CellStack};
 use crate::stats::node_info;
 
 /// Why a build failed.
@@ -482,16 +482,21 @@ fn leaf_references(
 ) -> Vec<(u32, u32)> {
     let mut refs: Vec<(u32, u32)> = (0..splats.len() as u32)
         .into_par_iter()
-        .fold(Vec::new, |mut acc, s| {
-            overlapped_cells(
-                frame,
-                nodes,
-                &splats[s as usize],
-                splat_leaf[s as usize],
-                &mut |slot| acc.push((slot, s)),
-            );
-            acc
-        })
+        .fold(
+            || (Vec::new(), CellStack::new()),
+            |(mut acc, mut stack), s| {
+                overlapped_cells(
+                    frame,
+                    nodes,
+                    &splats[s as usize],
+                    splat_leaf[s as usize],
+                    &mut stack,
+                    &mut |slot| acc.push((slot, s)),
+                );
+                (acc, stack)
+            },
+        )
+        .map(|(acc, _)| acc)
         .reduce(Vec::new, |mut a, mut b| {
             if a.len() < b.len() {
                 std::mem::swap(&mut a, &mut b);

@@ -10,6 +10,10 @@ pub fn disk_half_extent(n: Vec3, r: f32) -> Vec3 {
     (Vec3::ONE - n * n).max(Vec3::ZERO).sqrt() * r
 }
 
+/// The pending cells of a walk over the node pool (node slot, cell corner, edge), reused from
+/// splat to splat: a fresh fixed-size stack per splat cost a 3.5 KB fill each time.
+pub(crate) type CellStack = Vec<(u32, Vec3, f32)>;
+
 /// Leaves and empty cells, other than `owner`, that the splat's disk may overlap: the nested
 /// test of §8.5.13, box first (the disk's exact bounding box against the cell, pruning whole
 /// subtrees), then plane (the cell against the splat's plane: a cell entirely on one side cannot
@@ -23,6 +27,7 @@ pub fn overlapped_cells(
     nodes: &[u32],
     s: &Splat,
     owner: u32,
+    stack: &mut CellStack,
     emit: &mut impl FnMut(u32),
 ) {
     let c = Vec3::from(s.position);
@@ -53,14 +58,9 @@ pub fn overlapped_cells(
         size *= 0.5;
         lo += off * size;
     }
-    // A fixed-size stack: at most 7 pending siblings per level, 21 levels.
-    let mut stack = [(0u32, Vec3::ZERO, 0.0f32); 8 * 22];
-    let mut top = 0usize;
-    stack[top] = (slot, lo, size);
-    top += 1;
-    while top > 0 {
-        top -= 1;
-        let (slot, lo, size) = stack[top];
+    stack.clear();
+    stack.push((slot, lo, size));
+    while let Some((slot, lo, size)) = stack.pop() {
         let w = nodes[slot as usize];
         if w & (node::LEAF | node::EMPTY) != 0 {
             if slot != owner && plane_crosses_cell(c, n, lo - Vec3::splat(eps), size + 2.0 * eps) {
@@ -68,7 +68,7 @@ pub fn overlapped_cells(
             }
             continue;
         }
-        push_children_in_box(w, lo, size, bmin, bmax, &mut stack, &mut top);
+        push_children_in_box(w, lo, size, bmin, bmax, stack);
     }
 }
 
@@ -81,8 +81,7 @@ pub(crate) fn push_children_in_box(
     size: f32,
     bmin: Vec3,
     bmax: Vec3,
-    stack: &mut [(u32, Vec3, f32)],
-    top: &mut usize,
+    stack: &mut CellStack,
 ) {
     let half = size * 0.5;
     let first = node::ptr(w);
@@ -94,8 +93,7 @@ pub(crate) fn push_children_in_box(
         );
         let clo = lo + off * half;
         if (bmin.cmple(clo + Vec3::splat(half)) & bmax.cmpge(clo)).all() {
-            stack[*top] = (first + child, clo, half);
-            *top += 1;
+            stack.push((first + child, clo, half));
         }
     }
 }
