@@ -480,6 +480,8 @@ const PLANE_TOLERANCE: f32 = 0.25;
 const SAME_SURFACE_COS: f32 = std::f32::consts::FRAC_1_SQRT_2;
 /// Bins looked at to find the radius that holds the gather count.
 const RADIUS_CANDIDATES: usize = 256;
+/// Bins looked at first ([`gather_links`]).
+const RADIUS_FIRST: usize = 32;
 
 /// Whether a bin `c` lies on the surface of a point `x` with normal `n`, within radius `h`.
 fn same_surface(x: Vec3, n: Vec3, c: &Bin, h: f32) -> bool {
@@ -542,23 +544,33 @@ fn gather_links(
             if b.area <= 0.0 {
                 return Vec::new();
             }
-            let k = NonZeroUsize::new(RADIUS_CANDIDATES.min(used.len())).unwrap();
             let q: [f32; 3] = b.centroid.into();
-            let mut found = tree
-                .query(&q)
-                .nearest_n::<SquaredEuclidean<f32>>(k)
-                .execute();
-            found.sort_by(|a, b| a.distance.total_cmp(&b.distance));
-            let (mut paths, mut reach) = (0u32, 0.0f32);
-            for f in &found {
-                let c = &bins[used[f.item as usize] as usize];
-                let d = f.distance.sqrt();
-                if !same_surface(b.centroid, b.normal, c, 4.0 * d.max(b.extent)) {
-                    continue;
+            // The nearest few first: they nearly always hold the gather count, and a query
+            // for all the candidates costs a heap of RADIUS_CANDIDATES. Only where they do
+            // not is the query repeated with every candidate (the same walk from the start).
+            let mut reach = 0.0f32;
+            for want in [RADIUS_FIRST, RADIUS_CANDIDATES] {
+                let k = NonZeroUsize::new(want.min(used.len())).unwrap();
+                let mut found = tree
+                    .query(&q)
+                    .nearest_n::<SquaredEuclidean<f32>>(k)
+                    .execute();
+                found.sort_by(|a, b| a.distance.total_cmp(&b.distance));
+                let mut paths = 0u32;
+                reach = 0.0;
+                for f in &found {
+                    let c = &bins[used[f.item as usize] as usize];
+                    let d = f.distance.sqrt();
+                    if !same_surface(b.centroid, b.normal, c, 4.0 * d.max(b.extent)) {
+                        continue;
+                    }
+                    paths += c.paths;
+                    reach = d + c.extent;
+                    if paths >= gather {
+                        break;
+                    }
                 }
-                paths += c.paths;
-                reach = d + c.extent;
-                if paths >= gather {
+                if paths >= gather || k.get() < want {
                     break;
                 }
             }
