@@ -71,10 +71,11 @@ pub fn trace_sample(
         if bounce > 0 {
             counts.bounce += 1;
         }
-        let Some(hit) = sc.intersect(&ray, &mut counts.traversal) else {
+        let Some(found) = sc.intersect_in(&ray, &mut counts.traversal) else {
             out.rgb += throughput * Vec3::from(p.background);
             break;
         };
+        let hit = found.0;
         let s = &view.splats[hit.splat as usize];
         let m = &sc.materials[s.material as usize];
         let x = ray.origin + ray.dir * hit.t;
@@ -118,7 +119,7 @@ pub fn trace_sample(
             break;
         }
         // Blend every splat of this surface that covers the hit point (§8.5.8).
-        pc_tree::covering(view, hit.leaf, x, ns, p.blend_thickness, &mut blend);
+        sc.covering(found, x, ns, p.blend_thickness, &mut blend);
         if blend.is_empty() {
             blend.push((hit.splat, 1.0));
         }

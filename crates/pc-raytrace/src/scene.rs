@@ -8,6 +8,7 @@ use pc_artifact::PointLight;
 use pc_config::{RaytraceConfig, ShadingMode};
 
 use crate::camera::Camera;
+use pc_tree::accel::PackedLeaf;
 use pc_tree::OctreeView;
 
 /// Emitter splats with a cumulative distribution proportional to their emitted power
@@ -213,6 +214,38 @@ impl<'a> RenderScene<'a> {
         match &self.accel {
             Some(a) => a.intersect(&self.view, ray, st),
             None => pc_tree::intersect(&self.view, ray, st),
+        }
+    }
+
+    /// [`Self::intersect`], with where [`Self::covering`] finds the hit's leaf.
+    #[inline]
+    pub fn intersect_in(
+        &self,
+        ray: &pc_tree::Ray,
+        st: &mut pc_tree::TraversalStats,
+    ) -> Option<(pc_tree::Hit, Option<PackedLeaf>)> {
+        match &self.accel {
+            Some(a) => a
+                .intersect_in(&self.view, ray, st)
+                .map(|(h, l)| (h, Some(l))),
+            None => pc_tree::intersect(&self.view, ray, st).map(|h| (h, None)),
+        }
+    }
+
+    /// [`pc_tree::covering`] at a hit of [`Self::intersect_in`], through the packed lists when
+    /// the hit came from them.
+    #[inline]
+    pub fn covering(
+        &self,
+        (hit, packed): (pc_tree::Hit, Option<PackedLeaf>),
+        x: Vec3,
+        n: Vec3,
+        thickness: f32,
+        out: &mut Vec<(u32, f32)>,
+    ) {
+        match (&self.accel, packed) {
+            (Some(a), Some(l)) => a.covering(&self.view, l, x, n, thickness, out),
+            _ => pc_tree::covering(&self.view, hit.leaf, x, n, thickness, out),
         }
     }
 

@@ -91,6 +91,10 @@ struct Block {
 /// Words of a [`Block`]: an internal word points at its block's first word.
 const BLOCK_WORDS: u32 = 16;
 
+/// A leaf's number in an [`Accel`] (its packed lists), as [`Accel::intersect_in`] reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PackedLeaf(u32);
+
 /// The packed copy of an octree for the CPU walk.
 pub struct Accel {
     /// The view's tree in [`Block`]s: leaf words hold their leaf number (SFC order), internal
@@ -297,6 +301,17 @@ impl Accel {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
+        self.intersect_in(view, ray, stats).map(|(hit, _)| hit)
+    }
+
+    /// [`Self::intersect`], with the packed number of the leaf the hit was found in (for
+    /// [`Self::covering`]).
+    pub fn intersect_in(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        stats: &mut TraversalStats,
+    ) -> Option<(Hit, PackedLeaf)> {
         let nodes = bytemuck::cast_slice(&self.nodes);
         let slab = |w| {
             if self.slabs {
@@ -305,9 +320,60 @@ impl Accel {
                 None
             }
         };
-        crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
+        // The walk returns at the first leaf that gives a hit: the last leaf tested.
+        let mut leaf = PackedLeaf(0);
+        let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
+            leaf = PackedLeaf(node::ptr(w));
             self.test(ray, w, limit, false, None, st)
-        })
+        })?;
+        Some((hit, leaf))
+    }
+
+    /// Same as [`crate::covering`] for the leaf the hit was found in, read from the packed
+    /// lanes the walk has just streamed through (the artifact's records of the referenced
+    /// disks lie all over the data pool): the same disks in the same order with the same
+    /// weights, bit for bit. Only a disk that passes the cheap tests reads its record (for the
+    /// radius itself; the lanes hold its square).
+    pub fn covering(
+        &self,
+        view: &OctreeView,
+        leaf: PackedLeaf,
+        x: glam::Vec3,
+        n: glam::Vec3,
+        thickness: f32,
+        out: &mut Vec<(u32, f32)>,
+    ) {
+        out.clear();
+        let leaf = &self.leaves[leaf.0 as usize];
+        let (a, b) = (leaf.first as usize, leaf.end as usize);
+        for (ci, c) in self.chunks[a..b].iter().enumerate() {
+            for l in 0..LANES {
+                let r2 = c.r2[l];
+                if r2 < 0.0 {
+                    continue; // padding
+                }
+                let sn = glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]);
+                if sn.dot(n) <= 0.0 {
+                    continue;
+                }
+                let p = glam::Vec3::new(c.px[l], c.py[l], c.pz[l]);
+                let d = x - p;
+                let h = d.dot(sn);
+                let rho2 = d.length_squared() - h * h;
+                let inside = rho2 < r2;
+                if !inside {
+                    continue;
+                }
+                let cold = &self.cold[(a + ci) * LANES + l];
+                let radius = view.splats[cold.splat as usize].radius;
+                if h.abs() <= thickness * radius
+                    && within_clip(p.into(), sn.into(), cold.clip, (x - sn * h).into())
+                {
+                    let u = 1.0 - rho2 / r2;
+                    out.push((cold.splat, u * u));
+                }
+            }
+        }
     }
 
     /// Visibility of many rays (rayon across rays): `true` where nothing blocks the ray.

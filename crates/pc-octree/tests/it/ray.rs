@@ -224,6 +224,7 @@ fn packed_leaf_lists_give_identical_hits() {
     let accel = pc_tree::accel::Accel::new(&view);
     let mut rng = Pcg64::seed_from_u64(33);
     let mut st = TraversalStats::default();
+    let mut covered = 0;
     for k in 0..5000 {
         let origin = Vec3::new(
             rng.random_range(-0.9..0.9),
@@ -254,7 +255,18 @@ fn packed_leaf_lists_give_identical_hits() {
             pc_tree::occluded(&view, &r, &mut st),
             "ray {k}"
         );
+        // The blend at the hit from the packed lanes: the same disks, weights bit for bit.
+        if let Some((hit, leaf)) = accel.intersect_in(&view, &r, &mut st) {
+            let x = r.origin + r.dir * hit.t;
+            let n = Vec3::from(view.splats[hit.splat as usize].normal);
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            accel.covering(&view, leaf, x, n, 0.5, &mut a);
+            pc_tree::covering(&view, hit.leaf, x, n, 0.5, &mut b);
+            assert_eq!(a, b, "ray {k}");
+            covered += !a.is_empty() as usize;
+        }
     }
+    assert!(covered > 1000, "{covered} hits with a blend");
 }
 
 /// The packed walk skips whole internal nodes whose disks all lie in a thin slab the ray's
