@@ -545,19 +545,16 @@ fn gather_links(
                 return Vec::new();
             }
             let q: [f32; 3] = b.centroid.into();
-            // The nearest few first: they nearly always hold the gather count, and a query
-            // for all the candidates costs a heap of RADIUS_CANDIDATES. Only where they do
-            // not is the query repeated with every candidate (the same walk from the start).
-            let mut reach = 0.0f32;
-            for want in [RADIUS_FIRST, RADIUS_CANDIDATES] {
+            // The paths of the surface's bins among the `want` nearest, nearest first, until
+            // they hold the gather count, and the reach of the last one taken.
+            let gathered = |want: usize| {
                 let k = NonZeroUsize::new(want.min(used.len())).unwrap();
                 let mut found = tree
                     .query(&q)
                     .nearest_n::<SquaredEuclidean<f32>>(k)
                     .execute();
                 found.sort_by(|a, b| a.distance.total_cmp(&b.distance));
-                let mut paths = 0u32;
-                reach = 0.0;
+                let (mut paths, mut reach) = (0u32, 0.0f32);
                 for f in &found {
                     let c = &bins[used[f.item as usize] as usize];
                     let d = f.distance.sqrt();
@@ -570,10 +567,17 @@ fn gather_links(
                         break;
                     }
                 }
-                if paths >= gather || k.get() < want {
-                    break;
-                }
-            }
+                (paths, reach, k.get() < want)
+            };
+            // The nearest few first: they nearly always hold the gather count, and a query
+            // for all the candidates costs a heap of RADIUS_CANDIDATES. Only where they do
+            // not (and more bins exist) is the query repeated with every candidate.
+            let (paths, reach, all) = gathered(RADIUS_FIRST);
+            let reach = if paths >= gather || all {
+                reach
+            } else {
+                gathered(RADIUS_CANDIDATES).1
+            };
             let h = reach.max(2.0 * b.extent);
             let (mut norm, mut row) = (0.0f64, Vec::new());
             around(b.centroid, b.normal, h, &mut |i, c, k| {

@@ -91,10 +91,13 @@ pub fn splat_areas(
         dups: &dups,
         pattern: disk_pattern(samples.max(1)).collect(),
         leaf_depth,
-        dirs: (
-            std::array::from_fn(|k| (k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32).cos()),
-            std::array::from_fn(|k| (k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32).sin()),
-        ),
+        dirs: {
+            let angle = |k: usize| k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32;
+            (
+                std::array::from_fn(|k| angle(k).cos()),
+                std::array::from_fn(|k| angle(k).sin()),
+            )
+        },
     };
     let unclipped = dups.spread(ctx.run(None));
     let borders = dups.spread(ctx.borders(&unclipped));
