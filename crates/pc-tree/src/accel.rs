@@ -347,29 +347,20 @@ impl Accel {
         let leaf = &self.leaves[leaf.0 as usize];
         let (a, b) = (leaf.first as usize, leaf.end as usize);
         for (ci, c) in self.chunks[a..b].iter().enumerate() {
-            for l in 0..LANES {
-                let r2 = c.r2[l];
-                if r2 < 0.0 {
-                    continue; // padding
-                }
-                let sn = glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]);
-                if sn.dot(n) <= 0.0 {
-                    continue;
-                }
-                let p = glam::Vec3::new(c.px[l], c.py[l], c.pz[l]);
-                let d = x - p;
-                let h = d.dot(sn);
-                let rho2 = d.length_squared() - h * h;
-                let inside = rho2 < r2;
-                if !inside {
-                    continue;
-                }
+            let (h, rho2, mut inside) = cover_lanes(c, x.to_array(), n.to_array());
+            while inside != 0 {
+                let l = inside.trailing_zeros() as usize;
+                inside &= inside - 1;
                 let cold = &self.cold[(a + ci) * LANES + l];
                 let radius = view.splats[cold.splat as usize].radius;
-                if h.abs() <= thickness * radius
-                    && within_clip(p.into(), sn.into(), cold.clip, (x - sn * h).into())
+                let (p, sn) = (
+                    glam::Vec3::new(c.px[l], c.py[l], c.pz[l]),
+                    glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]),
+                );
+                if h[l].abs() <= thickness * radius
+                    && within_clip(p.into(), sn.into(), cold.clip, (x - sn * h[l]).into())
                 {
-                    let u = 1.0 - rho2 / r2;
+                    let u = 1.0 - rho2[l] / c.r2[l];
                     out.push((cold.splat, u * u));
                 }
             }
@@ -731,12 +722,71 @@ fn lanes_scalar(
     (t, mask)
 }
 
+/// One chunk's cover tests for [`Accel::covering`]: each lane's height `h` of the point `x`
+/// over the disk's plane, its squared in-plane distance `ρ²`, and the mask of lanes that face
+/// the normal `n` (`n_j · n > 0`) with `ρ² < r²` (padding lanes never: zero normal). The
+/// arithmetic is [`crate::covering`]'s, operation for operation. SSE on x86-64;
+/// [`cover_lanes_scalar`] elsewhere and in the test that holds the two together.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn cover_lanes(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANES], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY: as in `lanes`: SSE is baseline on x86-64, the loads read 16-byte aligned
+    // `[f32; 4]` fields of a `#[repr(C, align(16))]` struct, the stores write local arrays.
+    unsafe {
+        let (add, sub, mul) = (_mm_add_ps, _mm_sub_ps, _mm_mul_ps);
+        let ld = |a: &[f32; LANES]| _mm_load_ps(a.as_ptr());
+        let (nx, ny, nz) = (ld(&c.nx), ld(&c.ny), ld(&c.nz));
+        let facing = add(
+            add(mul(nx, _mm_set1_ps(n[0])), mul(ny, _mm_set1_ps(n[1]))),
+            mul(nz, _mm_set1_ps(n[2])),
+        );
+        let dx = sub(_mm_set1_ps(x[0]), ld(&c.px));
+        let dy = sub(_mm_set1_ps(x[1]), ld(&c.py));
+        let dz = sub(_mm_set1_ps(x[2]), ld(&c.pz));
+        let h = add(add(mul(dx, nx), mul(dy, ny)), mul(dz, nz));
+        let d2 = add(add(mul(dx, dx), mul(dy, dy)), mul(dz, dz));
+        let rho2 = sub(d2, mul(h, h));
+        let ok = _mm_and_ps(
+            _mm_cmpgt_ps(facing, _mm_setzero_ps()),
+            _mm_cmplt_ps(rho2, ld(&c.r2)),
+        );
+        let (mut ho, mut ro) = ([0.0f32; LANES], [0.0f32; LANES]);
+        _mm_storeu_ps(ho.as_mut_ptr(), h);
+        _mm_storeu_ps(ro.as_mut_ptr(), rho2);
+        (ho, ro, _mm_movemask_ps(ok) as u32)
+    }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+#[inline(always)]
+fn cover_lanes(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANES], u32) {
+    cover_lanes_scalar(c, x, n)
+}
+
+/// [`cover_lanes`] one lane at a time, with glam as [`crate::covering`] computes it.
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+fn cover_lanes_scalar(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANES], u32) {
+    let (x, n) = (glam::Vec3::from(x), glam::Vec3::from(n));
+    let (mut h, mut rho2, mut mask) = ([0.0f32; LANES], [0.0f32; LANES], 0u32);
+    for l in 0..LANES {
+        let sn = glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]);
+        let d = x - glam::Vec3::new(c.px[l], c.py[l], c.pz[l]);
+        h[l] = d.dot(sn);
+        rho2[l] = d.length_squared() - h[l] * h[l];
+        let ok = sn.dot(n) > 0.0 && rho2[l] < c.r2[l];
+        mask |= (ok as u32) << l;
+    }
+    (h, rho2, mask)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     /// The SSE lanes and the scalar ones agree bit for bit, on random disks and rays including
-    /// parallel rays, padding lanes and ties at the interval's ends.
+    /// parallel rays, padding lanes and ties at the interval's ends (the cover lanes on the
+    /// same disks, the ray's origin and direction standing for a point and a normal).
     #[test]
     fn simd_lanes_match_scalar_lanes() {
         let mut seed = 12345u32;
@@ -760,6 +810,13 @@ mod tests {
                 d = [c.nz[0], 0.0, -c.nx[0]]; // parallel to lane 0's plane
             }
             let (t_min, limit) = (0.1 * rnd().abs(), 2.0 * rnd().abs());
+            let (ch, cr, cm) = cover_lanes(&c, o, d);
+            let (sh, sr, sm) = cover_lanes_scalar(&c, o, d);
+            assert_eq!(cm, sm, "case {k}");
+            for l in 0..LANES {
+                assert_eq!(ch[l].to_bits(), sh[l].to_bits(), "case {k} lane {l}");
+                assert_eq!(cr[l].to_bits(), sr[l].to_bits(), "case {k} lane {l}");
+            }
             let (a, ma) = lanes(&c, o, d, t_min, limit);
             let (b, mb) = lanes_scalar(&c, o, d, t_min, limit);
             assert_eq!(ma, mb, "case {k}");
