@@ -446,7 +446,7 @@ pub enum Backend {
     Cpu,
     Gpu,
     /// A hardware GPU where it pays (rendering always; the V-map, photons and FMM on hosts of
-    /// fewer than 8 threads: docs/gpu.md), else the CPU.
+    /// at most 16 threads: docs/gpu.md), else the CPU.
     #[default]
     Auto,
 }

@@ -11,17 +11,20 @@ pub enum Work {
     /// renderer ran 1.4-1.6× faster than its host's 16 CPU threads (docs/gpu.md).
     Render,
     /// The precomputation (V-map, photons, FMM): `auto` takes a hardware GPU only on a host
-    /// with fewer than [`AUTO_GPU_BELOW_THREADS`] worker threads. On the H100's 16-thread host
-    /// the CPU matched or beat the GPU in all three, whose host work (sampling, deciding,
-    /// moving records) is the same on either device (docs/gpu.md).
+    /// with at most [`AUTO_GPU_MAX_THREADS`] worker threads. Their host work (sampling,
+    /// deciding, moving records) is the same on either device and scales with the threads, so
+    /// from some count on the CPU alone is as fast (docs/gpu.md).
     Precompute,
 }
 
-/// Worker threads from which `auto` keeps the precomputation on the CPU ([`Work::Precompute`]).
-/// Measured at 16 (CPU as fast or faster); 2 threads cast the V-map's rays 6× slower than 16,
-/// where a GPU's share stays the same, so a small host gains from a GPU. In between it is a
-/// guess.
-pub const AUTO_GPU_BELOW_THREADS: usize = 8;
+/// The most worker threads with which `auto` runs the precomputation on a hardware GPU
+/// ([`Work::Precompute`]); with more it stays on the CPU. Measured on an NVIDIA H200 with 2, 4,
+/// 8 and 16 of its host's threads (docs/gpu.md, "Where auto switches"): on the 1M Cornell
+/// chain the GPU was faster in every stage at 2-8 threads (1.2-1.8× the stages together) and
+/// level at 16 (12.5 s against 12.7 s), and on the 1M hall scan's V-map 3.1× faster at 2
+/// threads and 1.26× at 16. More threads were not measured; the CPU's share keeps growing with
+/// them while the GPU's stays.
+pub const AUTO_GPU_MAX_THREADS: usize = 16;
 
 /// The GPU for `backend` and `work`: `cpu` none; `gpu` a context, or the error that there is
 /// none; `auto` a hardware GPU when one exists and `work` gains from it ([`Work`]), else none (a
@@ -39,7 +42,7 @@ pub fn gpu_for(backend: Backend, work: Work) -> Result<Option<GpuContext>, GpuEr
 pub fn auto_takes_gpu(work: Work, threads: usize) -> bool {
     match work {
         Work::Render => true,
-        Work::Precompute => threads < AUTO_GPU_BELOW_THREADS,
+        Work::Precompute => threads <= AUTO_GPU_MAX_THREADS,
     }
 }
 
@@ -84,8 +87,9 @@ mod tests {
     fn auto_keeps_the_precomputation_on_many_cores_and_renders_on_a_gpu() {
         assert!(auto_takes_gpu(Work::Render, 64));
         assert!(auto_takes_gpu(Work::Precompute, 2));
-        assert!(!auto_takes_gpu(Work::Precompute, AUTO_GPU_BELOW_THREADS));
-        assert!(!auto_takes_gpu(Work::Precompute, 16));
+        assert!(auto_takes_gpu(Work::Precompute, AUTO_GPU_MAX_THREADS));
+        assert!(!auto_takes_gpu(Work::Precompute, AUTO_GPU_MAX_THREADS + 1));
+        assert!(!auto_takes_gpu(Work::Precompute, 64));
         // `cpu` never opens a device, whatever the work.
         assert!(gpu_for(Backend::Cpu, Work::Render).unwrap().is_none());
     }

@@ -72,10 +72,13 @@ fn row(v: &Value, threads: usize) -> String {
     } else if let Some(e) = gpu["error"].as_str() {
         format!("not run on {}: {e}", gpu["device"].as_str().unwrap_or("?"))
     } else {
+        let g = |k: &str| gpu[k].as_f64().unwrap_or(f64::NAN) / 1e6;
         format!(
-            "{:.2} / {:.2} M/s on {}",
-            gpu["primary_rays_per_s"].as_f64().unwrap_or(f64::NAN) / 1e6,
-            gpu["incoherent_rays_per_s"].as_f64().unwrap_or(f64::NAN) / 1e6,
+            "{:.2} / {:.2} M/s ({:.1} / {:.1} M/s in the kernels) on {}",
+            g("primary_rays_per_s"),
+            g("incoherent_rays_per_s"),
+            g("primary_kernel_rays_per_s"),
+            g("incoherent_kernel_rays_per_s"),
             gpu["device"].as_str().unwrap_or("?")
         )
     };
@@ -92,8 +95,9 @@ pub(super) fn table(sizes: &[usize], runs: usize, rows: &[String]) -> String {
     format!(
         "Machine: {}. Date: {}. Command: `cargo xtask bench --sizes {} --runs {runs} --only rays` (best of {runs}). \
 Primary rays: one per pixel centre of a 1024×1024 view from the scene camera. Incoherent rays: from random splats, \
-cosine-distributed about their normals (diffuse bounce rays). GPU: rays uploaded, cast, hits read back (no GPU \
-is lent to this machine; a software adapter, when present, is listed as such).\n\n\
+cosine-distributed about their normals (diffuse bounce rays). GPU: rays uploaded, cast, hits read back, and in \
+parentheses per second of the kernels alone (no GPU is lent to this machine; a software adapter, when present, is \
+listed as such).\n\n\
 | splats | CPU threads | CPU primary | CPU incoherent | GPU primary / incoherent |\n|---|---|---|---|---|\n{}\n",
         machine(),
         today(),
