@@ -31,7 +31,7 @@ fn light(cfg: &Path) {
 }
 
 fn srgb(v: f32) -> f32 {
-    pc_raytrace::image::srgb_encode(v)
+    pc_raytrace::srgb::srgb_encode(v)
 }
 
 #[test]

@@ -54,5 +54,5 @@ pub fn lit_points(
 pub fn tone_map(radiance: Vec3, exposure: f32) -> [f32; 3] {
     (radiance * exposure)
         .to_array()
-        .map(pc_raytrace::image::srgb_encode)
+        .map(pc_raytrace::srgb::srgb_encode)
 }

@@ -19,6 +19,8 @@ use exr::prelude::{
     ReadChannels, ReadLayers, SmallVec, WritableImage,
 };
 
+use crate::srgb::to_srgb8;
+
 /// Names of the `f32` AOV channels, in the order of [`Aovs`] fields (depth, normal, albedo).
 const AOV_FLOAT_CHANNELS: [&str; 7] = [
     "depth.Z", "normal.X", "normal.Y", "normal.Z", "albedo.R", "albedo.G", "albedo.B",
@@ -439,26 +441,6 @@ pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
     })
 }
 
-/// The exact sRGB transfer function (OETF) of a linear value; the input is clamped to [0, 1]
-/// (NaN counts as 0).
-pub fn srgb_encode(linear: f32) -> f32 {
-    let x = if linear.is_nan() {
-        0.0
-    } else {
-        f64::from(linear.clamp(0.0, 1.0))
-    };
-    let encoded = if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    };
-    encoded as f32
-}
-
-fn to_srgb8(linear: f32) -> u8 {
-    (srgb_encode(linear) * 255.0).round() as u8
-}
-
 /// Encodes 8-bit RGB pixels (row-major, top row first) as PNG, with the render's key in a
 /// `tEXt` chunk ([`KEY_ATTRIBUTE`]) when given, and writes it atomically.
 fn write_png_bytes(
@@ -473,6 +455,9 @@ fn write_png_bytes(
     let mut enc = png::Encoder::new(&mut bytes, width, height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
+    // fdeflate: a 1024×1024 frame in 9 ms instead of 214 (`Balanced`), 19 % larger. The PNG is
+    // the preview; the EXR holds the render.
+    enc.set_compression(png::Compression::Fast);
     if let Some(key) = key {
         enc.add_text_chunk(KEY_ATTRIBUTE.to_string(), key.to_string())
             .map_err(err)?;
@@ -484,7 +469,7 @@ fn write_png_bytes(
 }
 
 /// Writes `img` as an 8-bit sRGB PNG:
-/// each channel is `round(255 * srgb_encode(linear * exposure))`.
+/// each channel is `round(255 * srgb_encode(linear * exposure))` ([`crate::srgb::to_srgb8`]).
 pub fn write_png(path: &Path, img: &Image, exposure: f32) -> Result<(), ImageError> {
     write_png_keyed(path, img, exposure, None)
 }
@@ -935,25 +920,6 @@ mod tests {
             .to_string()
             .starts_with(&format!("{}: ", target.display())));
         assert_eq!(file_names(dir.path()), ["folder.png"]);
-    }
-
-    #[test]
-    fn srgb_encode_values() {
-        assert_eq!(srgb_encode(0.0), 0.0);
-        assert!((srgb_encode(0.003_130_8) - 0.040_449_936).abs() < 1e-7);
-        // Both branches agree at the threshold.
-        let above = 1.055 * 0.003_130_8f64.powf(1.0 / 2.4) - 0.055;
-        assert!((f64::from(srgb_encode(0.003_130_8)) - above).abs() < 1e-6);
-        assert!(
-            (srgb_encode(0.5) - 0.735_356_9).abs() < 1e-6,
-            "{}",
-            srgb_encode(0.5)
-        );
-        assert!((srgb_encode(1.0) - 1.0).abs() < 1e-7);
-        assert_eq!(srgb_encode(-3.0), 0.0);
-        assert_eq!(srgb_encode(7.0), srgb_encode(1.0));
-        assert_eq!(srgb_encode(f32::NAN), 0.0);
-        assert_eq!(srgb_encode(f32::INFINITY), srgb_encode(1.0));
     }
 
     #[test]

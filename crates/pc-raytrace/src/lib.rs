@@ -15,6 +15,7 @@ pub mod reference;
 pub mod renderer;
 pub mod sample;
 pub mod scene;
+pub mod srgb;
 pub mod stage;
 pub mod walkthrough;
 

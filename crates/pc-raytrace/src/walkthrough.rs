@@ -9,7 +9,7 @@ use pc_stage::Progress;
 
 use crate::camera::Camera;
 use crate::error::RenderError;
-use crate::image::write_png;
+use crate::image::{write_png, Image};
 use crate::renderer::{Device, Renderer};
 use crate::stage::{with_scene, Inputs};
 
@@ -46,8 +46,10 @@ pub struct Walkthrough {
     pub device_name: String,
     /// Time spent rendering the frames (loading and GPU setup excluded).
     pub render_seconds: f64,
-    /// Time spent writing the PNGs.
+    /// Time spent writing the PNGs, on a thread of its own beside the rendering.
     pub write_seconds: f64,
+    /// From the first frame's start to the last frame written.
+    pub frames_seconds: f64,
     /// Loading the artifacts and setting up the renderer.
     pub setup_seconds: f64,
 }
@@ -64,7 +66,8 @@ pub struct Orbit {
 
 /// Render the frames of `orbit` along [`walkthrough_camera`]'s path on the cached solution (the
 /// artifacts are loaded once; the GPU keeps its buffers between frames), each PNG written
-/// atomically; `frame_done` hears of each frame.
+/// atomically by a thread of its own while the next frame renders (one frame waits at most);
+/// `frame_done` hears of each frame rendered.
 pub fn walkthrough(
     cfg: &LoadedConfig,
     inputs: &Inputs,
@@ -80,27 +83,58 @@ pub fn walkthrough(
     with_scene(cfg, inputs, backend, |sc, _, _| {
         let mut renderer = Renderer::new(sc, backend)?;
         let setup_seconds = started.elapsed().as_secs_f64();
-        let (mut render_seconds, mut write_seconds) = (0.0, 0.0);
-        let mut paths = Vec::with_capacity(orbit.frames);
-        for i in 0..orbit.frames {
-            let cam = walkthrough_camera(&c.camera, i, orbit.frames, orbit.degrees);
-            sc.set_camera(&Camera::new(&cam));
-            let t = Instant::now();
-            let (image, _) = renderer.render(sc, false, &|| {})?;
-            render_seconds += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let path = orbit.dir.join(format!("frame_{i:05}.png"));
-            write_png(&path, &image, c.raytrace.exposure)?;
-            write_seconds += t.elapsed().as_secs_f64();
-            paths.push(path);
-            frame_done(i);
-        }
+        let exposure = c.raytrace.exposure;
+        let mut render_seconds = 0.0;
+        let paths: Vec<PathBuf> = (0..orbit.frames)
+            .map(|i| orbit.dir.join(format!("frame_{i:05}.png")))
+            .collect();
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(&Path, Image)>(1);
+        let frames_started = Instant::now();
+        let (rendered, written) = std::thread::scope(|scope| {
+            let writer = scope.spawn(move || -> Result<f64, RenderError> {
+                let mut seconds = 0.0;
+                for (path, image) in rx {
+                    let t = Instant::now();
+                    write_png(path, &image, exposure)?;
+                    seconds += t.elapsed().as_secs_f64();
+                }
+                Ok(seconds)
+            });
+            let mut rendered = Ok(());
+            for (i, path) in paths.iter().enumerate() {
+                let cam = walkthrough_camera(&c.camera, i, orbit.frames, orbit.degrees);
+                sc.set_camera(&Camera::new(&cam));
+                let t = Instant::now();
+                let image = match renderer.render(sc, false, &|| {}) {
+                    Ok((image, _)) => image,
+                    Err(e) => {
+                        rendered = Err(e);
+                        break;
+                    }
+                };
+                render_seconds += t.elapsed().as_secs_f64();
+                // A closed channel means the writer stopped on an error, which its join gives.
+                if tx.send((path, image)).is_err() {
+                    break;
+                }
+                frame_done(i);
+            }
+            drop(tx);
+            let written = writer
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            (rendered, written)
+        });
+        rendered?;
+        let write_seconds = written?;
+        let frames_seconds = frames_started.elapsed().as_secs_f64();
         Ok(Walkthrough {
             frames: paths,
             device: renderer.device(),
             device_name: renderer.device_name(),
             render_seconds,
             write_seconds,
+            frames_seconds,
             setup_seconds,
         })
     })
@@ -134,6 +168,7 @@ pub fn run(
             "gpu": w.device == Device::Gpu,
             "render_seconds": w.render_seconds,
             "write_seconds": w.write_seconds,
+            "frames_seconds": w.frames_seconds,
             "setup_seconds": w.setup_seconds,
             "frames_per_second": fps,
         });
@@ -145,7 +180,7 @@ pub fn run(
         )?;
     }
     Ok(format!(
-        "pc-raytrace: wrote {} frames to {} ({}x{}, {} spp, {:.0}° orbit): {fps:.2} frames/s rendering on {} (setup {:.2} s, PNG writing {:.2} s)",
+        "pc-raytrace: wrote {} frames to {} ({}x{}, {} spp, {:.0}° orbit): {fps:.2} frames/s rendering on {}, {:.2} frames/s with the PNGs written beside (setup {:.2} s, PNG writing {:.2} s)",
         orbit.frames,
         orbit.dir.display(),
         c.camera.width,
@@ -153,6 +188,7 @@ pub fn run(
         c.raytrace.spp,
         orbit.degrees,
         w.device_name,
+        orbit.frames as f64 / w.frames_seconds.max(1e-9),
         w.setup_seconds,
         w.write_seconds
     ))
