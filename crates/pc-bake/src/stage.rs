@@ -58,7 +58,7 @@ fn key_of(cfg: &LoadedConfig, octree: &Key, radiosity: &Key, photons: Option<&Ke
 
 impl BakeStage {
     fn key_now(&self) -> Result<Key, BakeError> {
-        let input = |path: &Path, kind| Artifact::open_input(path, kind).map(|a| a.key());
+        let input = |path: &Path, kind| Artifact::input_key(path, kind);
         let photons = match self.photons.wanted() {
             true => Some(input(self.photons.path(), ArtifactKind::Photons)?),
             false => None,

@@ -266,12 +266,14 @@ pub fn run(
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
 /// config (nothing is traced).
 pub fn key(cfg: &LoadedConfig, octree_path: &Path, vmap_path: &Path) -> Result<Key, CausticsError> {
-    let octree = OctreeFile::open(octree_path)?;
-    let vmap = Artifact::open_input(vmap_path, ArtifactKind::Vmap)?;
-    let materials = cfg.materials_for(&octree)?;
+    // The inputs' keys from their headers, the config's material table: a run checks that
+    // table against the octree's (`materials_for`, which returns this same table).
+    let octree = Artifact::input_key(octree_path, ArtifactKind::Octree)?;
+    let vmap = Artifact::input_key(vmap_path, ArtifactKind::Vmap)?;
+    let materials = pc_config::material_table(cfg.config.materials.values());
     Ok(photons_key(
-        &octree.key(),
-        &vmap.key(),
+        &octree,
+        &vmap,
         &cfg.config.caustics.params,
         &materials,
     ))

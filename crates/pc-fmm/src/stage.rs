@@ -409,16 +409,21 @@ pub fn run(
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
 /// config (nothing is solved). The photon map counts when it is read, as in [`run`].
 pub fn key(cfg: &LoadedConfig, inputs: &Inputs) -> Result<Key, FmmError> {
-    let octree = OctreeFile::open(&inputs.octree)?;
-    let vmap = Artifact::open_input(&inputs.vmap, ArtifactKind::Vmap)?;
+    // The inputs' keys from their headers, the config's material table: a run checks that
+    // table against the octree's (`materials_for`, which returns this same table).
+    let octree = Artifact::input_key(&inputs.octree, ArtifactKind::Octree)?;
+    let vmap = Artifact::input_key(&inputs.vmap, ArtifactKind::Vmap)?;
     let photons = match inputs.photons.wanted() {
-        true => Some(Artifact::open_input(inputs.photons.path(), ArtifactKind::Photons)?.key()),
+        true => Some(Artifact::input_key(
+            inputs.photons.path(),
+            ArtifactKind::Photons,
+        )?),
         false => None,
     };
-    let materials = cfg.materials_for(&octree)?;
+    let materials = pc_config::material_table(cfg.config.materials.values());
     Ok(radiosity_key(
-        &octree.key(),
-        &vmap.key(),
+        &octree,
+        &vmap,
         photons.as_ref(),
         &cfg.config.fmm.params,
         &materials,

@@ -119,7 +119,7 @@ pub fn render_key(
     inputs: &Inputs,
     backend: Backend,
 ) -> Result<Key, RenderError> {
-    let input = |path: &Path, kind| Artifact::open_input(path, kind).map(|a| a.key());
+    let input = |path: &Path, kind| Artifact::input_key(path, kind);
     let octree = input(&inputs.octree, ArtifactKind::Octree)?;
     let radiosity = match inputs.reads_radiosity(&cfg.config.raytrace) {
         true => Some(input(inputs.radiosity.path(), ArtifactKind::Radiosity)?),

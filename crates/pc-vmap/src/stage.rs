@@ -39,7 +39,7 @@ pub fn vmap_key(links: &Key, lights: &[PointLight]) -> Key {
 /// The key a run on `cfg` would give its artifact, from the octree artifact's header (nothing
 /// is computed): [`vmap_key`] of [`links_key`] and the lights.
 pub fn key(cfg: &LoadedConfig, octree_path: &Path) -> Result<Key, VmapError> {
-    let octree = Artifact::open_input(octree_path, ArtifactKind::Octree)?.key();
+    let octree = Artifact::input_key(octree_path, ArtifactKind::Octree)?;
     let lkey = links_key(&octree, &cfg.config.vmap.params);
     Ok(vmap_key(&lkey, &cfg.config.lights))
 }

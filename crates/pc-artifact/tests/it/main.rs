@@ -2,6 +2,7 @@
 
 mod common;
 mod corrupt;
+mod input_key;
 mod key;
 mod roundtrip;
 mod writer;
