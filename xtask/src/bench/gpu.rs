@@ -2,7 +2,10 @@
 //! with every stage on the GPU (twice: the first pass pays the driver's kernel compiles, the
 //! second, in a fresh folder, finds them cached), then on the CPU, then a new view each, and a
 //! GPU walkthrough at 1024×1024, 1 spp. Each GPU stage's share (kernels built, bytes up,
-//! dispatches, bytes back) comes from its report. Without a GPU adapter it says so and skips.
+//! dispatches, bytes back) comes from its report. Then where `backend = "auto"` should switch:
+//! the precompute stages on the GPU and on the CPU with 2, 4, 8 and 16 worker threads
+//! (`RAYON_NUM_THREADS`, as many of those as the host has). Without a GPU adapter it says so and
+//! skips.
 //! docs/gpu.md holds the first such figures (an NVIDIA H100).
 
 use std::path::Path;
@@ -25,6 +28,7 @@ pub(super) fn bench(sizes: &[usize], write: bool) -> Result<()> {
     let mut rows = Vec::new();
     let mut shares = Vec::new();
     let mut frames = Vec::new();
+    let mut sweeps = Vec::new();
     let mut adapter = String::new();
     for &n in sizes {
         let config = bench_scene(&bin, n)?;
@@ -41,13 +45,14 @@ pub(super) fn bench(sizes: &[usize], write: bool) -> Result<()> {
             ("CPU", "cpu", "out-cpu"),
         ] {
             let _ = std::fs::remove_dir_all(scene.join(dir));
-            let (cold, v) = pass(&bin, &config, backend, dir, &[])?;
+            let (cold, v) = pass(&bin, &config, backend, dir, &[], None)?;
             let (view, _) = pass(
                 &bin,
                 &config,
                 backend,
                 dir,
                 &["camera.origin=[0.4, 0.2, 3.8]"],
+                None,
             )?;
             rows.push(format!(
                 "| {} | {label} | {} | {cold:.1} s | {view:.2} s |",
@@ -68,8 +73,9 @@ pub(super) fn bench(sizes: &[usize], write: bool) -> Result<()> {
             }
         }
         frames.push(walkthrough(&bin, &config, n)?);
+        sweeps.extend(sweep(&bin, &config, n)?);
     }
-    let t = table(&adapter, sizes, &rows, &shares, &frames);
+    let t = table(&adapter, sizes, &rows, &shares, &frames, &sweeps);
     publish("gpu", "GPU against CPU", &t, write)
 }
 
@@ -89,16 +95,21 @@ fn gpu_name(bin: &Path, config: &Path) -> String {
         .unwrap_or_else(|| "a GPU".into())
 }
 
-/// One pc-run with every stage on `backend`, output in `dir`: its wall time and its report.
+/// One pc-run with every stage on `backend`, output in `dir` (with `threads` worker threads
+/// when given, else the host's): its wall time and its report.
 fn pass(
     bin: &Path,
     config: &Path,
     backend: &str,
     dir: &str,
     extra: &[&str],
+    threads: Option<usize>,
 ) -> Result<(f64, Value)> {
     let report = config.with_file_name(format!("{dir}.json"));
     let mut cmd = Command::new(bin.join("pc-run"));
+    if let Some(t) = threads {
+        cmd.env("RAYON_NUM_THREADS", t.to_string());
+    }
     cmd.arg("--quiet").arg("--config").arg(config);
     let devices = DEVICE_STAGES.map(|s| format!("{s}.backend={backend}"));
     let out = format!("output.dir={dir}");
@@ -114,6 +125,62 @@ fn pass(
     let t = std::time::Instant::now();
     run_checked(&mut cmd, "pc-run")?;
     Ok((t.elapsed().as_secs_f64(), read_json(&report)?))
+}
+
+/// The worker-thread counts of the sweep: 2, 4, 8 and 16, those the host has.
+const SWEEP_THREADS: [usize; 4] = [2, 4, 8, 16];
+
+/// The stages whose device `auto` chooses by the host's threads (pc_stage::device::Work).
+const PRECOMPUTE: [&str; 3] = ["pc-vmap", "pc-caustics", "pc-fmm"];
+
+/// Where `auto` should switch: each precompute stage on the GPU and on the CPU with each of
+/// [`SWEEP_THREADS`] the host has, GPU and CPU alternating, on the first GPU pass's octree (the
+/// driver's kernel cache warm). One table row per thread count.
+fn sweep(bin: &Path, config: &Path, n: usize) -> Result<Vec<String>> {
+    let scene = config.parent().unwrap();
+    let host = std::thread::available_parallelism().map_or(1, |p| p.get());
+    let mut rows = Vec::new();
+    for t in SWEEP_THREADS.into_iter().filter(|&t| t <= host) {
+        let mut cells = Vec::new();
+        let mut sums = Vec::new();
+        for backend in ["gpu", "cpu"] {
+            let dir = format!("out-t{t}-{backend}");
+            let _ = std::fs::remove_dir_all(scene.join(&dir));
+            std::fs::create_dir_all(scene.join(&dir))?;
+            std::fs::copy(
+                scene.join("out-gpu/octree.pcgi"),
+                scene.join(&dir).join("octree.pcgi"),
+            )?;
+            let (_, v) = pass(bin, config, backend, &dir, &[], Some(t))?;
+            let secs: Vec<f64> = PRECOMPUTE
+                .iter()
+                .map(|s| {
+                    stage(&v, s)
+                        .and_then(|r| r["seconds"].as_f64())
+                        .unwrap_or(f64::NAN)
+                })
+                .collect();
+            cells.push(
+                secs.iter()
+                    .map(|x| format!("{x:.2}"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            );
+            sums.push(secs.iter().sum::<f64>());
+            let _ = std::fs::remove_dir_all(scene.join(&dir));
+        }
+        rows.push(format!(
+            "| {} | {t} | {} s | {:.1} s | {} s | {:.1} s | {:.2}× |",
+            count(n),
+            cells[0],
+            sums[0],
+            cells[1],
+            sums[1],
+            sums[1] / sums[0]
+        ));
+        println!("{}", rows.last().unwrap());
+    }
+    Ok(rows)
 }
 
 /// Frames per second of a 30-frame GPU walkthrough at 1024², 1 spp, on the first GPU pass's
@@ -136,9 +203,10 @@ fn walkthrough(bin: &Path, config: &Path, n: usize) -> Result<String> {
     let v = read_json(&stats)?;
     let _ = std::fs::remove_dir_all(&frames);
     Ok(format!(
-        "{}: {:.1} frames/s",
+        "{}: {:.1} frames/s rendering, {:.1} with the PNGs written",
         count(n),
-        v["frames_per_second"].as_f64().unwrap_or(f64::NAN)
+        v["frames_per_second"].as_f64().unwrap_or(f64::NAN),
+        30.0 / v["frames_seconds"].as_f64().unwrap_or(f64::NAN)
     ))
 }
 
@@ -185,6 +253,7 @@ fn table(
     rows: &[String],
     shares: &[String],
     frames: &[String],
+    sweeps: &[String],
 ) -> String {
     format!(
         "Machine: {}; GPU: {adapter}. Date: {}. Command: `cargo xtask bench --only gpu --sizes {}`. Cornell box with a \
@@ -194,13 +263,17 @@ process wall time as pc-run measured it.\n\n\
 | splats | pass | {} | cold chain | new view |\n|---|---|---|---|---|---|---|---|---|\n{}\n\n\
 The GPU's share of each stage (kernels built, bytes up, dispatches, bytes back; docs/gpu.md):\n\n\
 | splats | pass | stage | kernels built | up | dispatches | back |\n|---|---|---|---|---|---|---|\n{}\n\n\
-Walkthrough on the GPU, 30 frames at 1024×1024, 1 spp (rendering only): {}.\n",
+Walkthrough on the GPU, 30 frames at 1024×1024, 1 spp: {}.\n\n\
+Where `backend = \"auto\"` switches (pc_stage::device::AUTO_GPU_MAX_THREADS): pc-vmap, pc-caustics and \
+pc-fmm on the GPU and on the CPU with `RAYON_NUM_THREADS` worker threads, the GPU pass's octree, seconds each:\n\n\
+| splats | threads | GPU | together | CPU | together | CPU / GPU |\n|---|---|---|---|---|---|---|\n{}\n",
         machine(),
         today(),
         sizes_arg(sizes),
         STAGES.join(" | "),
         rows.join("\n"),
         shares.join("\n"),
-        frames.join("; ")
+        frames.join("; "),
+        sweeps.join("\n")
     )
 }
