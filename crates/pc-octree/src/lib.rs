@@ -15,7 +15,7 @@ pub mod refs;
 pub mod stage;
 pub mod stats;
 
-pub use build::{build, BuildError, BuildInput, Octree};
+pub use build::{build, build_from, BuildError, BuildInput, Octree};
 pub use pc_artifact::octree::OctreeStats;
 pub use pc_artifact::params::OctreeParams;
 pub use pc_tree::field_normal;

@@ -6,10 +6,10 @@ use std::time::Instant;
 use pc_artifact::octree::{sections, InputFile, OctreeMeta};
 use pc_artifact::{ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{material_table, LoadedConfig, MaterialConfig};
-use pc_import::load::{load_scene, model_path, LoadedScene, ModelReport};
+use pc_import::load::{load_scene, model_path, LoadedScene, ModelReport, SceneSplats};
 use pc_stage::{Progress, Stage};
 
-use crate::build::{build, BuildInput, Octree};
+use crate::build::{build_from, BuildInput, Octree};
 use crate::error::OctreeError;
 
 /// The producing stage's name and version, written into every artifact header.
@@ -75,24 +75,32 @@ pub struct Summary {
 /// Build the octree of a loaded scene with the config's parameters.
 pub fn build_scene(
     cfg: &LoadedConfig,
-    scene: &LoadedScene,
+    scene: &mut LoadedScene,
     phase: &mut dyn FnMut(&str),
 ) -> Result<Octree, OctreeError> {
     let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let classes: Vec<u32> = records.iter().map(|m| m.class).collect();
-    let s = &scene.splats;
-    let input = BuildInput {
+    // The scene's splat arrays go to the build, which frees them once they are in its data
+    // pool; the scene keeps its materials, models and origin for the artifact's metadata.
+    let owned = (std::mem::take(&mut scene.splats), classes);
+    build_from(owned, scene_input, &cfg.config.octree.params, phase).map_err(|error| {
+        OctreeError::Build {
+            config: cfg.path.clone(),
+            error,
+        }
+    })
+}
+
+/// The build's view of a scene's splats and its materials' classes.
+fn scene_input((s, classes): &(SceneSplats, Vec<u32>)) -> BuildInput<'_> {
+    BuildInput {
         positions: &s.positions,
         normals: &s.normals,
         radii: &s.radii,
         albedo: &s.albedo,
         material: &s.material,
-        material_class: &classes,
-    };
-    build(&input, &cfg.config.octree.params, phase).map_err(|error| OctreeError::Build {
-        config: cfg.path.clone(),
-        error,
-    })
+        material_class: classes,
+    }
 }
 
 /// Write an octree artifact atomically.
@@ -153,10 +161,10 @@ pub fn run(
     let t = Instant::now();
     progress.phase("import");
     progress.total(cfg.config.models.len() as u64);
-    let scene = load_scene(cfg, &mut |_, _| progress.advance(1))?;
+    let mut scene = load_scene(cfg, &mut |_, _| progress.advance(1))?;
     let import_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let octree = build_scene(cfg, &scene, &mut |name| {
+    let octree = build_scene(cfg, &mut scene, &mut |name| {
         progress.phase(&format!("build: {name}"))
     })?;
     let build_seconds = t.elapsed().as_secs_f64();

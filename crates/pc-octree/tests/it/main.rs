@@ -692,3 +692,40 @@ fn node_statistics_describe_the_subtree() {
         }
     }
 }
+
+#[test]
+fn a_build_that_frees_its_input_early_builds_the_same_octree() {
+    let (s, classes) = mixed_scene(0.02);
+    let params = OctreeParams::default();
+    let a = s.build(&classes, params).unwrap();
+    let albedo = s.ones();
+    let owned = (s, albedo, classes);
+    let b = pc_octree::build_from(
+        owned,
+        |(s, albedo, classes)| BuildInput {
+            positions: &s.p,
+            normals: &s.n,
+            radii: &s.r,
+            albedo,
+            material: &s.m,
+            material_class: classes,
+        },
+        &params,
+        &mut |_| {},
+    )
+    .unwrap();
+    let bytes = |o: &Octree| {
+        [
+            bytemuck::cast_slice::<_, u8>(std::slice::from_ref(&o.frame)).to_vec(),
+            bytemuck::cast_slice(&o.nodes).to_vec(),
+            bytemuck::cast_slice(&o.begin_end).to_vec(),
+            bytemuck::cast_slice(&o.splats).to_vec(),
+            bytemuck::cast_slice(&o.node_info).to_vec(),
+            bytemuck::cast_slice(&o.splat_area).to_vec(),
+            bytemuck::cast_slice(&o.splat_leaf).to_vec(),
+        ]
+    };
+    assert!(a.splats.len() > 10_000);
+    assert_eq!(bytes(&a), bytes(&b));
+    assert_eq!(a.stats.extra_refs, b.stats.extra_refs);
+}
