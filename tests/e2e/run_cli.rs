@@ -333,4 +333,22 @@ fn a_walkthrough_renders_numbered_frames_on_the_cached_solution() {
         args!["--quiet", "--config", &cfg, "--frames", "0"],
     )
     .error(&["a walkthrough needs at least one frame"]);
+    // A frame the writer thread cannot write stops the walkthrough with that frame's path.
+    let blocked = out.join("blocked");
+    std::fs::write(&blocked, b"a file where the frames' folder should be").unwrap();
+    run(
+        "pc-raytrace",
+        args![
+            "--quiet",
+            "--config",
+            &cfg,
+            "--backend",
+            "cpu",
+            "--frames",
+            "3",
+            "--frames-dir",
+            &blocked
+        ],
+    )
+    .error(&[&format!("{}: ", blocked.join("frame_00000.png").display())]);
 }
