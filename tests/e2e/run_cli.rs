@@ -264,6 +264,22 @@ fn a_walkthrough_renders_numbered_frames_on_the_cached_solution() {
     let cfg = scene(dir.path());
     pc_run(&cfg, &[]);
     let out = dir.path().join("out");
+    // A three-frame walkthrough on `backend` into `frames`, with any further arguments.
+    let walk = |backend: &str, frames: &Path, extra: Vec<std::ffi::OsString>| {
+        let mut a = args![
+            "--quiet",
+            "--config",
+            &cfg,
+            "--backend",
+            backend,
+            "--frames",
+            "3",
+            "--frames-dir",
+            frames
+        ];
+        a.extend(extra);
+        run("pc-raytrace", a)
+    };
     let mut backends = vec!["cpu"];
     if pc_gpu::test_context().is_some() {
         backends.push("gpu");
@@ -287,23 +303,7 @@ fn a_walkthrough_renders_numbered_frames_on_the_cached_solution() {
         .success();
         let frames = out.join(format!("walk-{backend}"));
         let stats = out.join(format!("walk-{backend}.json"));
-        let o = run(
-            "pc-raytrace",
-            args![
-                "--quiet",
-                "--config",
-                &cfg,
-                "--backend",
-                backend,
-                "--frames",
-                "3",
-                "--frames-dir",
-                &frames,
-                "--stats-json",
-                &stats
-            ],
-        )
-        .success();
+        let o = walk(backend, &frames, args!["--stats-json", &stats]).success();
         assert!(
             o.stdout.contains("wrote 3 frames") && o.stdout.contains("frames/s"),
             "{o:?}"
@@ -336,19 +336,6 @@ fn a_walkthrough_renders_numbered_frames_on_the_cached_solution() {
     // A frame the writer thread cannot write stops the walkthrough with that frame's path.
     let blocked = out.join("blocked");
     std::fs::write(&blocked, b"a file where the frames' folder should be").unwrap();
-    run(
-        "pc-raytrace",
-        args![
-            "--quiet",
-            "--config",
-            &cfg,
-            "--backend",
-            "cpu",
-            "--frames",
-            "3",
-            "--frames-dir",
-            &blocked
-        ],
-    )
-    .error(&[&format!("{}: ", blocked.join("frame_00000.png").display())]);
+    walk("cpu", &blocked, vec![])
+        .error(&[&format!("{}: ", blocked.join("frame_00000.png").display())]);
 }

@@ -266,11 +266,10 @@ pub fn run(
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
 /// config (nothing is traced).
 pub fn key(cfg: &LoadedConfig, octree_path: &Path, vmap_path: &Path) -> Result<Key, CausticsError> {
-    // The inputs' keys from their headers, the config's material table: a run checks that
-    // table against the octree's (`materials_for`, which returns this same table).
+    // The inputs' keys from their headers; a run checks the materials against the octree's.
     let octree = Artifact::input_key(octree_path, ArtifactKind::Octree)?;
     let vmap = Artifact::input_key(vmap_path, ArtifactKind::Vmap)?;
-    let materials = pc_config::material_table(cfg.config.materials.values());
+    let materials = cfg.material_records();
     Ok(photons_key(
         &octree,
         &vmap,

@@ -50,6 +50,13 @@ pub fn material_table<'a>(
 }
 
 impl LoadedConfig {
+    /// The config's material table, unchecked: what a stage's key hashes. A run takes it from
+    /// [`LoadedConfig::materials_for`], which returns this same table once it matches the
+    /// octree's.
+    pub fn material_records(&self) -> Vec<MaterialRecord> {
+        material_table(self.config.materials.values())
+    }
+
     /// The config's material table, checked against the octree's: names and classes must match
     /// (colors, radiance and indices of refraction may change without rebuilding the octree).
     pub fn materials_for(&self, octree: &OctreeFile) -> Result<Vec<MaterialRecord>, ConfigError> {
@@ -71,7 +78,7 @@ impl LoadedConfig {
                     .join(", ")
             )));
         }
-        let table = material_table(self.config.materials.values());
+        let table = self.material_records();
         for ((m, b), name) in table.iter().zip(octree.materials()).zip(&names) {
             if m.class != b.class || m.per_point_color != b.per_point_color {
                 return Err(err(format!(

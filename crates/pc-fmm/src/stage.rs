@@ -409,8 +409,7 @@ pub fn run(
 /// The key a run on `cfg` would give its artifact, from the input artifacts' headers and the
 /// config (nothing is solved). The photon map counts when it is read, as in [`run`].
 pub fn key(cfg: &LoadedConfig, inputs: &Inputs) -> Result<Key, FmmError> {
-    // The inputs' keys from their headers, the config's material table: a run checks that
-    // table against the octree's (`materials_for`, which returns this same table).
+    // The inputs' keys from their headers; a run checks the materials against the octree's.
     let octree = Artifact::input_key(&inputs.octree, ArtifactKind::Octree)?;
     let vmap = Artifact::input_key(&inputs.vmap, ArtifactKind::Vmap)?;
     let photons = match inputs.photons.wanted() {
@@ -420,7 +419,7 @@ pub fn key(cfg: &LoadedConfig, inputs: &Inputs) -> Result<Key, FmmError> {
         )?),
         false => None,
     };
-    let materials = pc_config::material_table(cfg.config.materials.values());
+    let materials = cfg.material_records();
     Ok(radiosity_key(
         &octree,
         &vmap,
