@@ -7,9 +7,8 @@
 use std::collections::HashMap;
 
 use glam::{IVec3, Vec3};
-use rayon::prelude::*;
 
-use crate::estimate::{build_tree, neighbours};
+use crate::knn::Knn;
 use crate::points::PointSet;
 
 /// Keeps the first point of every cluster of points closer than `distance` to it: a point is
@@ -48,15 +47,10 @@ pub fn remove_outliers(positions: &[Vec3], k: usize, std_ratio: f32) -> Vec<bool
     if n <= k {
         return vec![true; n];
     }
-    let tree = build_tree(positions);
-    let means: Vec<f64> = (0..n)
-        .into_par_iter()
-        .map_init(Vec::new, |buf, i| {
-            neighbours(&tree, positions, i, k, buf);
-            let sum: f64 = buf.iter().map(|&(_, d2)| f64::from(d2).sqrt()).sum();
-            sum / buf.len().max(1) as f64
-        })
-        .collect();
+    let means: Vec<f64> = Knn::new(positions).map(k, |_, near| {
+        let sum: f64 = near.iter().map(|&(_, d2)| f64::from(d2).sqrt()).sum();
+        sum / near.len().max(1) as f64
+    });
     let mean = means.iter().sum::<f64>() / n as f64;
     let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / n as f64;
     let limit = mean + f64::from(std_ratio) * var.sqrt();

@@ -2,17 +2,16 @@
 //! normal orientation (towards a sensor, or by propagation over the neighbour graph), and
 //! splat radii from the local point spacing.
 //!
-//! Neighbours come from a kiddo `ImmutableKdTree` (f32, built once per call) queried in
-//! parallel with rayon. Positions must be finite (`read_ply` guarantees it; the `try_`
-//! functions check it).
+//! Neighbours come from one exact all-points search ([`crate::knn::Knn`], built once per
+//! call) run in parallel with rayon. Positions must be finite (`read_ply` guarantees it; the
+//! `try_` functions check it).
 
-use std::num::NonZeroUsize;
 use std::path::Path;
 
 use glam::{DVec3, Vec3};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
+use crate::knn::Knn;
 use crate::ImportError;
 
 /// How estimated normals are oriented (PCA gives a direction only up to sign).
@@ -113,40 +112,49 @@ fn estimate_distinct(
         Some(Orientation::Propagate) => kn.min(GRAPH_NEIGHBOURS),
         _ => 0,
     };
-    let tree = build_tree(positions);
-    // Both outputs and a graph row per point whatever is asked (what is not is dropped at the
-    // end: 4 to 12 bytes a point for a while), so that one parallel pass serves every case.
-    let (want_n, want_r) = (normals.is_some(), radii.is_some());
-    let mut out_n = vec![Vec3::ZERO; n];
-    let mut out_r = vec![0.0f32; n];
-    let row = kg.max(1);
-    let mut graph = vec![u32::MAX; n * row];
+    let knn = Knn::new(positions);
     let kq = kn.max(kr);
-    out_n
-        .par_iter_mut()
-        .zip(out_r.par_iter_mut())
-        .zip(graph.par_chunks_mut(row))
-        .enumerate()
-        .for_each_init(Vec::new, |buf, (i, ((nrm, r), g))| {
-            neighbours(&tree, positions, i, kq, buf);
-            if want_n {
-                *nrm = pca_normal(positions, i, &buf[..kn.min(buf.len())]);
-            }
-            if want_r {
-                let near = &buf[..kr.min(buf.len())];
+    // One neighbour query per point serves the normal, the radius and the graph row.
+    let estimate_one = |i: usize, near: &[(u32, f32)]| {
+        let nrm = match normals {
+            Some(_) => pca_normal(positions, i, &near[..kn.min(near.len())]),
+            None => Vec3::ZERO,
+        };
+        let r = match radii {
+            Some(_) => {
+                let near = &near[..kr.min(near.len())];
                 let sum: f64 = near.iter().map(|&(_, d2)| d2 as f64).sum();
                 let mean = sum / near.len().max(1) as f64;
-                *r = (2.0 * std::f64::consts::PI * mean / kr as f64).sqrt() as f32;
+                (2.0 * std::f64::consts::PI * mean / kr as f64).sqrt() as f32
             }
-            for (g, &(j, _)) in g.iter_mut().take(kg).zip(buf.iter()) {
+            None => 0.0,
+        };
+        (nrm, r)
+    };
+    let (mut out_n, mut out_r, graph): (Vec<Vec3>, Vec<f32>, Vec<u32>) = if kg == 0 {
+        let (n, r) = knn.map(kq, estimate_one).into_par_iter().unzip();
+        (n, r, Vec::new())
+    } else {
+        let rows = knn.map(kq, |i, near| {
+            let (n, r) = estimate_one(i, near);
+            let mut row = [u32::MAX; GRAPH_NEIGHBOURS];
+            for (g, &(j, _)) in row.iter_mut().take(kg).zip(near) {
                 *g = j;
             }
+            (n, r, row)
         });
+        let graph = rows
+            .par_iter()
+            .flat_map_iter(|(_, _, row)| row[..kg].iter().copied())
+            .collect();
+        let (n, r) = rows.into_par_iter().map(|(n, r, _)| (n, r)).unzip();
+        (n, r, graph)
+    };
     match orient {
         Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
         None => out_n = Vec::new(),
     }
-    match want_r {
+    match radii.is_some() {
         true => replace_bad_radii(&mut out_r),
         false => out_r = Vec::new(),
     }
@@ -365,45 +373,6 @@ impl Distinct {
         }
         self.of.iter().map(|&j| values[j as usize]).collect()
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Neighbours
-
-pub(crate) type Tree = ImmutableKdTree<f32, 3>;
-
-pub(crate) fn build_tree(positions: &[Vec3]) -> Tree {
-    let pts: &[[f32; 3]] = bytemuck::cast_slice(positions);
-    // Item indices are u32: more than 4G points would not fit in memory here anyway.
-    Tree::new_from_slice(pts).expect("kd-tree construction: more than u32::MAX points")
-}
-
-/// The `k` nearest neighbours of point `i` (itself excluded) as (index, squared distance),
-/// nearest first, into `buf`.
-pub(crate) fn neighbours(
-    tree: &Tree,
-    positions: &[Vec3],
-    i: usize,
-    k: usize,
-    buf: &mut Vec<(u32, f32)>,
-) {
-    buf.clear();
-    if k == 0 {
-        return;
-    }
-    let q = positions[i].to_array();
-    let res = tree
-        .query(&q)
-        .nearest_n::<SquaredEuclidean<f32>>(NonZeroUsize::new(k + 1).unwrap())
-        .execute();
-    let me = i as u32;
-    buf.extend(
-        res.iter()
-            .filter(|r| r.item != me)
-            .map(|r| (r.item, r.distance)),
-    );
-    // With duplicates the point itself may be missing from the results: keep k.
-    buf.truncate(k);
 }
 
 // ---------------------------------------------------------------------------------------------

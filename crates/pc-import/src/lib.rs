@@ -1,13 +1,15 @@
 //! Point clouds in and out: the readers of PLY ([`ply`]), LAS/LAZ ([`las`]) and E57 ([`e57`]),
 //! all giving a [`points::PointSet`] chosen by extension ([`points::read_points`]), the PLY
 //! writer ([`ply_write`]), normal and
-//! radius estimation for clouds that lack them ([`estimate`]), and the assembly of
+//! radius estimation for clouds that lack them ([`estimate`], over the neighbour search
+//! [`knn`]), and the assembly of
 //! pipeline.toml's models into one splat set ([`load`]: transforms, materials). docs/import.md.
 
 pub mod clean;
 pub mod e57;
 pub mod error;
 pub mod estimate;
+pub mod knn;
 pub mod las;
 mod las_guard;
 pub mod load;
