@@ -43,13 +43,13 @@ pub struct RayCounts {
 
 pub use pc_tree::optics::{fresnel, reflect, refract, shading_normal, specular_bounce};
 
-/// Trace one pixel sample.
+/// Trace one pixel sample. `blend` is scratch for the splats blended at the hit, reused from
+/// sample to sample.
 pub fn trace_sample(
     sc: &RenderScene,
-    px: u32,
-    py: u32,
-    k: u32,
+    (px, py, k): (u32, u32, u32),
     counts: &mut RayCounts,
+    blend: &mut Vec<(u32, f32)>,
 ) -> SampleResult {
     let p = &sc.params;
     let view = &sc.view;
@@ -65,7 +65,6 @@ pub fn trace_sample(
         splat: u32::MAX,
         ..Default::default()
     };
-    let mut blend = Vec::new();
     counts.camera += 1;
     for bounce in 0..=p.max_bounces {
         if bounce > 0 {
@@ -119,13 +118,13 @@ pub fn trace_sample(
             break;
         }
         // Blend every splat of this surface that covers the hit point (§8.5.8).
-        sc.covering(found, x, ns, p.blend_thickness, &mut blend);
+        sc.covering(found, x, ns, p.blend_thickness, blend);
         if blend.is_empty() {
             blend.push((hit.splat, 1.0));
         }
         let (mut wsum, mut albedo, mut emit, mut nsum) =
             (0.0f32, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
-        for &(j, w) in &blend {
+        for &(j, w) in blend.iter() {
             let sj = &view.splats[j as usize];
             let mj = &sc.materials[sj.material as usize];
             wsum += w;
@@ -309,13 +308,14 @@ pub fn render(
         .par_iter()
         .map(|&(tx, ty)| {
             let mut counts = RayCounts::default();
+            let mut blend = Vec::new();
             let mut px = Vec::with_capacity((TILE * TILE) as usize);
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
                 for x in tx * TILE..((tx + 1) * TILE).min(w) {
                     let mut acc = Vec3::ZERO;
                     let mut first = SampleResult::default();
                     for k in 0..sc.params.spp {
-                        let r = trace_sample(sc, x, y, k, &mut counts);
+                        let r = trace_sample(sc, (x, y, k), &mut counts, &mut blend);
                         acc += r.rgb;
                         if k == 0 {
                             first = r;
