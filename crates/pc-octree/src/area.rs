@@ -256,8 +256,9 @@ impl AreaPass<'_> {
         }
     }
 
-    /// The disks of the same surface that can cover some point of disk i (i included).
-    fn near(&self, i: usize, near: &mut Vec<u32>) {
+    /// The disks of the same surface that can cover some point of disk i (i included), as
+    /// lanes ([`Near`]).
+    fn near(&self, i: usize, near: &mut Near) {
         let s = &self.splats[i];
         let c = Vec3::from(s.position);
         let n = Vec3::from(s.normal);
@@ -273,7 +274,7 @@ impl AreaPass<'_> {
                 && Vec3::from(o.normal).dot(n) >= 0.5
                 && (Vec3::from(o.position) - c).length_squared() <= reach * reach * 1.25
             {
-                near.push(j);
+                near.push(o, self.dups.weight(j));
             }
         }
     }
@@ -426,7 +427,7 @@ impl AreaPass<'_> {
         let inv_size = self.frame.inv_size;
         (0..self.splats.len())
             .into_par_iter()
-            .map_init(Vec::new, |near: &mut Vec<u32>, i| {
+            .map_init(Near::default, |near: &mut Near, i| {
                 if !self.dups.is_rep(i as u32) {
                     return 0.0; // the representative's, spread afterwards
                 }
@@ -462,7 +463,7 @@ impl AreaPass<'_> {
                     // floor(q · scale) == cell, without a call to floorf per sample.
                     let qs = q * scale;
                     let cover: u32 = if qs.cmpge(cell).all() && qs.cmplt(cell + 1.0).all() {
-                        near.iter().map(|&j| weight(j)).sum()
+                        near.cover(x)
                     } else if q.cmpge(Vec3::ZERO).all() && q.cmplt(Vec3::ONE).all() {
                         let loc = locate_normalized(self.nodes, q);
                         if node::is_leaf(loc.node) {
@@ -610,4 +611,74 @@ fn covers(o: &Splat, x: Vec3, n: Vec3, material: u32) -> bool {
     }
     let h = d.dot(on);
     h.abs() <= 0.5 * o.radius && d2 - h * h <= r2
+}
+
+/// The disks that can cover a splat's samples (its [`AreaPass::near`] list: one surface, one
+/// material, normals within 60° of the splat's), lane by lane, so that a sample's cover count is
+/// one vector loop over them. The arithmetic is [`covers`]' less the tests every lane has
+/// passed already (the material, the normals), operation for operation, so the counts are
+/// the same.
+#[derive(Default)]
+struct Near {
+    px: Vec<f32>,
+    py: Vec<f32>,
+    pz: Vec<f32>,
+    nx: Vec<f32>,
+    ny: Vec<f32>,
+    nz: Vec<f32>,
+    radius: Vec<f32>,
+    /// How many splats each disk counts for ([`Duplicates::weight`]).
+    weight: Vec<u32>,
+}
+
+impl Near {
+    fn clear(&mut self) {
+        for v in [
+            &mut self.px,
+            &mut self.py,
+            &mut self.pz,
+            &mut self.nx,
+            &mut self.ny,
+            &mut self.nz,
+            &mut self.radius,
+        ] {
+            v.clear();
+        }
+        self.weight.clear();
+    }
+
+    fn push(&mut self, o: &Splat, weight: u32) {
+        let ([px, py, pz], [nx, ny, nz]) = (o.position, o.normal);
+        self.px.push(px);
+        self.py.push(py);
+        self.pz.push(pz);
+        self.nx.push(nx);
+        self.ny.push(ny);
+        self.nz.push(nz);
+        self.radius.push(o.radius);
+        self.weight.push(weight);
+    }
+
+    /// Σ weight over the disks that cover `x` ([`covers`] for each).
+    #[inline]
+    fn cover(&self, x: Vec3) -> u32 {
+        let n = self.weight.len();
+        let (px, py, pz) = (&self.px[..n], &self.py[..n], &self.pz[..n]);
+        let (nx, ny, nz, radius) = (
+            &self.nx[..n],
+            &self.ny[..n],
+            &self.nz[..n],
+            &self.radius[..n],
+        );
+        let mut sum = 0u32;
+        for l in 0..n {
+            let (dx, dy, dz) = (x.x - px[l], x.y - py[l], x.z - pz[l]);
+            let d2 = dx * dx + dy * dy + dz * dz;
+            let r2 = radius[l] * radius[l];
+            let h = dx * nx[l] + dy * ny[l] + dz * nz[l];
+            let inside = d2 <= 1.25 * r2 && h.abs() <= 0.5 * radius[l] && d2 - h * h <= r2;
+            sum += if inside { self.weight[l] } else { 0 };
+        }
+        sum
+    }
 }
