@@ -195,6 +195,20 @@ impl Knn {
     }
 }
 
+/// Pushes internal node `m`'s two children with their squared distances from `home`, the
+/// nearer on top of the stack.
+fn push_children(stack: &mut Vec<(u32, f32)>, boxes: &[Aabb], m: usize, home: &Aabb) {
+    let (a, b) = (2 * m + 1, 2 * m + 2);
+    let (da, db) = (home.dist2_box(&boxes[a]), home.dist2_box(&boxes[b]));
+    let (near, far) = if da <= db {
+        ((a, da), (b, db))
+    } else {
+        ((b, db), (a, da))
+    };
+    stack.push((far.0 as u32, far.1));
+    stack.push((near.0 as u32, near.1));
+}
+
 /// Runs that one run's queries may gather from ([`Search::gather`]) beyond this many are not
 /// listed: each query then searches the tree on its own.
 const MAX_CANDIDATES: usize = 256;
@@ -256,15 +270,7 @@ impl Search {
                 }
                 continue;
             }
-            let (a, b) = (2 * m + 1, 2 * m + 2);
-            let (da, db) = (home.dist2_box(&t.boxes[a]), home.dist2_box(&t.boxes[b]));
-            let (near, far) = if da <= db {
-                ((a, da), (b, db))
-            } else {
-                ((b, db), (a, da))
-            };
-            self.stack.push((far.0 as u32, far.1));
-            self.stack.push((near.0 as u32, near.1));
+            push_children(&mut self.stack, &t.boxes, m, &home);
         }
         self.candidates = Some(list);
     }
@@ -312,16 +318,7 @@ impl Search {
                 self.scan(t, m + 1 - t.leaves, slot, q, k);
                 continue;
             }
-            let (a, b) = (2 * m + 1, 2 * m + 2);
-            let (da, db) = (t.boxes[a].dist2(q), t.boxes[b].dist2(q));
-            // Nearer child on top of the stack.
-            let (near, far) = if da <= db {
-                ((a, da), (b, db))
-            } else {
-                ((b, db), (a, da))
-            };
-            self.stack.push((far.0 as u32, far.1));
-            self.stack.push((near.0 as u32, near.1));
+            push_children(&mut self.stack, &t.boxes, m, &Aabb { lo: q, hi: q });
         }
     }
 
@@ -441,15 +438,16 @@ mod tests {
         }
     }
 
+    /// A point uniform in the cube `[0, side)³`.
+    fn in_cube(rng: &mut impl Rng, side: f32) -> Vec3 {
+        Vec3::new(rng.random(), rng.random(), rng.random()) * side
+    }
+
     #[test]
     fn random_points_match_brute_force() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
-        let p: Vec<Vec3> = (0..3000)
-            .map(|_| Vec3::new(rng.random(), rng.random(), rng.random()))
-            .collect();
-        for k in [1, 8, 17, 24] {
-            check(&p, k);
-        }
+        let p: Vec<Vec3> = (0..3000).map(|_| in_cube(&mut rng, 1.0)).collect();
+        [1, 8, 17, 24].into_iter().for_each(|k| check(&p, k));
     }
 
     #[test]
@@ -462,8 +460,8 @@ mod tests {
                 Vec3::new(u * 4.0, v * 2.0, 0.1 * (u * 9.0).sin())
             })
             .collect();
-        p.extend((0..400).map(|_| Vec3::new(rng.random(), rng.random(), rng.random()) * 1e-3));
-        p.extend((0..20).map(|_| Vec3::new(rng.random(), rng.random(), rng.random()) * 1e3));
+        p.extend((0..400).map(|_| in_cube(&mut rng, 1e-3)));
+        p.extend((0..20).map(|_| in_cube(&mut rng, 1e3)));
         check(&p, 16);
     }
 
@@ -474,9 +472,7 @@ mod tests {
             .map(|i| Vec3::new((i % 20) as f32, (i / 20 % 20) as f32, (i / 400) as f32))
             .collect();
         p.extend(std::iter::repeat_n(Vec3::new(3.0, 4.0, 1.0), 100));
-        for k in [4, 8, 17] {
-            check(&p, k);
-        }
+        [4, 8, 17].into_iter().for_each(|k| check(&p, k));
     }
 
     #[test]
@@ -496,11 +492,9 @@ mod tests {
             })
             .collect();
         for i in (0..9000).step_by(300) {
-            p[i] = Vec3::new(rng.random(), rng.random(), rng.random()) * 500.0;
+            p[i] = in_cube(&mut rng, 500.0);
         }
-        for k in [16, 40] {
-            check(&p, k);
-        }
+        [16, 40].into_iter().for_each(|k| check(&p, k));
     }
 
     #[test]
