@@ -430,3 +430,39 @@ fn duplicates_merge_and_outliers_go_with_counts() {
     .unwrap_err();
     assert!(e.contains("import.outliers.neighbors"), "{e}");
 }
+
+#[test]
+fn neighbours_on_real_scans_match_brute_force() {
+    // Real coordinates are quantised (LAS: integers times a scale), so distances tie often,
+    // and scan lines make the density uneven: the search's 16 nearest must have brute
+    // force's distances (a tied k-th place may name another point). Every 7th point is
+    // checked, against every other point of the file.
+    use pc_import::knn::Knn;
+    for name in ["32-1-472-150-76.laz", "autzen.las", "bunnyFloat.e57"] {
+        let p = read(name).positions;
+        let k = 16;
+        let got = Knn::new(&p).map(k, |_, near| {
+            let mut d = [f32::NAN; 16];
+            for (d, &(_, d2)) in d.iter_mut().zip(near) {
+                *d = d2;
+            }
+            (near.len(), d)
+        });
+        for i in (0..p.len()).step_by(7) {
+            let mut all: Vec<f32> = (0..p.len())
+                .filter(|&j| j != i)
+                .map(|j| {
+                    let e = p[j] - p[i];
+                    e.x * e.x + e.y * e.y + e.z * e.z
+                })
+                .collect();
+            if all.len() > k {
+                all.select_nth_unstable_by(k, f32::total_cmp);
+                all.truncate(k);
+            }
+            all.sort_by(f32::total_cmp);
+            let (len, d) = got[i];
+            assert_eq!(&d[..len], &all[..], "{name}: point {i} of {}", p.len());
+        }
+    }
+}
