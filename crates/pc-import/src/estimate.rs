@@ -57,8 +57,8 @@ const GRAPH_NEIGHBOURS: usize = 8;
 ///   separately, which is the same for a component that is one closed surface.
 ///
 /// `k` is clamped to `positions.len() - 1`; for fewer than 3 points the result is degenerate
-/// (use [`try_estimate_normals`] to get an error instead). Costs one kd-tree build and one
-/// k-NN query per point (parallel), plus O(E) sequential work for `Propagate` (E ≈ 10 n).
+/// (use [`try_estimate_normals`] to get an error instead). Costs one neighbour search over all
+/// points ([`Knn`], parallel), plus O(E) sequential work for `Propagate` (E ≈ 10 n).
 ///
 /// Exact copies of a position are estimated once ([`Distinct`]) and share its normal.
 pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Vec<Vec3> {
@@ -66,9 +66,9 @@ pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Ve
 }
 
 /// Normals ([`estimate_normals`], `k_normals` neighbours) and radii ([`estimate_radii`],
-/// `k_radii`) together: one kd-tree and one query of the nearest `max(k_normals, k_radii)` per
-/// point serve both (the radii read the nearest `k_radii` of the same list), where two passes
-/// cost two trees and two queries (at 1M scanned points 1.5 of the import's 5 s).
+/// `k_radii`) together: one search ([`Knn`]) for the nearest `max(k_normals, k_radii)` of each point
+/// serves both (the radii read the nearest `k_radii` of the same list), where two passes
+/// cost two searches (with the kd-tree before it, at 1M scanned points 1.5 of the import's 5 s).
 pub fn estimate_normals_and_radii(
     positions: &[Vec3],
     k_normals: usize,

@@ -1,11 +1,15 @@
 //! The k nearest neighbours of every point of a cloud (all points are queries, as the import's
 //! normal, radius and outlier estimates ask), exact. docs/import.md, "Neighbours".
 //!
-//! The points are sorted along a Morton curve and cut into runs of [`RUN`] consecutive
+//! The points are sorted along a Morton curve and cut into runs of `RUN` consecutive
 //! points; a complete binary tree over the runs holds the bounding box of each subtree
 //! (a linear bounding volume hierarchy). A query first reads its own run, which on a surface
-//! already holds most of its neighbours and so sets a tight bound, then descends the tree
-//! nearer child first, skipping every box at least as far as its current k-th neighbour.
+//! already holds most of its neighbours and so sets a tight bound. The runs it may still need
+//! were listed once for its whole run by one walk of the tree (`Search::gather`); it reads
+//! those nearer than its current k-th neighbour. Where no such list is kept (a run that would
+//! reach too far, or k not below a run's size) it climbs the tree from its own run, reading
+//! each sibling subtree nearer child first and skipping every box at least as far as its
+//! current k-th neighbour.
 //! Queries run in curve order, so consecutive queries read the same runs and boxes from the
 //! cache; the runs' coordinates lie apart (structure of arrays) so that a run's distances
 //! are one vector loop. The answers come back in the input order.
@@ -18,6 +22,7 @@ use rayon::prelude::*;
 
 /// Points per run (a leaf of the tree).
 const RUN: usize = 32;
+const _: () = assert!(RUN <= 64, "a run's mask is a u64");
 
 /// Runs per parallel task at least (their queries are consecutive along the curve).
 const RUNS_A_TASK: usize = 128;
@@ -40,6 +45,12 @@ impl Aabb {
             lo: std::array::from_fn(|k| a.lo[k].min(b.lo[k])),
             hi: std::array::from_fn(|k| a.hi[k].max(b.hi[k])),
         }
+    }
+
+    /// Whether the box holds no point (a padding leaf of the tree, or above only such).
+    #[inline]
+    fn is_empty(&self) -> bool {
+        self.lo[0] > self.hi[0]
     }
 
     /// Squared distance between two boxes (0 where they meet, +∞ if either is empty).
@@ -115,8 +126,14 @@ fn spread(x: u32) -> u64 {
 }
 
 impl Knn {
-    /// The structure over `positions` (finite; any number, copies allowed).
+    /// The structure over `positions` (finite; up to `u32::MAX` of them, copies allowed).
     pub fn new(positions: &[Vec3]) -> Knn {
+        // Indices are u32 (4 bytes a point in every list); 2³² points would not fit in memory
+        // here anyway.
+        assert!(
+            positions.len() <= u32::MAX as usize,
+            "the neighbour search takes at most u32::MAX points"
+        );
         let index = curve_order(positions);
         let at = |k: usize| -> Vec<f32> {
             index
@@ -249,6 +266,9 @@ impl Search {
             let (_, kth, _) = d.select_nth_unstable_by(k - 1, f32::total_cmp);
             reach = reach.max(*kth);
         }
+        if !reach.is_finite() {
+            return; // distances past f32's range: no box prunes, each query walks
+        }
         let own = t.leaves - 1 + r;
         let home = t.boxes[own];
         let mut list = std::mem::take(&mut self.list);
@@ -310,10 +330,16 @@ impl Search {
         self.stack.clear();
         self.stack.push((top as u32, t.boxes[top].dist2(q)));
         while let Some((m, d2)) = self.stack.pop() {
-            if d2 >= self.bound(k) {
+            let m = m as usize;
+            // Once k are found, the bound prunes (an empty box is +∞ away); before, only
+            // emptiness does.
+            let pruned = match self.near.len() == k {
+                true => d2 >= self.bound(k),
+                false => t.boxes[m].is_empty(),
+            };
+            if pruned {
                 continue;
             }
-            let m = m as usize;
             if m >= t.leaves - 1 {
                 self.scan(t, m + 1 - t.leaves, slot, q, k);
                 continue;
@@ -322,8 +348,8 @@ impl Search {
         }
     }
 
-    /// The k-th distance found, or +∞ while fewer than k are found: a box or point at least
-    /// this far cannot enter.
+    /// The k-th distance found, or +∞ while fewer than k are found: once k are found, a box or
+    /// point at least this far cannot enter.
     #[inline]
     fn bound(&self, k: usize) -> f32 {
         if self.near.len() < k {
@@ -342,20 +368,25 @@ impl Search {
             let (dx, dy, dz) = (t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]);
             *d = dx * dx + dy * dy + dz * dz;
         }
+        // The points that may enter as a mask (one vector compare): a run far from the query
+        // costs no branch a point. Until k are found every point may (even one whose squared
+        // distance overflows to +∞).
+        let mut mask = if self.near.len() < k {
+            u64::MAX >> (64 - (hi - lo))
+        } else {
+            // Padding lanes are +∞, never below a bound.
+            let bound = self.bound(k);
+            d2.iter()
+                .enumerate()
+                .fold(0u64, |m, (j, &d)| m | u64::from(d < bound) << j)
+        };
         if (lo..hi).contains(&skip) {
-            d2[skip - lo] = f32::INFINITY; // never below the bound
+            mask &= !(1u64 << (skip - lo)); // the query itself
         }
-        // The points below the bound as a mask (one vector compare): a run far from the query
-        // costs no branch a point.
-        let bound = self.bound(k);
-        let mut mask = d2
-            .iter()
-            .enumerate()
-            .fold(0u64, |m, (j, &d)| m | u64::from(d < bound) << j);
         while mask != 0 {
             let j = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            if d2[j] < self.bound(k) {
+            if self.near.len() < k || d2[j] < self.bound(k) {
                 self.insert((t.index[lo + j], d2[j]), k);
             }
         }
@@ -495,6 +526,18 @@ mod tests {
             p[i] = in_cube(&mut rng, 500.0);
         }
         [16, 40].into_iter().for_each(|k| check(&p, k));
+    }
+
+    #[test]
+    fn distances_past_the_f32_range_still_count() {
+        // Squared distances that overflow to +∞ are still distances: every point gets its
+        // min(k, n − 1) neighbours.
+        let mut p: Vec<Vec3> = (0..40).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+        p.extend([Vec3::new(3e19, 0.0, 0.0), Vec3::new(0.0, -3e19, 1.0)]);
+        [1, 4, 41].into_iter().for_each(|k| check(&p, k));
+        let two = [Vec3::ZERO, Vec3::new(2e19, 0.0, 0.0)];
+        let got = Knn::new(&two).map(1, |_, near| near[0]);
+        assert_eq!(got, vec![(1, f32::INFINITY), (0, f32::INFINITY)]);
     }
 
     #[test]
