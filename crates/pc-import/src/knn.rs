@@ -237,9 +237,9 @@ struct Search {
     near: Vec<(u32, f32)>,
     stack: Vec<(u32, f32)>,
     /// The runs within reach of every query of the current run (its own excluded), nearer
-    /// first; `None` when there are too many or the reach is unbounded.
-    candidates: Option<Vec<u32>>,
+    /// first, when `listed`; not kept when there are too many or the reach is unbounded.
     list: Vec<u32>,
+    listed: bool,
 }
 
 impl Search {
@@ -248,7 +248,7 @@ impl Search {
     /// the run's box, reaches every run that any of them needs. One walk of the tree for the
     /// run then serves all its queries, where a walk for each would repeat the same descent.
     fn gather(&mut self, t: &Knn, r: usize, k: usize) {
-        self.candidates = None;
+        self.listed = false;
         let (lo, hi) = (r * RUN, ((r + 1) * RUN).min(t.len()));
         if k == 0 || hi - lo <= k {
             return; // a run of at most k points bounds nothing
@@ -271,8 +271,7 @@ impl Search {
         }
         let own = t.leaves - 1 + r;
         let home = t.boxes[own];
-        let mut list = std::mem::take(&mut self.list);
-        list.clear();
+        self.list.clear();
         self.stack.clear();
         self.stack.push((0, home.dist2_box(&t.boxes[0])));
         while let Some((m, d2)) = self.stack.pop() {
@@ -282,17 +281,16 @@ impl Search {
             let m = m as usize;
             if m >= t.leaves - 1 {
                 if m != own {
-                    if list.len() == MAX_CANDIDATES {
-                        self.list = list;
+                    if self.list.len() == MAX_CANDIDATES {
                         return;
                     }
-                    list.push((m + 1 - t.leaves) as u32);
+                    self.list.push((m + 1 - t.leaves) as u32);
                 }
                 continue;
             }
             push_children(&mut self.stack, &t.boxes, m, &home);
         }
-        self.candidates = Some(list);
+        self.listed = true;
     }
 
     /// The `k` nearest of the point at `slot` (along the curve) into `self.near`: its own run
@@ -306,13 +304,13 @@ impl Search {
         let q = [t.xs[slot], t.ys[slot], t.zs[slot]];
         let own = slot / RUN;
         self.scan(t, own, slot, q, k);
-        if let Some(list) = self.candidates.take() {
-            for &r in &list {
-                if t.boxes[t.leaves - 1 + r as usize].dist2(q) < self.bound(k) {
-                    self.scan(t, r as usize, slot, q, k);
+        if self.listed {
+            for c in 0..self.list.len() {
+                let r = self.list[c] as usize;
+                if t.boxes[t.leaves - 1 + r].dist2(q) < self.bound(k) {
+                    self.scan(t, r, slot, q, k);
                 }
             }
-            self.candidates = Some(list);
             return;
         }
         // Up from the own run: at each ancestor, the other child's subtree.
