@@ -240,6 +240,11 @@ pub struct ImportConfig {
     /// Neighbours for PCA normal estimation when a PLY has no normals.
     #[serde(default = "default_normal_neighbors")]
     pub normal_neighbors: usize,
+    /// Degrees: an estimated normal whose tilt error (the standard error of its fitted plane)
+    /// is above this is fitted again over a wider neighbourhood, where the wider patch is as
+    /// flat (range noise on a dense scan); 0 keeps every fit to `normal_neighbors`.
+    #[serde(default = "default_normal_widen_above")]
+    pub normal_widen_above: f32,
     /// Neighbours for radius estimation when a PLY has no radius.
     #[serde(default = "default_radius_neighbors")]
     pub radius_neighbors: usize,
@@ -286,6 +291,9 @@ fn default_outlier_std_ratio() -> f32 {
 fn default_normal_neighbors() -> usize {
     16
 }
+fn default_normal_widen_above() -> f32 {
+    1.5
+}
 fn default_radius_neighbors() -> usize {
     8
 }
@@ -294,6 +302,7 @@ impl Default for ImportConfig {
     fn default() -> Self {
         Self {
             normal_neighbors: default_normal_neighbors(),
+            normal_widen_above: default_normal_widen_above(),
             radius_neighbors: default_radius_neighbors(),
             sensor: None,
             drop_invalid: false,

@@ -346,6 +346,12 @@ impl PipelineConfig {
             i.normal_neighbors as u64,
             3..=256,
         )?;
+        real(
+            "import.normal_widen_above",
+            i.normal_widen_above,
+            Incl(0.0),
+            Incl(45.0),
+        )?;
         int(
             "import.radius_neighbors",
             i.radius_neighbors as u64,

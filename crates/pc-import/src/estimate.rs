@@ -29,6 +29,41 @@ pub enum Orientation {
 /// Neighbours per point kept for the orientation graph (memory: 4 bytes each per point).
 const GRAPH_NEIGHBOURS: usize = 8;
 
+/// How normals are fitted: to each point's `k` nearest neighbours, widened where that fit is
+/// noisy ([`widen`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NormalFit {
+    pub k: usize,
+    /// Radians: a fit whose tilt error is above this is fitted again over a wider
+    /// neighbourhood; 0 never widens (`import.normal_widen_above`, in degrees there).
+    pub widen_above: f32,
+}
+
+impl NormalFit {
+    /// `k` neighbours, widened above the default tilt error (`import.normal_widen_above`).
+    pub fn new(k: usize) -> NormalFit {
+        let degrees = pc_config::ImportConfig::default().normal_widen_above;
+        NormalFit {
+            k,
+            widen_above: degrees.to_radians(),
+        }
+    }
+
+    /// Exactly the `k` nearest neighbours for every point.
+    pub fn fixed(k: usize) -> NormalFit {
+        NormalFit {
+            k,
+            widen_above: 0.0,
+        }
+    }
+}
+
+impl From<usize> for NormalFit {
+    fn from(k: usize) -> NormalFit {
+        NormalFit::new(k)
+    }
+}
+
 /// Unit normals by principal component analysis of each point's `k` nearest neighbours.
 ///
 /// **Direction.** For each point, the covariance of itself and its `k` nearest neighbours is
@@ -61,8 +96,12 @@ const GRAPH_NEIGHBOURS: usize = 8;
 /// points ([`Knn`], parallel), plus O(E) sequential work for `Propagate` (E ≈ 10 n).
 ///
 /// Exact copies of a position are estimated once ([`Distinct`]) and share its normal.
-pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Vec<Vec3> {
-    estimate(positions, Some((k, orient)), None).0
+pub fn estimate_normals(
+    positions: &[Vec3],
+    fit: impl Into<NormalFit>,
+    orient: Orientation,
+) -> Vec<Vec3> {
+    estimate(positions, Some((fit.into(), orient)), None).0
 }
 
 /// Normals ([`estimate_normals`], `k_normals` neighbours) and radii ([`estimate_radii`],
@@ -72,18 +111,18 @@ pub fn estimate_normals(positions: &[Vec3], k: usize, orient: Orientation) -> Ve
 /// scanned points).
 pub fn estimate_normals_and_radii(
     positions: &[Vec3],
-    k_normals: usize,
+    fit: impl Into<NormalFit>,
     orient: Orientation,
     k_radii: usize,
 ) -> (Vec<Vec3>, Vec<f32>) {
-    estimate(positions, Some((k_normals, orient)), Some(k_radii))
+    estimate(positions, Some((fit.into(), orient)), Some(k_radii))
 }
 
 /// What is asked of one neighbour pass: normals (neighbours, orientation), radii (neighbours).
 /// Exact copies of a position are estimated once ([`Distinct`]).
 fn estimate(
     positions: &[Vec3],
-    normals: Option<(usize, Orientation)>,
+    normals: Option<(NormalFit, Orientation)>,
     radii: Option<usize>,
 ) -> (Vec<Vec3>, Vec<f32>) {
     match Distinct::of(positions) {
@@ -98,7 +137,7 @@ fn estimate(
 /// [`estimate`] on positions without exact copies: empty vectors for what is not asked.
 fn estimate_distinct(
     positions: &[Vec3],
-    normals: Option<(usize, Orientation)>,
+    normals: Option<(NormalFit, Orientation)>,
     radii: Option<usize>,
 ) -> (Vec<Vec3>, Vec<f32>) {
     let n = positions.len();
@@ -106,7 +145,7 @@ fn estimate_distinct(
         return (Vec::new(), Vec::new());
     }
     // (A single point has no neighbour: its radius falls back to 1 below.)
-    let kn = normals.map_or(0, |(k, _)| k.min(n - 1));
+    let kn = normals.map_or(0, |(f, _)| f.k.min(n - 1));
     let kr = radii.map_or(0, |k| k.clamp(1, (n - 1).max(1)));
     let orient = normals.map(|(_, o)| o);
     let kg = match orient {
@@ -117,9 +156,13 @@ fn estimate_distinct(
     let kq = kn.max(kr);
     // One neighbour query per point serves the normal, the radius and the graph row.
     let estimate_one = |i: usize, near: &[(u32, f32)]| {
-        let nrm = match normals {
-            Some(_) => pca_normal(positions, i, &near[..kn.min(near.len())]),
-            None => Vec3::ZERO,
+        let fit = match normals {
+            Some(_) => {
+                let near = &near[..kn.min(near.len())];
+                let kth2 = near.last().map_or(0.0, |&(_, d2)| d2);
+                (Fit::of(positions, i, near), kth2)
+            }
+            None => (Fit::NONE, 0.0),
         };
         let r = match radii {
             Some(_) => {
@@ -130,27 +173,32 @@ fn estimate_distinct(
             }
             None => 0.0,
         };
-        (nrm, r)
+        (fit, r)
     };
-    let (mut out_n, mut out_r, graph): (Vec<Vec3>, Vec<f32>, Vec<u32>) = if kg == 0 {
-        let (n, r) = knn.map(kq, estimate_one).into_par_iter().unzip();
-        (n, r, Vec::new())
+    let (fits, mut out_r, graph): (Vec<(Fit, f32)>, Vec<f32>, Vec<u32>) = if kg == 0 {
+        let (f, r) = knn.map(kq, estimate_one).into_par_iter().unzip();
+        (f, r, Vec::new())
     } else {
         let rows = knn.map(kq, |i, near| {
-            let (n, r) = estimate_one(i, near);
+            let (f, r) = estimate_one(i, near);
             let mut row = [u32::MAX; GRAPH_NEIGHBOURS];
             for (g, &(j, _)) in row.iter_mut().take(kg).zip(near) {
                 *g = j;
             }
-            (n, r, row)
+            (f, r, row)
         });
         let graph = rows
             .par_iter()
             .flat_map_iter(|(_, _, row)| row[..kg].iter().copied())
             .collect();
-        let (n, r) = rows.into_par_iter().map(|(n, r, _)| (n, r)).unzip();
-        (n, r, graph)
+        let (f, r) = rows.into_par_iter().map(|(f, r, _)| (f, r)).unzip();
+        (f, r, graph)
     };
+    let mut out_n: Vec<Vec3> = fits.par_iter().map(|(f, _)| f.normal).collect();
+    if let Some((fit, _)) = normals {
+        let (fits, kth2): (Vec<Fit>, Vec<f32>) = fits.into_par_iter().unzip();
+        widen(positions, &knn, &mut out_n, &fits, &kth2, fit.widen_above);
+    }
     match orient {
         Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
         None => out_n = Vec::new(),
@@ -192,11 +240,12 @@ fn orient_normals(
 pub fn try_estimate_normals(
     path: &Path,
     positions: &[Vec3],
-    k: usize,
+    fit: impl Into<NormalFit>,
     orient: Orientation,
 ) -> Result<Vec<Vec3>, ImportError> {
-    check_normals(path, positions, k, orient)?;
-    Ok(estimate_normals(positions, k, orient))
+    let fit = fit.into();
+    check_normals(path, positions, fit.k, orient)?;
+    Ok(estimate_normals(positions, fit, orient))
 }
 
 /// [`estimate_normals_and_radii`], with the errors of [`try_estimate_normals`] and
@@ -204,15 +253,14 @@ pub fn try_estimate_normals(
 pub fn try_estimate_normals_and_radii(
     path: &Path,
     positions: &[Vec3],
-    k_normals: usize,
+    fit: impl Into<NormalFit>,
     orient: Orientation,
     k_radii: usize,
 ) -> Result<(Vec<Vec3>, Vec<f32>), ImportError> {
-    check_normals(path, positions, k_normals, orient)?;
+    let fit = fit.into();
+    check_normals(path, positions, fit.k, orient)?;
     check_radii(path, positions, k_radii)?;
-    Ok(estimate_normals_and_radii(
-        positions, k_normals, orient, k_radii,
-    ))
+    Ok(estimate_normals_and_radii(positions, fit, orient, k_radii))
 }
 
 fn check_normals(
@@ -397,46 +445,192 @@ impl Distinct {
 // ---------------------------------------------------------------------------------------------
 // PCA
 
-/// Normal of point `i` from itself and its neighbours `nb`.
-fn pca_normal(positions: &[Vec3], i: usize, nb: &[(u32, f32)]) -> Vec3 {
-    let o = positions[i].as_dvec3();
-    let m = (nb.len() + 1) as f64;
-    let mut mean = DVec3::ZERO; // the point itself contributes 0
-    for &(j, _) in nb {
-        mean += positions[j as usize].as_dvec3() - o;
-    }
-    mean /= m;
-    let mut c = [[0f64; 3]; 3];
-    let mut add = |d: DVec3| {
-        let d = d.to_array();
-        for r in 0..3 {
-            for s in r..3 {
-                c[r][s] += d[r] * d[s];
-            }
-        }
+/// A plane fitted by PCA to a point and the points around it.
+#[derive(Clone, Copy, Debug)]
+struct Fit {
+    /// The unit eigenvector of the smallest eigenvalue.
+    normal: Vec3,
+    /// The smallest eigenvalue of the covariance (per point): the variance across the plane.
+    thin: f32,
+    /// The normal's tilt error ([`Fit::tilt_error`]).
+    error: f32,
+    /// Points in the fit, the point itself included.
+    count: u32,
+}
+
+impl Fit {
+    /// No fit (normals not asked for).
+    const NONE: Fit = Fit {
+        normal: Vec3::ZERO,
+        thin: 0.0,
+        error: 0.0,
+        count: 0,
     };
-    add(-mean);
-    for &(j, _) in nb {
-        add(positions[j as usize].as_dvec3() - o - mean);
+
+    /// The plane through point `i` and the points `nb` (input index, distance).
+    fn of(positions: &[Vec3], i: usize, nb: &[(u32, f32)]) -> Fit {
+        let o = positions[i].as_dvec3();
+        Fit::of_offsets(
+            nb.iter()
+                .map(|&(j, _)| positions[j as usize].as_dvec3() - o),
+        )
     }
-    c[1][0] = c[0][1];
-    c[2][0] = c[0][2];
-    c[2][1] = c[1][2];
-    let (vals, vecs) = sym_eigen3(c);
-    let mut best = 0;
-    for e in 1..3 {
-        if vals[e] < vals[best] {
-            best = e;
+
+    /// The plane through a point and others at these offsets from it.
+    fn of_offsets(offsets: impl Iterator<Item = DVec3> + Clone) -> Fit {
+        let m = (offsets.clone().count() + 1) as f64;
+        let mean = offsets.clone().sum::<DVec3>() / m; // the point itself contributes 0
+        let mut c = [[0f64; 3]; 3];
+        let mut add = |d: DVec3| {
+            let d = d.to_array();
+            for r in 0..3 {
+                for s in r..3 {
+                    c[r][s] += d[r] * d[s];
+                }
+            }
+        };
+        add(-mean);
+        for d in offsets {
+            add(d - mean);
         }
-    }
-    let v = DVec3::new(vecs[0][best], vecs[1][best], vecs[2][best]);
-    let l = v.length();
-    if l.is_finite() && l > 0.0 {
-        (v / l).as_vec3()
-    } else {
-        Vec3::Z
+        c[1][0] = c[0][1];
+        c[2][0] = c[0][2];
+        c[2][1] = c[1][2];
+        let (vals, vecs) = sym_eigen3(c);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| vals[a].total_cmp(&vals[b]));
+        let best = order[0];
+        let v = DVec3::new(vecs[0][best], vecs[1][best], vecs[2][best]);
+        let l = v.length();
+        let normal = if l.is_finite() && l > 0.0 {
+            (v / l).as_vec3()
+        } else {
+            Vec3::Z
+        };
+        let (thin, narrow) = (vals[order[0]].max(0.0) / m, vals[order[1]].max(0.0) / m);
+        // A plane's slope fitted by least squares to m points with residual variance σ² and
+        // spread s² along an axis has a standard error σ / (s √m); σ² is m λ₀ / (m − 3).
+        let error = if m > 3.0 && narrow > 0.0 {
+            (thin / ((m - 3.0) * narrow)).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        Fit {
+            normal,
+            thin: thin as f32,
+            error: error as f32,
+            count: m as u32,
+        }
     }
 }
+
+/// A widened neighbourhood's radius, in the `k`-th neighbour's distances: at least the first,
+/// at most the second.
+const WIDEN_RADIUS: (f32, f32) = (2.0, 4.0);
+/// A wider fit is kept only while the variance across its plane stays within this factor of
+/// the noise of the narrower fits around it: range noise does not grow with the radius, a
+/// crease or a curve does.
+const WIDEN_FLAT: f32 = 2.0;
+/// Fits whose own tilt error is below this share of the tolerance are taken as they are.
+const WIDEN_LOOK: f32 = 0.35;
+
+/// Widens the neighbourhoods of noisy normals. A scanner's range noise is millimetres
+/// whatever the point spacing, so at a dense spacing the `k` nearest points span a patch
+/// hardly wider than the noise is deep, and their plane tilts by many degrees (the 20M-point
+/// hall scan: a median of 8–16° from the true wall at `k` = 16).
+///
+/// A plane fitted to `m` points spread `s` wide with noise `σ` tilts by about `σ / (s √m)`
+/// ([`Fit`]); on a surface `m` grows with `s²`, so the tilt falls with the square of the
+/// radius. A fit whose tilt error is above `above` ([`NormalFit::widen_above`]) is fitted
+/// again over every point within the radius that brings its error to `above`, at least
+/// [`WIDEN_RADIUS`]`.0` and at most `.1` times its `k`-th neighbour's distance. The wider
+/// fit is kept where it stays as flat as the noise ([`WIDEN_FLAT`]): near a crease or on a
+/// tight curve it does not, and a fit wider than the least radius is tried once more at the
+/// least; failing that, the `k`-nearest normal stays.
+///
+/// The noise is not the fit's own thinness, a sample of `k + 1` points (±40 % at 17), but the
+/// median over the fits around it ([`pooled_thin`]): a fit that came out thin by chance is
+/// widened too, and is not held to a tolerance it beat by chance. Fits far below the
+/// tolerance (a smooth surface: [`WIDEN_LOOK`]) are taken as they are.
+///
+/// The neighbourhood thus follows the noise, as Mitra, Nguyen and Guibas (2004, "Estimating
+/// surface normals in noisy point cloud data") ask, with the flatness test in place of their
+/// curvature estimate. `fits[i]` is point `i`'s fit to its `k` nearest and `kth2[i]` the
+/// squared distance of the `k`-th; returns how many normals were widened.
+fn widen(
+    positions: &[Vec3],
+    knn: &Knn,
+    normals: &mut [Vec3],
+    fits: &[Fit],
+    kth2: &[f32],
+    above: f32,
+) -> usize {
+    let (least, most) = (
+        WIDEN_RADIUS.0 * WIDEN_RADIUS.0,
+        WIDEN_RADIUS.1 * WIDEN_RADIUS.1,
+    );
+    let mut reach2: Vec<f32> = fits
+        .par_iter()
+        .zip(kth2)
+        .map(
+            |(f, &d2)| match above > 0.0 && f.error > WIDEN_LOOK * above && d2 > 0.0 {
+                // The error falls with the square of the radius.
+                true => d2 * (f.error / above).clamp(least, most),
+                false => 0.0,
+            },
+        )
+        .collect();
+    let mut widened = vec![false; positions.len()];
+    for _ in 0..2 {
+        if !reach2.iter().any(|&r| r > 0.0) {
+            break;
+        }
+        let wider = knn.map_within(&reach2, |i, inside, offsets| {
+            let offsets = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
+            (Fit::of_offsets(offsets), pooled_thin(fits, i, inside))
+        });
+        (&mut *normals, fits, kth2, &mut reach2, &mut widened, &wider)
+            .into_par_iter()
+            .for_each(|(n, fit, &d2, r2, w, wider)| {
+                let Some((f, noise)) = *wider else { return };
+                // The k-nearest fit's error with its patch's noise.
+                let error = match fit.thin > 0.0 {
+                    true => fit.error * (noise / fit.thin).sqrt(),
+                    false => f32::INFINITY,
+                };
+                if error <= above {
+                    *r2 = 0.0;
+                } else if f.count > fit.count && f.thin <= WIDEN_FLAT * noise {
+                    *n = f.normal;
+                    *w = true;
+                    *r2 = 0.0;
+                } else {
+                    // Once more at the least radius, if this was wider.
+                    *r2 = match *r2 > least * d2 * 1.001 {
+                        true => least * d2,
+                        false => 0.0,
+                    };
+                }
+            });
+    }
+    widened.iter().filter(|&&w| w).count()
+}
+
+/// The median thinness of the `k`-nearest fits of point `i` and of up to [`POOLED`] points
+/// `inside` its wider patch: the noise across the surface there, from many samples.
+fn pooled_thin(fits: &[Fit], i: usize, inside: &[(u32, f32)]) -> f32 {
+    let mut t = [0f32; POOLED + 1];
+    t[0] = fits[i].thin;
+    let n = 1 + inside.len().min(POOLED);
+    for (t, &(j, _)) in t[1..n].iter_mut().zip(inside) {
+        *t = fits[j as usize].thin;
+    }
+    let t = &mut t[..n];
+    *t.select_nth_unstable_by(n / 2, f32::total_cmp).1
+}
+
+/// Fits read for [`pooled_thin`] at most, besides the point's own.
+const POOLED: usize = 32;
 
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (Numerical
 /// Recipes §11.1). Returns the eigenvalues and the matrix whose *columns* are the unit

@@ -212,6 +212,52 @@ impl Knn {
     }
 }
 
+impl Knn {
+    /// `f(i, inside, offsets)` for every point `i` with `reach2[i] > 0` (`reach2` in input
+    /// order), in parallel, returned in input order (`None` for the others): `inside` holds
+    /// every other point whose squared distance from point `i` is below `reach2[i]`, as
+    /// (input index, squared distance), in no particular order, and `offsets` their positions
+    /// less point `i`'s, read from the search's own copy in curve order (so a caller need not
+    /// gather them from the input order). A ball's points come from the runs whose
+    /// boxes it meets, listed once per run as [`Knn::map`] does, or by a walk of the tree from
+    /// the root where that list would be long.
+    pub fn map_within<T: Send + Sync + Copy>(
+        &self,
+        reach2: &[f32],
+        f: impl Fn(usize, &[(u32, f32)], &[[f32; 3]]) -> T + Sync,
+    ) -> Vec<Option<T>> {
+        assert_eq!(reach2.len(), self.len(), "one reach a point");
+        let n = self.len();
+        let along: Vec<Option<T>> = (0..n.div_ceil(RUN))
+            .into_par_iter()
+            .with_min_len(RUNS_A_TASK)
+            .map_init(Search::default, |search, run| {
+                let slots = run * RUN..((run + 1) * RUN).min(n);
+                let reach_of = |slot: usize| reach2[self.index[slot] as usize];
+                let widest = slots.clone().map(reach_of).fold(0.0f32, f32::max);
+                if widest > 0.0 {
+                    search.list_runs(self, run, widest, true);
+                }
+                slots
+                    .map(|slot| {
+                        let r2 = reach_of(slot);
+                        (r2 > 0.0).then(|| {
+                            search.ball(self, slot, r2);
+                            f(self.index[slot] as usize, &search.near, &search.offsets)
+                        })
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .flatten_iter()
+            .collect();
+        let mut out = vec![None; n];
+        for (slot, &i) in self.index.iter().enumerate() {
+            out[i as usize] = along[slot];
+        }
+        out
+    }
+}
+
 /// Pushes internal node `m`'s two children with their squared distances from `home`, the
 /// nearer on top of the stack.
 fn push_children(stack: &mut Vec<(u32, f32)>, boxes: &[Aabb], m: usize, home: &Aabb) {
@@ -235,6 +281,8 @@ const MAX_CANDIDATES: usize = 256;
 struct Search {
     /// The nearest found so far, (input index, squared distance), nearest first.
     near: Vec<(u32, f32)>,
+    /// For a ball ([`Self::ball`]): the offsets of the points in `near` from the query.
+    offsets: Vec<[f32; 3]>,
     stack: Vec<(u32, f32)>,
     /// The runs within reach of every query of the current run (its own excluded), nearer
     /// first, when `listed`; not kept when there are too many or the reach is unbounded.
@@ -269,6 +317,14 @@ impl Search {
         if !reach.is_finite() {
             return; // distances past f32's range: no box prunes, each query walks
         }
+        self.list_runs(t, r, reach, false);
+    }
+
+    /// Lists (nearer first) the runs whose boxes lie within squared distance `reach` of run
+    /// `r`'s box, the run itself only `with_own`, and sets `listed`; leaves it unset where
+    /// they would pass [`MAX_CANDIDATES`].
+    fn list_runs(&mut self, t: &Knn, r: usize, reach: f32, with_own: bool) {
+        self.listed = false;
         let own = t.leaves - 1 + r;
         let home = t.boxes[own];
         self.list.clear();
@@ -280,7 +336,7 @@ impl Search {
             }
             let m = m as usize;
             if m >= t.leaves - 1 {
-                if m != own {
+                if with_own || m != own {
                     if self.list.len() == MAX_CANDIDATES {
                         return;
                     }
@@ -291,6 +347,64 @@ impl Search {
             push_children(&mut self.stack, &t.boxes, m, &home);
         }
         self.listed = true;
+    }
+
+    /// Every point but the one at `slot` nearer than squared distance `reach` into
+    /// `self.near`: from the listed runs ([`Self::list_runs`], own run included), or a walk
+    /// of the tree from the root.
+    fn ball(&mut self, t: &Knn, slot: usize, reach: f32) {
+        self.near.clear();
+        self.offsets.clear();
+        let q = [t.xs[slot], t.ys[slot], t.zs[slot]];
+        if self.listed {
+            for c in 0..self.list.len() {
+                let r = self.list[c] as usize;
+                if t.boxes[t.leaves - 1 + r].dist2(q) < reach {
+                    self.collect(t, r, slot, q, reach);
+                }
+            }
+            return;
+        }
+        self.stack.clear();
+        self.stack.push((0, t.boxes[0].dist2(q)));
+        while let Some((m, d2)) = self.stack.pop() {
+            if d2 >= reach {
+                continue;
+            }
+            let m = m as usize;
+            if m >= t.leaves - 1 {
+                self.collect(t, m + 1 - t.leaves, slot, q, reach);
+                continue;
+            }
+            for c in [2 * m + 1, 2 * m + 2] {
+                self.stack.push((c as u32, t.boxes[c].dist2(q)));
+            }
+        }
+    }
+
+    /// Appends run `r`'s points (but `skip`) nearer to `q` than squared distance `reach`.
+    fn collect(&mut self, t: &Knn, r: usize, skip: usize, q: [f32; 3], reach: f32) {
+        let (lo, hi) = (r * RUN, ((r + 1) * RUN).min(t.len()));
+        let mut d2 = [f32::INFINITY; RUN];
+        for (d, s) in d2.iter_mut().zip(lo..hi) {
+            let (dx, dy, dz) = (t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]);
+            *d = dx * dx + dy * dy + dz * dz;
+        }
+        let mut mask = d2
+            .iter()
+            .enumerate()
+            .fold(0u64, |m, (j, &d)| m | u64::from(d < reach) << j);
+        if (lo..hi).contains(&skip) {
+            mask &= !(1u64 << (skip - lo));
+        }
+        while mask != 0 {
+            let j = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let s = lo + j;
+            self.near.push((t.index[s], d2[j]));
+            self.offsets
+                .push([t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]]);
+        }
     }
 
     /// The `k` nearest of the point at `slot` (along the curve) into `self.near`: its own run
@@ -544,6 +658,65 @@ mod tests {
             let p: Vec<Vec3> = (0..n).map(|i| Vec3::splat(i as f32)).collect();
             let counts = Knn::new(&p).map(8, |_, near| near.len());
             assert_eq!(counts, vec![n.saturating_sub(1); n]);
+        }
+    }
+    #[test]
+    fn balls_match_brute_force() {
+        // A sheet with far strays (their runs reach too far to list, so those queries walk the
+        // tree), reaches of every size, and points asked for nothing.
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+        let mut p: Vec<Vec3> = (0..9000)
+            .map(|i| {
+                Vec3::new(
+                    (i % 100) as f32,
+                    (i / 100) as f32,
+                    rng.random::<f32>() * 0.2,
+                )
+            })
+            .collect();
+        for i in (0..9000).step_by(450) {
+            p[i] = in_cube(&mut rng, 800.0);
+        }
+        let reach2: Vec<f32> = (0..p.len())
+            .map(|i| match i % 5 {
+                0 => 0.0,
+                1 => 1.5,
+                2 => 9.0,
+                3 => 40.0,
+                _ => rng.random::<f32>() * 4.0,
+            })
+            .collect();
+        let got = Knn::new(&p).map_within(&reach2, |i, inside, offsets| {
+            for (&(j, _), o) in inside.iter().zip(offsets) {
+                assert_eq!(Vec3::from(*o), p[j as usize] - p[i]);
+            }
+            let mut v = inside.to_vec();
+            v.sort_by_key(|&(j, _)| j);
+            (
+                v.len(),
+                v.iter()
+                    .map(|&(j, d)| j as u64 + d.to_bits() as u64)
+                    .sum::<u64>(),
+            )
+        });
+        for (i, g) in got.iter().enumerate() {
+            let want = (reach2[i] > 0.0).then(|| {
+                let v: Vec<(u32, f32)> = (0..p.len())
+                    .filter(|&j| j != i)
+                    .map(|j| {
+                        let e = p[j] - p[i];
+                        (j as u32, e.x * e.x + e.y * e.y + e.z * e.z)
+                    })
+                    .filter(|&(_, d)| d < reach2[i])
+                    .collect();
+                (
+                    v.len(),
+                    v.iter()
+                        .map(|&(j, d)| j as u64 + d.to_bits() as u64)
+                        .sum::<u64>(),
+                )
+            });
+            assert_eq!(*g, want, "point {i}, reach² {}", reach2[i]);
         }
     }
 }

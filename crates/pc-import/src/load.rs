@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use glam::{DVec3, Mat3, Vec3};
 
 use crate::estimate::{
-    try_estimate_normals, try_estimate_normals_and_radii, try_estimate_radii, Orientation,
+    try_estimate_normals, try_estimate_normals_and_radii, try_estimate_radii, NormalFit,
+    Orientation,
 };
 use crate::points::{read_points, round_origin, Format, PlyOptions, PointSet};
 use crate::ImportError;
@@ -288,12 +289,16 @@ fn model_normals(
     from_scene: impl Fn(Vec3) -> Vec3,
     radius_k: Option<usize>,
 ) -> Result<Estimated, ImportError> {
-    let k = cfg.config.import.normal_neighbors;
+    let import = &cfg.config.import;
+    let fit = NormalFit {
+        k: import.normal_neighbors,
+        widen_above: import.normal_widen_above.to_radians(),
+    };
     let local = |p: DVec3| (p - pts.origin).as_vec3();
     let estimate = |orient| match radius_k {
-        Some(kr) => try_estimate_normals_and_radii(path, &pts.positions, k, orient, kr)
+        Some(kr) => try_estimate_normals_and_radii(path, &pts.positions, fit, orient, kr)
             .map(|(n, r)| (n, Some(r))),
-        None => try_estimate_normals(path, &pts.positions, k, orient).map(|n| (n, None)),
+        None => try_estimate_normals(path, &pts.positions, fit, orient).map(|n| (n, None)),
     };
     match m.scanners.as_deref() {
         Some([s]) => {

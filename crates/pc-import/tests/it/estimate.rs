@@ -5,7 +5,7 @@ use std::path::Path;
 use glam::Vec3;
 use pc_import::estimate::{
     estimate_normals, estimate_normals_and_radii, estimate_radii, try_estimate_normals,
-    try_estimate_normals_and_radii, try_estimate_radii, Orientation,
+    try_estimate_normals_and_radii, try_estimate_radii, NormalFit, Orientation,
 };
 use pc_import::ImportError;
 use rand::{Rng, SeedableRng};
@@ -377,5 +377,135 @@ fn one_neighbour_pass_gives_what_two_give() {
     assert!(
         err.contains("cloud.laz") && err.contains("16 neighbours"),
         "{err}"
+    );
+}
+
+/// A standard normal deviate (Box–Muller).
+fn gauss(rng: &mut impl Rng) -> f32 {
+    let (u, v): (f32, f32) = (rng.random_range(f32::EPSILON..1.0), rng.random());
+    (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+}
+
+/// A scanned face: an `m × m` jittered grid of spacing `h` spanned by `u` and `v` from
+/// `corner`, each point moved by Gaussian noise of `sigma` along `n` (a scanner's range noise).
+fn noisy_face(m: usize, h: f32, sigma: f32, corner: Vec3, [u, v, n]: [Vec3; 3]) -> Vec<Vec3> {
+    let mut rng = rng();
+    let mut pts = Vec::with_capacity(m * m);
+    for i in 0..m {
+        for j in 0..m {
+            let a = (i as f32 + rng.random_range(-0.3..0.3)) * h;
+            let b = (j as f32 + rng.random_range(-0.3..0.3)) * h;
+            pts.push(corner + a * u + b * v + sigma * gauss(&mut rng) * n);
+        }
+    }
+    pts
+}
+
+/// Angles in degrees between each chosen normal and the true one, sorted.
+fn tilts(normals: &[Vec3], chosen: impl Iterator<Item = (usize, Vec3)>) -> Vec<f32> {
+    let mut t: Vec<f32> = chosen
+        .map(|(i, truth)| normals[i].dot(truth).abs().min(1.0).acos().to_degrees())
+        .collect();
+    t.sort_by(f32::total_cmp);
+    t
+}
+
+#[test]
+fn noisy_dense_faces_get_wider_neighbourhoods() {
+    // The 20M-point hall scan's case: 4 mm spacing, 2.5 mm of range noise. The 16 nearest
+    // points span a patch hardly wider than the noise is deep.
+    let (m, h) = (160, 0.004f32);
+    let pts = noisy_face(m, h, 0.0025, Vec3::ZERO, [Vec3::X, Vec3::Y, Vec3::Z]);
+    let inner = |i: usize| {
+        let (a, b) = (i / m, i % m);
+        let edge = 12;
+        (a >= edge && a < m - edge && b >= edge && b < m - edge).then_some((i, Vec3::Z))
+    };
+    let up = Orientation::Sensor(Vec3::new(0.3, 0.3, 5.0));
+    let fixed = tilts(
+        &estimate_normals(&pts, NormalFit::fixed(16), up),
+        (0..pts.len()).filter_map(inner),
+    );
+    let wide = tilts(
+        &estimate_normals(&pts, NormalFit::new(16), up),
+        (0..pts.len()).filter_map(inner),
+    );
+    let at = |t: &[f32], q: f32| t[(q * (t.len() - 1) as f32) as usize];
+    println!(
+        "median, 90th percentile: fixed {:.2}°, {:.2}°; widened {:.2}°, {:.2}°",
+        at(&fixed, 0.5),
+        at(&fixed, 0.9),
+        at(&wide, 0.5),
+        at(&wide, 0.9)
+    );
+    assert!(
+        at(&fixed, 0.5) > 6.0,
+        "the 16 nearest alone tilt by many degrees"
+    );
+    // Widened to bring each tilt's standard error σ to the tolerance, 1.5°: a tilt of two
+    // axes' errors has its median at 1.18 σ and its 90th percentile at 2.15 σ.
+    let tolerance = NormalFit::new(16).widen_above.to_degrees();
+    assert!(at(&wide, 0.5) < 1.3 * tolerance && at(&wide, 0.9) < 2.7 * tolerance);
+}
+
+#[test]
+fn a_crease_keeps_its_normals_sharp() {
+    // A noisy floor meeting a noisy wall at a right angle: the widened fit must not blend the
+    // two faces more than the 16 nearest do, and away from the crease it must be better.
+    let (m, h) = (120, 0.004f32);
+    let mut pts = noisy_face(
+        m,
+        h,
+        0.0025,
+        Vec3::new(0.002, 0.0, 0.0),
+        [Vec3::X, Vec3::Y, Vec3::Z],
+    );
+    let floor = pts.len();
+    pts.extend(noisy_face(
+        m,
+        h,
+        0.0025,
+        Vec3::new(0.0, 0.0, 0.002),
+        [Vec3::Z, Vec3::Y, Vec3::X],
+    ));
+    // A point's face, and its distance from the crease (the y axis).
+    let truth = |i: usize| match i < floor {
+        true => (Vec3::Z, pts[i].x),
+        false => (Vec3::X, pts[i].z),
+    };
+    let inside = |i: usize| {
+        let y = pts[i].y;
+        y > 12.0 * h && y < (m - 12) as f32 * h
+    };
+    let band = |lo: f32, hi: f32| {
+        move |i: usize| {
+            let (n, d) = truth(i);
+            (inside(i) && d >= lo && d < hi).then_some((i, n))
+        }
+    };
+    let sensor = Orientation::Sensor(Vec3::new(0.4, 0.24, 0.4));
+    let fixed = estimate_normals(&pts, NormalFit::fixed(16), sensor);
+    let wide = estimate_normals(&pts, NormalFit::new(16), sensor);
+    let mean = |t: Vec<f32>| t.iter().sum::<f32>() / t.len() as f32;
+    for (lo, hi) in [(0.0, 0.01), (0.01, 0.02), (0.02, 0.04), (0.1, 1.0)] {
+        let f = mean(tilts(&fixed, (0..pts.len()).filter_map(band(lo, hi))));
+        let w = mean(tilts(&wide, (0..pts.len()).filter_map(band(lo, hi))));
+        println!("{lo}-{hi} m from the crease: fixed {f:.2}°, widened {w:.2}°");
+        assert!(w < f + 1.0, "{lo}-{hi} m: widened {w:.2}° against {f:.2}°");
+        if lo >= 0.1 {
+            assert!(w < 0.3 * f);
+        }
+    }
+}
+
+#[test]
+fn a_smooth_curved_surface_keeps_its_nearest_neighbour_fit() {
+    // No noise: a sphere's thinness across its fitted plane is its curvature, which grows as
+    // the patch widens, so no fit is widened and every normal is the k-nearest one.
+    let pts = fibonacci_sphere(500, Vec3::new(1.0, 2.0, 3.0), 0.5);
+    let sensor = Orientation::Sensor(Vec3::new(1.0, 2.0, 3.0));
+    assert_eq!(
+        estimate_normals(&pts, NormalFit::new(16), sensor),
+        estimate_normals(&pts, NormalFit::fixed(16), sensor)
     );
 }
