@@ -572,20 +572,25 @@ fn widen(
     let mut reach2: Vec<f32> = fits
         .par_iter()
         .zip(kth2)
-        .map(
-            |(f, &d2)| match above > 0.0 && f.error > WIDEN_LOOK * above && d2 > 0.0 {
+        .map(|(f, &d2)| {
+            let noisy = f.error > WIDEN_LOOK * above && f.count > 3;
+            match above > 0.0 && noisy && d2 > 0.0 {
                 // The error falls with the square of the radius.
                 true => d2 * (f.error / above).clamp(least, most),
                 false => 0.0,
-            },
-        )
+            }
+        })
         .collect();
     let mut widened = vec![false; positions.len()];
     for _ in 0..2 {
         if !reach2.iter().any(|&r| r > 0.0) {
             break;
         }
-        let wider = knn.map_within(&reach2, |i, inside, offsets| {
+        // Twice the points of the widest ball on a plane (every k-nearest fit holds the same
+        // k + 1): a stray point's ball, sized by its far neighbours, is given up instead of
+        // spanning the cloud.
+        let cap = 2 * (most as usize) * (fits[0].count as usize).max(1);
+        let wider = knn.map_within(&reach2, cap, |i, inside, offsets| {
             let offsets = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
             (Fit::of_offsets(offsets), pooled_thin(fits, i, inside))
         });
@@ -598,14 +603,14 @@ fn widen(
                     true => fit.error * (noise / fit.thin).sqrt(),
                     false => f32::INFINITY,
                 };
-                if error <= above {
+                if error <= above || f.count <= fit.count {
                     *r2 = 0.0;
-                } else if f.count > fit.count && f.thin <= WIDEN_FLAT * noise {
+                } else if f.thin <= WIDEN_FLAT * noise {
                     *n = f.normal;
                     *w = true;
                     *r2 = 0.0;
                 } else {
-                    // Once more at the least radius, if this was wider.
+                    // Not flat: once more at the least radius, if this was wider.
                     *r2 = match *r2 > least * d2 * 1.001 {
                         true => least * d2,
                         false => 0.0,

@@ -1,5 +1,6 @@
 //! The k nearest neighbours of every point of a cloud (all points are queries, as the import's
-//! normal, radius and outlier estimates ask), exact. docs/import.md, "Neighbours".
+//! normal, radius and outlier estimates ask), exact, and the points within a ball around each
+//! of a chosen set ([`Knn::map_within`]). docs/import.md, "Neighbours".
 //!
 //! The points are sorted along a Morton curve and cut into runs of `RUN` consecutive
 //! points; a complete binary tree over the runs holds the bounding box of each subtree
@@ -204,7 +205,12 @@ impl Knn {
             })
             .flatten_iter()
             .collect();
-        let mut place = vec![0u32; n];
+        self.to_input_order(&along)
+    }
+
+    /// Values in curve order, put back in input order.
+    fn to_input_order<T: Send + Sync + Copy>(&self, along: &[T]) -> Vec<T> {
+        let mut place = vec![0u32; self.len()];
         for (slot, &i) in self.index.iter().enumerate() {
             place[i as usize] = slot as u32;
         }
@@ -218,12 +224,14 @@ impl Knn {
     /// every other point whose squared distance from point `i` is below `reach2[i]`, as
     /// (input index, squared distance), in no particular order, and `offsets` their positions
     /// less point `i`'s, read from the search's own copy in curve order (so a caller need not
-    /// gather them from the input order). A ball's points come from the runs whose
+    /// gather them from the input order). A ball holding more than `most` points is given up
+    /// (`None`): a stray point's reach, sized by its far neighbours, may span the cloud. A ball's points come from the runs whose
     /// boxes it meets, listed once per run as [`Knn::map`] does, or by a walk of the tree from
     /// the root where that list would be long.
     pub fn map_within<T: Send + Sync + Copy>(
         &self,
         reach2: &[f32],
+        most: usize,
         f: impl Fn(usize, &[(u32, f32)], &[[f32; 3]]) -> T + Sync,
     ) -> Vec<Option<T>> {
         assert_eq!(reach2.len(), self.len(), "one reach a point");
@@ -241,20 +249,14 @@ impl Knn {
                 slots
                     .map(|slot| {
                         let r2 = reach_of(slot);
-                        (r2 > 0.0).then(|| {
-                            search.ball(self, slot, r2);
-                            f(self.index[slot] as usize, &search.near, &search.offsets)
-                        })
+                        let whole = r2 > 0.0 && search.ball(self, slot, r2, most);
+                        whole.then(|| f(self.index[slot] as usize, &search.near, &search.offsets))
                     })
                     .collect::<Vec<_>>()
             })
             .flatten_iter()
             .collect();
-        let mut out = vec![None; n];
-        for (slot, &i) in self.index.iter().enumerate() {
-            out[i as usize] = along[slot];
-        }
-        out
+        self.to_input_order(&along)
     }
 }
 
@@ -272,20 +274,22 @@ fn push_children(stack: &mut Vec<(u32, f32)>, boxes: &[Aabb], m: usize, home: &A
     stack.push((near.0 as u32, near.1));
 }
 
-/// Runs that one run's queries may gather from ([`Search::gather`]) beyond this many are not
-/// listed: each query then searches the tree on its own.
+/// Runs that one run's queries may read ([`Search::gather`], [`Search::list_runs`]) beyond
+/// this many are not listed: each query then searches the tree on its own.
 const MAX_CANDIDATES: usize = 256;
 
 /// A query's state, reused from query to query.
 #[derive(Default)]
 struct Search {
-    /// The nearest found so far, (input index, squared distance), nearest first.
+    /// The nearest found so far, (input index, squared distance), nearest first; for a ball
+    /// ([`Self::ball`]), the points inside it in no order.
     near: Vec<(u32, f32)>,
     /// For a ball ([`Self::ball`]): the offsets of the points in `near` from the query.
     offsets: Vec<[f32; 3]>,
     stack: Vec<(u32, f32)>,
-    /// The runs within reach of every query of the current run (its own excluded), nearer
-    /// first, when `listed`; not kept when there are too many or the reach is unbounded.
+    /// The runs within reach of every query of the current run (its own excluded for the k
+    /// nearest, included for balls), nearer first, when `listed`; not kept when there are too
+    /// many or the reach is unbounded.
     list: Vec<u32>,
     listed: bool,
 }
@@ -350,9 +354,10 @@ impl Search {
     }
 
     /// Every point but the one at `slot` nearer than squared distance `reach` into
-    /// `self.near`: from the listed runs ([`Self::list_runs`], own run included), or a walk
-    /// of the tree from the root.
-    fn ball(&mut self, t: &Knn, slot: usize, reach: f32) {
+    /// `self.near` and `self.offsets`: from the listed runs ([`Self::list_runs`], own run
+    /// included), or a walk of the tree from the root. False, the lists left partial, once
+    /// they pass `most` points.
+    fn ball(&mut self, t: &Knn, slot: usize, reach: f32, most: usize) -> bool {
         self.near.clear();
         self.offsets.clear();
         let q = [t.xs[slot], t.ys[slot], t.zs[slot]];
@@ -361,9 +366,12 @@ impl Search {
                 let r = self.list[c] as usize;
                 if t.boxes[t.leaves - 1 + r].dist2(q) < reach {
                     self.collect(t, r, slot, q, reach);
+                    if self.near.len() > most {
+                        return false;
+                    }
                 }
             }
-            return;
+            return true;
         }
         self.stack.clear();
         self.stack.push((0, t.boxes[0].dist2(q)));
@@ -374,12 +382,16 @@ impl Search {
             let m = m as usize;
             if m >= t.leaves - 1 {
                 self.collect(t, m + 1 - t.leaves, slot, q, reach);
+                if self.near.len() > most {
+                    return false;
+                }
                 continue;
             }
             for c in [2 * m + 1, 2 * m + 2] {
                 self.stack.push((c as u32, t.boxes[c].dist2(q)));
             }
         }
+        true
     }
 
     /// Appends run `r`'s points (but `skip`) nearer to `q` than squared distance `reach`.
@@ -686,7 +698,8 @@ mod tests {
                 _ => rng.random::<f32>() * 4.0,
             })
             .collect();
-        let got = Knn::new(&p).map_within(&reach2, |i, inside, offsets| {
+        let knn = Knn::new(&p);
+        let got = knn.map_within(&reach2, usize::MAX, |i, inside, offsets| {
             for (&(j, _), o) in inside.iter().zip(offsets) {
                 assert_eq!(Vec3::from(*o), p[j as usize] - p[i]);
             }
@@ -717,6 +730,14 @@ mod tests {
                 )
             });
             assert_eq!(*g, want, "point {i}, reach² {}", reach2[i]);
+        }
+        // A ball of more than `most` points is given up; one of at most `most` is not.
+        let counts = knn.map_within(&reach2, 20, |_, inside, _| inside.len());
+        for (c, g) in counts.iter().zip(&got) {
+            match g {
+                Some((n, _)) if *n <= 20 => assert_eq!(*c, Some(*n)),
+                _ => assert_eq!(*c, None),
+            }
         }
     }
 }
