@@ -2,11 +2,12 @@
 //! --example between_cost -- OCTREE` casts 400,000 segments between random facing splats of an
 //! octree, as plain rays and as segments between surfaces, twice each, and prints the times.
 
-use glam::Vec3;
 use pc_artifact::octree::OctreeFile;
 use pc_tree::accel::Accel;
 use pc_tree::{Between, Ray};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
+
+mod common;
 
 fn main() {
     let Some(path) = std::env::args().nth(1) else {
@@ -23,30 +24,10 @@ fn main() {
     let view = f.view();
     let accel = Accel::new(&view);
     let rough = pc_tree::between::leaf_roughness(&view);
-    let n = view.splats.len();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
-    let mut segs = Vec::new();
-    while segs.len() < 400_000 {
-        let (ia, ib) = (rng.random_range(0..n), rng.random_range(0..n));
-        let (si, sj) = (&view.splats[ia], &view.splats[ib]);
-        let d = Vec3::from(sj.position) - Vec3::from(si.position);
-        let len = d.length();
-        if len < 1e-6 {
-            continue;
-        }
-        let dir = d / len;
-        if Vec3::from(si.normal).dot(dir) <= 0.0 || Vec3::from(sj.normal).dot(-dir) <= 0.0 {
-            continue;
-        }
-        segs.push(Between::splats(
-            (si, rough[view.splat_leaf[ia] as usize]),
-            (sj, rough[view.splat_leaf[ib] as usize]),
-            dir,
-            len,
-            0.5 * si.radius,
-            len - 0.5 * sj.radius,
-        ));
-    }
+    let segs: Vec<Between> = (0..400_000)
+        .map(|_| common::facing_segment(&view, &rough, &mut rng, 1e-6).2)
+        .collect();
     let rays: Vec<Ray> = segs.iter().map(|s| s.ray).collect();
     for _ in 0..2 {
         let t = std::time::Instant::now();

@@ -11,6 +11,8 @@ use pc_tree::accel::Accel;
 use pc_tree::{Ray, TraversalStats};
 use rand::{Rng, SeedableRng};
 
+mod common;
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let Some(path) = args.next() else {
@@ -103,7 +105,6 @@ fn main() {
 /// what feeds the rule: how far fitted normals tilt from the nearest axis (the hall's floor,
 /// walls and ceiling are axis-aligned), and how many octree leaves get no roughness.
 fn under_the_rule(view: &pc_artifact::octree::OctreeView, accel: &Accel, min_len: f32) {
-    use pc_tree::Between;
     let rough = pc_tree::between::leaf_roughness(view);
     let mut tilt = [0u64; 7]; // degrees: < 2, 2-4, 4-8, 8-16, 16-32, 32-45, above
     for s in view.splats {
@@ -135,7 +136,6 @@ fn under_the_rule(view: &pc_artifact::octree::OctreeView, accel: &Accel, min_len
         leaves.len(),
         r.get(r.len() / 2).copied().unwrap_or(0.0)
     );
-    let n = view.splats.len();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(2);
     let mut st = TraversalStats::default();
     let (mut cast, mut blocked) = (0u64, 0u64);
@@ -145,25 +145,9 @@ fn under_the_rule(view: &pc_artifact::octree::OctreeView, accel: &Accel, min_len
     let mut turned = [0u64; 3];
     let mut beyond_rel = [0u64; 6]; // distance past the zone's end in zone lengths: < .25, .5, 1, 2, 4, more
     while cast < 100_000 {
-        let (ia, ib) = (rng.random_range(0..n), rng.random_range(0..n));
-        let (sa, sb) = (&view.splats[ia], &view.splats[ib]);
-        let d = Vec3::from(sb.position) - Vec3::from(sa.position);
-        let len = d.length();
-        if len < min_len {
-            continue;
-        }
-        let dir = d / len;
-        if Vec3::from(sa.normal).dot(dir) <= 0.0 || Vec3::from(sb.normal).dot(-dir) <= 0.0 {
-            continue;
-        }
-        let seg = Between::splats(
-            (sa, rough[view.splat_leaf[ia] as usize]),
-            (sb, rough[view.splat_leaf[ib] as usize]),
-            dir,
-            len,
-            0.5 * sa.radius,
-            len - 0.5 * sb.radius,
-        );
+        let (ia, ib, seg) = common::facing_segment(view, &rough, &mut rng, min_len);
+        let len =
+            (Vec3::from(view.splats[ib].position) - Vec3::from(view.splats[ia].position)).length();
         cast += 1;
         // The first hit the rule does not pass over.
         let mut ray = seg.ray;
