@@ -235,7 +235,8 @@ fn drop_invalid_skips_the_nan_point_and_says_so() {
     ])
     .success();
     assert!(out.stdout.contains("(15 splats,"), "{out:?}");
-    assert!(out.stdout.contains("dropped 1 invalid points"), "{out:?}");
+    assert!(out.stdout.contains("left out 1 point)"), "{out:?}");
+    assert!(out.stdout.contains("1 left out (1 "), "{out:?}");
     let artifact = dir.path().join("out").join("octree.pcgi");
     let out = pc_inspect(args![artifact, "--verify", "--metadata"]).success();
     assert!(out.stdout.contains("\"dropped_points\": 1"), "{out:?}");

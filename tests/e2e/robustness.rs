@@ -43,7 +43,7 @@ fn case_01_coordinates_near_f32_max_are_refused_naming_the_model() {
         "[import]\ndrop_invalid = true\n",
     );
     let out = pc_octree(args!["--quiet", "--config", &cfg]).success();
-    assert!(out.stdout.contains("dropped 1 invalid points"), "{out:?}");
+    assert!(out.stdout.contains("left out 1 point)"), "{out:?}");
     pc_inspect(args![dir.path().join("out/octree.pcgi"), "--verify"]).success();
 }
 

@@ -213,7 +213,8 @@ impl Stage for OctreeStage {
         let s = &summary.octree.stats;
         let dropped = match summary.dropped {
             0 => String::new(),
-            n => format!(", dropped {n} invalid points"),
+            1 => ", left out 1 point".to_string(),
+            n => format!(", left out {n} points"),
         };
         // A line per model that import changed (scans, estimated normals, points left out),
         // the scene's origin when it moved, then the summary.
