@@ -196,8 +196,7 @@ fn estimate_distinct(
     };
     let mut out_n: Vec<Vec3> = fits.par_iter().map(|(f, _)| f.normal).collect();
     if let Some((fit, _)) = normals {
-        let (fits, kth2): (Vec<Fit>, Vec<f32>) = fits.into_par_iter().unzip();
-        widen(positions, &knn, &mut out_n, &fits, &kth2, fit.widen_above);
+        widen(&knn, &mut out_n, &fits, fit.widen_above);
     }
     match orient {
         Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
@@ -452,7 +451,7 @@ struct Fit {
     normal: Vec3,
     /// The smallest eigenvalue of the covariance (per point): the variance across the plane.
     thin: f32,
-    /// The normal's tilt error ([`Fit::tilt_error`]).
+    /// The standard error of the normal's tilt, radians ([`Fit::of_offsets`]).
     error: f32,
     /// Points in the fit, the point itself included.
     count: u32,
@@ -555,24 +554,16 @@ const WIDEN_LOOK: f32 = 0.35;
 ///
 /// The neighbourhood thus follows the noise, as Mitra, Nguyen and Guibas (2004, "Estimating
 /// surface normals in noisy point cloud data") ask, with the flatness test in place of their
-/// curvature estimate. `fits[i]` is point `i`'s fit to its `k` nearest and `kth2[i]` the
-/// squared distance of the `k`-th; returns how many normals were widened.
-fn widen(
-    positions: &[Vec3],
-    knn: &Knn,
-    normals: &mut [Vec3],
-    fits: &[Fit],
-    kth2: &[f32],
-    above: f32,
-) -> usize {
+/// curvature estimate. `fits[i]` is point `i`'s fit to its `k` nearest and the squared
+/// distance of the `k`-th.
+fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
     let (least, most) = (
         WIDEN_RADIUS.0 * WIDEN_RADIUS.0,
         WIDEN_RADIUS.1 * WIDEN_RADIUS.1,
     );
     let mut reach2: Vec<f32> = fits
         .par_iter()
-        .zip(kth2)
-        .map(|(f, &d2)| {
+        .map(|&(ref f, d2)| {
             let noisy = f.error > WIDEN_LOOK * above && f.count > 3;
             match above > 0.0 && noisy && d2 > 0.0 {
                 // The error falls with the square of the radius.
@@ -581,7 +572,6 @@ fn widen(
             }
         })
         .collect();
-    let mut widened = vec![false; positions.len()];
     for _ in 0..2 {
         if !reach2.iter().any(|&r| r > 0.0) {
             break;
@@ -589,15 +579,18 @@ fn widen(
         // Twice the points of the widest ball on a plane (every k-nearest fit holds the same
         // k + 1): a stray point's ball, sized by its far neighbours, is given up instead of
         // spanning the cloud.
-        let cap = 2 * (most as usize) * (fits[0].count as usize).max(1);
+        let cap = 2 * (most as usize) * (fits[0].0.count as usize).max(1);
         let wider = knn.map_within(&reach2, cap, |i, inside, offsets| {
             let offsets = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
             (Fit::of_offsets(offsets), pooled_thin(fits, i, inside))
         });
-        (&mut *normals, fits, kth2, &mut reach2, &mut widened, &wider)
+        (&mut *normals, fits, &mut reach2, &wider)
             .into_par_iter()
-            .for_each(|(n, fit, &d2, r2, w, wider)| {
-                let Some((f, noise)) = *wider else { return };
+            .for_each(|(n, &(fit, d2), r2, wider)| {
+                let Some((f, noise)) = *wider else {
+                    *r2 = 0.0; // given up (or never asked): not asked again
+                    return;
+                };
                 // The k-nearest fit's error with its patch's noise.
                 let error = match fit.thin > 0.0 {
                     true => fit.error * (noise / fit.thin).sqrt(),
@@ -607,7 +600,6 @@ fn widen(
                     *r2 = 0.0;
                 } else if f.thin <= WIDEN_FLAT * noise {
                     *n = f.normal;
-                    *w = true;
                     *r2 = 0.0;
                 } else {
                     // Not flat: once more at the least radius, if this was wider.
@@ -618,17 +610,16 @@ fn widen(
                 }
             });
     }
-    widened.iter().filter(|&&w| w).count()
 }
 
 /// The median thinness of the `k`-nearest fits of point `i` and of up to [`POOLED`] points
 /// `inside` its wider patch: the noise across the surface there, from many samples.
-fn pooled_thin(fits: &[Fit], i: usize, inside: &[(u32, f32)]) -> f32 {
+fn pooled_thin(fits: &[(Fit, f32)], i: usize, inside: &[(u32, f32)]) -> f32 {
     let mut t = [0f32; POOLED + 1];
-    t[0] = fits[i].thin;
+    t[0] = fits[i].0.thin;
     let n = 1 + inside.len().min(POOLED);
     for (t, &(j, _)) in t[1..n].iter_mut().zip(inside) {
-        *t = fits[j as usize].thin;
+        *t = fits[j as usize].0.thin;
     }
     let t = &mut t[..n];
     *t.select_nth_unstable_by(n / 2, f32::total_cmp).1

@@ -208,6 +208,19 @@ impl Knn {
         self.to_input_order(&along)
     }
 
+    /// Run `r`'s slots `lo..hi` and their squared distances from `q`, one vector loop (the
+    /// lanes past `hi` of a short last run +∞).
+    #[inline]
+    fn run_distances(&self, r: usize, q: [f32; 3]) -> (usize, usize, [f32; RUN]) {
+        let (lo, hi) = (r * RUN, ((r + 1) * RUN).min(self.len()));
+        let mut d2 = [f32::INFINITY; RUN];
+        for (d, s) in d2.iter_mut().zip(lo..hi) {
+            let (dx, dy, dz) = (self.xs[s] - q[0], self.ys[s] - q[1], self.zs[s] - q[2]);
+            *d = dx * dx + dy * dy + dz * dz;
+        }
+        (lo, hi, d2)
+    }
+
     /// Values in curve order, put back in input order.
     fn to_input_order<T: Send + Sync + Copy>(&self, along: &[T]) -> Vec<T> {
         let mut place = vec![0u32; self.len()];
@@ -225,8 +238,8 @@ impl Knn {
     /// (input index, squared distance), in no particular order, and `offsets` their positions
     /// less point `i`'s, read from the search's own copy in curve order (so a caller need not
     /// gather them from the input order). A ball holding more than `most` points is given up
-    /// (`None`): a stray point's reach, sized by its far neighbours, may span the cloud. A ball's points come from the runs whose
-    /// boxes it meets, listed once per run as [`Knn::map`] does, or by a walk of the tree from
+    /// (`None`): a stray point's reach, sized by its far neighbours, may span the cloud. A
+    /// ball's points come from the runs whose boxes it meets, listed once per run as [`Knn::map`] does, or by a walk of the tree from
     /// the root where that list would be long.
     pub fn map_within<T: Send + Sync + Copy>(
         &self,
@@ -396,12 +409,7 @@ impl Search {
 
     /// Appends run `r`'s points (but `skip`) nearer to `q` than squared distance `reach`.
     fn collect(&mut self, t: &Knn, r: usize, skip: usize, q: [f32; 3], reach: f32) {
-        let (lo, hi) = (r * RUN, ((r + 1) * RUN).min(t.len()));
-        let mut d2 = [f32::INFINITY; RUN];
-        for (d, s) in d2.iter_mut().zip(lo..hi) {
-            let (dx, dy, dz) = (t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]);
-            *d = dx * dx + dy * dy + dz * dz;
-        }
+        let (lo, hi, d2) = t.run_distances(r, q);
         let mut mask = d2
             .iter()
             .enumerate()
@@ -485,13 +493,7 @@ impl Search {
 
     /// Offers run `r`'s points (but `skip`, the query itself) to the nearest `k` of `q`.
     fn scan(&mut self, t: &Knn, r: usize, skip: usize, q: [f32; 3], k: usize) {
-        let lo = r * RUN;
-        let hi = (lo + RUN).min(t.len());
-        let mut d2 = [f32::INFINITY; RUN];
-        for (d, s) in d2.iter_mut().zip(lo..hi) {
-            let (dx, dy, dz) = (t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]);
-            *d = dx * dx + dy * dy + dz * dz;
-        }
+        let (lo, hi, d2) = t.run_distances(r, q);
         // The points that may enter as a mask (one vector compare): a run far from the query
         // costs no branch a point. Until k are found every point may (even one whose squared
         // distance overflows to +∞).
