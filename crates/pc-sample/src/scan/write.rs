@@ -209,6 +209,11 @@ pub fn write_scan_scene(
     let scene = ScanScene {
         import: ImportConfig {
             origin: Some(p.georef.to_array()),
+            // What docs/import.md's checklist asks of a terrestrial scan: returns closer than
+            // the range noise are one surface point. Where a station's rings converge
+            // (straight above it) they are closer than that, and the normals fitted through
+            // them tilt.
+            merge_distance: (p.noise > 0.0).then_some(p.noise as f32),
             ..ImportConfig::default()
         },
         materials: BTreeMap::from([(
@@ -322,6 +327,8 @@ mod tests {
         // The scene file loads with its scan and faces every normal to the right scanner.
         let toml = write_scan_scene(dir.path(), "hall.laz", &p, ScanFormat::Laz).unwrap();
         let cfg = pc_config::load_config(&toml, &[]).unwrap();
+        // Returns closer than the range noise are merged (none are, this sparse).
+        assert_eq!(cfg.config.import.merge_distance, Some(p.noise as f32));
         let scene = pc_import::load::load_scene(&cfg, &mut |_, _| {}).unwrap();
         assert_eq!(scene.splats.len(), 5_000);
         assert_eq!(scene.origin, p.georef);
