@@ -4,39 +4,137 @@
 //! the file's frame, before normals and radii are estimated; what they remove is counted in
 //! the model's report. docs/import.md, "Cleaning a scan".
 
-use std::collections::HashMap;
-
-use glam::{IVec3, Vec3};
+use glam::{DVec3, Vec3};
 
 use crate::knn::Knn;
 use crate::points::PointSet;
 
 /// Keeps the first point of every cluster of points closer than `distance` to it: a point is
 /// dropped when an earlier kept point lies within `distance` (file order, so the result does
-/// not depend on threads). One pass over a hash grid of cell `distance`. Returns the kept mask.
+/// not depend on threads). Returns the kept mask.
+///
+/// One pass in file order over a grid of cells `2 · distance` wide holding the kept points
+/// (a list per cell, threaded through `next`): a ball of radius `distance` lies within the
+/// 2 × 2 × 2 cells on the sides of the point's cell that its position in the cell is nearer
+/// to, so each point looks up eight cells. Kept points of one cell lie at least `distance`
+/// apart, so a cell holds a bounded few of them, however dense the scan.
 pub fn merge_duplicates(positions: &[Vec3], distance: f32) -> Vec<bool> {
-    let cell_of = |p: Vec3| (p / distance).floor().as_ivec3();
+    const NONE: u32 = u32::MAX;
+    // A little wider than 2 · distance, so that a point the f32 distance test accepts at
+    // distance · (1 + rounding) is still in the window.
+    let side = 2.0 * f64::from(distance) * (1.0 + 1e-5);
     let d2 = distance * distance;
-    let mut grid: HashMap<IVec3, Vec<u32>> = HashMap::new();
+    let mut cells = CellTable::new();
+    let mut next = vec![NONE; positions.len()];
     let mut keep = vec![false; positions.len()];
     for (i, &p) in positions.iter().enumerate() {
-        let c = cell_of(p);
-        let near = (-1..=1).any(|dz| {
-            (-1..=1).any(|dy| {
-                (-1..=1).any(|dx| {
-                    grid.get(&(c + IVec3::new(dx, dy, dz))).is_some_and(|v| {
-                        v.iter()
-                            .any(|&j| positions[j as usize].distance_squared(p) < d2)
-                    })
-                })
-            })
+        let t = p.as_dvec3() / side;
+        let c = t.floor();
+        // The neighbour on the side the point is nearer to, per axis.
+        let step = (t - c).cmplt(DVec3::splat(0.5));
+        let c = [c.x, c.y, c.z].map(|v| v as i64);
+        let s = [step.x, step.y, step.z].map(|lower| if lower { -1 } else { 1 });
+        let near = (0..8).any(|corner: usize| {
+            let at = std::array::from_fn(|a| c[a] + s[a] * ((corner >> a) & 1) as i64);
+            let mut j = cells.head(at);
+            while j != NONE {
+                if positions[j as usize].distance_squared(p) < d2 {
+                    return true;
+                }
+                j = next[j as usize];
+            }
+            false
         });
         if !near {
             keep[i] = true;
-            grid.entry(c).or_default().push(i as u32);
+            let head = cells.head_mut(c);
+            next[i] = *head;
+            *head = i as u32;
         }
     }
     keep
+}
+
+/// Grid cells (integer coordinates) to the first point of their list: open addressing with
+/// linear probing, kept at most half full. Coordinates are wrapped to 21 bits an axis for the
+/// key, so cells 2²¹ apart share a list; the callers test real distances, so that costs only
+/// the time to test the other cell's points.
+struct CellTable {
+    keys: Vec<u64>,
+    heads: Vec<u32>,
+    len: usize,
+}
+
+impl CellTable {
+    const EMPTY: u64 = u64::MAX;
+
+    fn new() -> CellTable {
+        CellTable {
+            keys: vec![Self::EMPTY; 1024],
+            heads: vec![u32::MAX; 1024],
+            len: 0,
+        }
+    }
+
+    /// The cell's key: its coordinates' low 21 bits (never [`Self::EMPTY`], which has bit 63).
+    fn key(c: [i64; 3]) -> u64 {
+        let b = |v: i64| (v as u64) & 0x1f_ffff;
+        b(c[0]) | b(c[1]) << 21 | b(c[2]) << 42
+    }
+
+    /// Where the key's probe sequence starts (Fibonacci hashing).
+    fn start(&self, key: u64) -> usize {
+        let bits = self.keys.len().trailing_zeros();
+        (key.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> (64 - bits)) as usize
+    }
+
+    /// The cell's first point, `u32::MAX` for none.
+    fn head(&self, c: [i64; 3]) -> u32 {
+        let key = Self::key(c);
+        let mask = self.keys.len() - 1;
+        let mut s = self.start(key);
+        loop {
+            match self.keys[s] {
+                k if k == key => return self.heads[s],
+                Self::EMPTY => return u32::MAX,
+                _ => s = (s + 1) & mask,
+            }
+        }
+    }
+
+    /// The cell's first point, made (`u32::MAX`) if the cell has none.
+    fn head_mut(&mut self, c: [i64; 3]) -> &mut u32 {
+        if 2 * (self.len + 1) > self.keys.len() {
+            self.grow();
+        }
+        let key = Self::key(c);
+        let mask = self.keys.len() - 1;
+        let mut s = self.start(key);
+        while self.keys[s] != key {
+            if self.keys[s] == Self::EMPTY {
+                self.keys[s] = key;
+                self.len += 1;
+                break;
+            }
+            s = (s + 1) & mask;
+        }
+        &mut self.heads[s]
+    }
+
+    fn grow(&mut self) {
+        let cap = 2 * self.keys.len();
+        let keys = std::mem::replace(&mut self.keys, vec![Self::EMPTY; cap]);
+        let heads = std::mem::replace(&mut self.heads, vec![u32::MAX; cap]);
+        for (k, h) in keys.into_iter().zip(heads) {
+            if k != Self::EMPTY {
+                let mut s = self.start(k);
+                while self.keys[s] != Self::EMPTY {
+                    s = (s + 1) & (cap - 1);
+                }
+                (self.keys[s], self.heads[s]) = (k, h);
+            }
+        }
+    }
 }
 
 /// Statistical outlier removal (Rusu et al. 2008, as PCL's `StatisticalOutlierRemoval`): the
@@ -107,6 +205,63 @@ mod tests {
         assert_eq!(
             merge_duplicates(&p, 0.005),
             [true, false, true, true, false, false]
+        );
+    }
+
+    /// The rule itself, point by point against every earlier kept point.
+    fn merge_brute_force(p: &[Vec3], distance: f32) -> Vec<bool> {
+        let mut keep = vec![false; p.len()];
+        for i in 0..p.len() {
+            let d2 = distance * distance;
+            keep[i] = !(0..i).any(|j| keep[j] && p[j].distance_squared(p[i]) < d2);
+        }
+        keep
+    }
+
+    #[test]
+    fn merging_matches_the_rule_point_by_point() {
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut u = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let d = 0.01;
+        for origin in [Vec3::ZERO, Vec3::new(512.25, -403.5, 21.0)] {
+            let mut p = Vec::new();
+            // A noisy plane with spacing near the distance, a dense clump, exact copies, points
+            // on cell borders, and strays.
+            for i in 0..1500 {
+                let (x, y) = ((i % 50) as f32 * 0.008, (i / 50) as f32 * 0.008);
+                p.push(origin + Vec3::new(x + 0.004 * u(), y + 0.004 * u(), 0.003 * u()));
+            }
+            for _ in 0..500 {
+                p.push(origin + Vec3::new(0.2, 0.1, 0.0) + 0.02 * Vec3::new(u(), u(), u()));
+            }
+            for k in 0..200 {
+                p.push(p[k * 7]);
+                p.push(origin + Vec3::new(k as f32 * 2.0 * d, 0.5, 0.0));
+                p.push(origin + Vec3::new(k as f32 * 2.0 * d + 0.999 * d, 0.5, 0.0));
+                p.push(origin + 10.0 * Vec3::new(u(), u(), u()));
+            }
+            // Shuffle the file order.
+            for i in (1..p.len()).rev() {
+                p.swap(i, (u() * (i + 1) as f32) as usize % (i + 1));
+            }
+            let got = merge_duplicates(&p, d);
+            assert_eq!(got, merge_brute_force(&p, d), "origin {origin}");
+            let merged = got.iter().filter(|k| !**k).count();
+            assert!(merged > 500 && merged < p.len() - 500, "{merged} merged");
+        }
+        // Cells 2²¹ apart share a key, not a merge.
+        let far = 2.0 * (1u32 << 21) as f32 * 1.000_01;
+        let p =
+            [0.0, 0.5, far, far + 0.5, far + 3.0, 0.4, far + 0.1].map(|x| Vec3::new(x, 0.0, 0.0));
+        assert_eq!(merge_duplicates(&p, 1.0), merge_brute_force(&p, 1.0));
+        assert_eq!(
+            merge_duplicates(&p, 1.0),
+            [true, false, true, false, true, false, false]
         );
     }
 
