@@ -1,6 +1,6 @@
 //! The whole chain on virtual scans of the hall (`pc-sample scan`, LAZ) at each size, cold,
-//! through pc-bake: every stage's time and peak memory, and both per splat, so that growth
-//! faster than N shows. `--only scale` (default sizes 1M, 4M, 20M).
+//! through pc-bake: every stage's time and peak memory, and both per point of the scan, so
+//! that growth faster than N shows. `--only scale` (default sizes 1M, 4M, 20M).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -40,7 +40,7 @@ pub(super) fn bench(sizes: &[usize], write: bool) -> Result<()> {
             .map(|r| r["peak_rss_bytes"].as_f64().unwrap_or(0.0))
             .fold(0.0, f64::max);
         rows.push(format!(
-            "| {} | {cold:.0} s ({:.0} µs/splat) | {:.1} GB | {} |",
+            "| {} | {cold:.0} s ({:.0} µs/point) | {:.1} GB | {} |",
             count(n),
             cold / n as f64 * 1e6,
             peak / 1e9,
@@ -70,7 +70,7 @@ fn stages(v: &Value) -> impl Iterator<Item = &Value> {
     v.as_array().into_iter().flatten()
 }
 
-/// One stage's time and peak memory, absolute and per splat.
+/// One stage's time and peak memory, absolute and per point of the scan.
 fn cell(v: &Value, stage: &str, n: usize) -> String {
     let Some(r) = stages(v).find(|r| r["stage"] == stage) else {
         return "—".to_string();
@@ -78,7 +78,7 @@ fn cell(v: &Value, stage: &str, n: usize) -> String {
     let s = r["seconds"].as_f64().unwrap_or(f64::NAN);
     let m = r["peak_rss_bytes"].as_f64().unwrap_or(f64::NAN);
     format!(
-        "{s:.1} s, {:.2} GB ({:.1} µs, {:.0} B per splat)",
+        "{s:.1} s, {:.2} GB ({:.1} µs, {:.0} B per point)",
         m / 1e9,
         s / n as f64 * 1e6,
         m / n as f64
@@ -98,8 +98,9 @@ fn table(sizes: &[usize], rows: &[String]) -> String {
         "Machine: {}. Date: {}. Command: `cargo xtask bench --only scale --sizes {}`. The virtual \
 scan of the hall (`pc-sample scan --format laz`: 3 stations, sun through a skylight and a lamp), \
 cold, through pc-bake, stage defaults (the CPU here). Each stage: its process's wall time and \
-peak resident memory (VmHWM), then both per splat. Aims: every stage's peak at most 16 GiB at \
-20M, time per splat flat or falling.\n\n\
+peak resident memory (VmHWM), then both per point of the scan (the import merges returns closer \
+than the scanner's range noise, so a scan makes fewer splats than it has points). Aims: every \
+stage's peak at most 16 GiB at 20M, time per point flat or falling.\n\n\
 | points | cold | peak | pc-octree | pc-vmap | pc-caustics | pc-fmm | pc-raytrace | pc-bake |\n\
 |---|---|---|---|---|---|---|---|---|\n{}\n",
         machine(),
