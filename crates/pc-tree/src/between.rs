@@ -48,8 +48,11 @@ pub const OWN_SLOPE: f32 = 0.1;
 
 /// And this many times the roughness of its octree leaf: the noise is the scanner's, a few
 /// millimetres whatever the spacing, so at 20M points of the hall scan (3.7 mm splats) it stood
-/// more than a radius proud and a tolerance in radii alone passed over too little of it.
-pub const OWN_ROUGH: f32 = 3.0;
+/// more than a radius proud and a tolerance in radii alone passed over too little of it. Five,
+/// not three: a shallow ray passes over hundreds of splats in its zone, and at three standard
+/// deviations one of them pokes through often enough that at 20M a quarter of the blocks came
+/// just past a zone's end (docs/vmap.md, "What blocks at 20M").
+pub const OWN_ROUGH: f32 = 5.0;
 
 /// A splat is an end's own surface only where its normal is within about 30° of the end's:
 /// noise tilts two splats of one wall apart by up to about 15°, while splats fitted across an
