@@ -21,9 +21,15 @@ use crate::points::PointSet;
 pub fn merge_duplicates(positions: &[Vec3], distance: f32) -> Vec<bool> {
     const NONE: u32 = u32::MAX;
     // A little wider than 2 · distance, so that a point the f32 distance test accepts at
-    // distance · (1 + rounding) is still in the window.
-    let side = 2.0 * f64::from(distance) * (1.0 + 1e-5);
-    let d2 = distance * distance;
+    // distance · (1 + rounding) is still in the window; and at least 2⁻⁴⁰ of the farthest
+    // coordinate, so that cell coordinates stay far inside i64 (a distance far below the
+    // coordinates' precision would put every point in one saturated cell, and the pass would
+    // compare every pair). Any side of at least 2 · distance keeps the window whole.
+    let reach = positions
+        .iter()
+        .fold(0.0f32, |m, p| m.max(p.abs().max_element()));
+    let side = (2.0 * f64::from(distance) * (1.0 + 1e-5)).max(f64::from(reach) * 2f64.powi(-40));
+    let d2 = merge_d2(distance);
     let mut cells = CellTable::new();
     let mut next = vec![NONE; positions.len()];
     let mut keep = vec![false; positions.len()];
@@ -53,6 +59,13 @@ pub fn merge_duplicates(positions: &[Vec3], distance: f32) -> Vec<bool> {
         }
     }
     keep
+}
+
+/// The squared distance below which two points merge: `distance²`, but never below the
+/// smallest normal f32, so that exact copies merge however small the distance (its square
+/// would underflow to 0 below about 1e-19).
+fn merge_d2(distance: f32) -> f32 {
+    (distance * distance).max(f32::MIN_POSITIVE)
 }
 
 /// Grid cells (integer coordinates) to the first point of their list: open addressing with
@@ -212,7 +225,7 @@ mod tests {
     fn merge_brute_force(p: &[Vec3], distance: f32) -> Vec<bool> {
         let mut keep = vec![false; p.len()];
         for i in 0..p.len() {
-            let d2 = distance * distance;
+            let d2 = merge_d2(distance);
             keep[i] = !(0..i).any(|j| keep[j] && p[j].distance_squared(p[i]) < d2);
         }
         keep
@@ -254,6 +267,15 @@ mod tests {
             let merged = got.iter().filter(|k| !**k).count();
             assert!(merged > 500 && merged < p.len() - 500, "{merged} merged");
         }
+        // A distance far below the coordinates' precision merges exact copies only, and does
+        // not put every point in one cell (which would compare every pair).
+        let p: Vec<Vec3> = (0..4000)
+            .map(|i| Vec3::new(100.0 + (i % 71) as f32 * 0.01, (i / 71) as f32 * 0.01, 5.0))
+            .chain([Vec3::new(100.0, 0.0, 5.0)])
+            .collect();
+        let kept = merge_duplicates(&p, 1e-30);
+        assert_eq!(kept, merge_brute_force(&p, 1e-30));
+        assert_eq!(kept.iter().filter(|k| !**k).count(), 1);
         // Cells 2²¹ apart share a key, not a merge.
         let far = 2.0 * (1u32 << 21) as f32 * 1.000_01;
         let p =
