@@ -14,6 +14,7 @@ use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointL
 use pc_config::{Backend, LoadedConfig};
 use pc_stage::{OptionalInput, Progress, Stage};
 use pc_tree::caster::Caster;
+use rayon::prelude::*;
 
 use crate::cluster::Clustering;
 use crate::emitter::{self, EmitterRays, EmitterSampling};
@@ -334,6 +335,14 @@ pub fn run(
     };
     let solve_s = t.elapsed().as_secs_f64();
     time("solve", t);
+    if let Some(why) = below_source(&solved, &sys.source, &pts.active) {
+        eprintln!(
+            "pc-fmm: warning: the solution is not physical: {why}. The solve diverged: the \
+             transport gains energy (splat areas that sum to more than the surface) or has \
+             negative terms, and the render will be wrong; docs/fmm.md, \"A solve that is \
+             not physical\""
+        );
+    }
     // The operator and its plan (GBs at 20M splats) make room for the final gather's walk.
     drop(op);
     let counts = plan.counts;
@@ -454,6 +463,36 @@ pub fn radiosity_key(
     h.finish()
 }
 
+/// Where a solve is not physical: the light a splat sends back out, `L = E + ρ T (L − Lₑ)`, is
+/// at least its source `E` when `T` and `ρ` are not negative, so a channel in which more than
+/// [`BELOW_SOURCE_SHARE`] of the active splats come out below their source (by more than the
+/// solve's tolerance of it) has diverged. Returns what it found, channel by channel.
+pub fn below_source(radiance: &[[f32; 3]], source: &[[f32; 3]], active: &[bool]) -> Option<String> {
+    let active_count = active.iter().filter(|a| **a).count().max(1);
+    let found: Vec<String> = (0..3)
+        .filter_map(|k| {
+            let below = radiance
+                .par_iter()
+                .zip(source)
+                .zip(active)
+                .filter(|((l, e), a)| **a && l[k] < e[k] - 1e-2 * e[k].abs() - 1e-12)
+                .count();
+            let share = below as f64 / active_count as f64;
+            (share > BELOW_SOURCE_SHARE).then(|| {
+                format!(
+                    "{} radiance below its own source at {:.1} % of the splats",
+                    ["red", "green", "blue"][k],
+                    100.0 * share
+                )
+            })
+        })
+        .collect();
+    (!found.is_empty()).then(|| found.join(", "))
+}
+
+/// The share of splats below their source past which [`below_source`] reports a channel.
+pub const BELOW_SOURCE_SHARE: f64 = 0.01;
+
 /// pc-fmm as its binary runs it.
 pub struct FmmStage {
     pub cfg: LoadedConfig,
@@ -515,5 +554,33 @@ impl Stage for FmmStage {
             s.seconds,
             m.device
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_channel_below_its_source_is_reported_and_a_physical_one_is_not() {
+        let source = vec![[0.2f32, 0.1, 0.0]; 1000];
+        let mut radiance = vec![[0.3f32, 0.15, 0.0]; 1000];
+        let active = vec![true; 1000];
+        assert_eq!(below_source(&radiance, &source, &active), None);
+        // The solve's own tolerance below the source is not reported.
+        radiance[0] = [0.1995, 0.0999, 0.0];
+        assert_eq!(below_source(&radiance, &source, &active), None);
+        // A diverged red channel (negative, as the 20M hall's was) is.
+        for l in &mut radiance[..500] {
+            l[0] = -0.4;
+        }
+        let why = below_source(&radiance, &source, &active).unwrap();
+        assert_eq!(
+            why,
+            "red radiance below its own source at 50.0 % of the splats"
+        );
+        // Inactive splats do not count.
+        let inactive: Vec<bool> = (0..1000).map(|i| i >= 500).collect();
+        assert_eq!(below_source(&radiance, &source, &inactive), None);
     }
 }
