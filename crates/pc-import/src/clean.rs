@@ -101,18 +101,19 @@ impl CellTable {
         (key.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> (64 - bits)) as usize
     }
 
-    /// The cell's first point, `u32::MAX` for none.
-    fn head(&self, c: [i64; 3]) -> u32 {
-        let key = Self::key(c);
+    /// The slot that holds `key`, or the empty slot where it would go.
+    fn slot(&self, key: u64) -> usize {
         let mask = self.keys.len() - 1;
         let mut s = self.start(key);
-        loop {
-            match self.keys[s] {
-                k if k == key => return self.heads[s],
-                Self::EMPTY => return u32::MAX,
-                _ => s = (s + 1) & mask,
-            }
+        while self.keys[s] != key && self.keys[s] != Self::EMPTY {
+            s = (s + 1) & mask;
         }
+        s
+    }
+
+    /// The cell's first point, `u32::MAX` for none (an empty slot's head).
+    fn head(&self, c: [i64; 3]) -> u32 {
+        self.heads[self.slot(Self::key(c))]
     }
 
     /// The cell's first point, made (`u32::MAX`) if the cell has none.
@@ -121,15 +122,10 @@ impl CellTable {
             self.grow();
         }
         let key = Self::key(c);
-        let mask = self.keys.len() - 1;
-        let mut s = self.start(key);
-        while self.keys[s] != key {
-            if self.keys[s] == Self::EMPTY {
-                self.keys[s] = key;
-                self.len += 1;
-                break;
-            }
-            s = (s + 1) & mask;
+        let s = self.slot(key);
+        if self.keys[s] == Self::EMPTY {
+            self.keys[s] = key;
+            self.len += 1;
         }
         &mut self.heads[s]
     }
@@ -140,10 +136,7 @@ impl CellTable {
         let heads = std::mem::replace(&mut self.heads, vec![u32::MAX; cap]);
         for (k, h) in keys.into_iter().zip(heads) {
             if k != Self::EMPTY {
-                let mut s = self.start(k);
-                while self.keys[s] != Self::EMPTY {
-                    s = (s + 1) & (cap - 1);
-                }
+                let s = self.slot(k);
                 (self.keys[s], self.heads[s]) = (k, h);
             }
         }
@@ -224,8 +217,8 @@ mod tests {
     /// The rule itself, point by point against every earlier kept point.
     fn merge_brute_force(p: &[Vec3], distance: f32) -> Vec<bool> {
         let mut keep = vec![false; p.len()];
+        let d2 = merge_d2(distance);
         for i in 0..p.len() {
-            let d2 = merge_d2(distance);
             keep[i] = !(0..i).any(|j| keep[j] && p[j].distance_squared(p[i]) < d2);
         }
         keep
