@@ -185,17 +185,12 @@ fn finish(p: Pooled, params: &OctreeParams, phases: &mut Phases) -> Result<Octre
     phases.start("begin/end table");
     let table = begin_end_table(&mut split, &refs, n)?;
     phases.start("splat areas");
-    let mut leaf_depth = vec![0u8; split.nodes.len()];
-    for l in &split.leaves {
-        leaf_depth[l.slot as usize] = l.depth as u8;
-    }
     let (splat_area, clips) = splat_areas(
         &frame,
         &split.nodes,
         &table.begin_end,
         &splats,
         &splat_leaf,
-        &leaf_depth,
         params.area_samples,
     );
     for (s, clip) in splats.iter_mut().zip(clips) {
