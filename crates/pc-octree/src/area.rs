@@ -79,13 +79,14 @@ pub fn splat_areas(
     samples: u32,
 ) -> (Vec<f32>, Vec<[f32; 4]>) {
     let dups = Duplicates::new(splats, splat_leaf);
-    let ctx = AreaPass {
+    let mut ctx = AreaPass {
         frame,
         nodes,
         begin_end,
         splats,
         splat_leaf,
         dups: &dups,
+        disks: Disks::of_all(splats, &dups),
         pattern: disk_pattern(samples.max(1)).collect(),
         dirs: {
             let angle = |k: usize| k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32;
@@ -96,6 +97,7 @@ pub fn splat_areas(
         },
     };
     let slabs = dups.spread(ctx.slabs());
+    ctx.disks.set_slabs(&slabs);
     let unclipped = dups.spread(ctx.run(&slabs, None));
     let borders = dups.spread(ctx.borders(&unclipped));
     // An interior splat's clipped pass is its unclipped one, sample for sample (its share
@@ -146,9 +148,9 @@ struct Scratch {
     offsets: Vec<(f32, f32)>,
     heights: Vec<f32>,
     /// The candidate disks of a leaf's splats ([`AreaPass::candidates`]).
-    disks: Near,
+    disks: Disks,
     keep: Vec<bool>,
-    lanes: Near,
+    lanes: Lanes,
 }
 
 /// Groups of identical splats: each splat's representative (the group's first splat) and, for
@@ -243,6 +245,9 @@ struct AreaPass<'a> {
     splats: &'a [Splat],
     splat_leaf: &'a [u32],
     dups: &'a Duplicates,
+    /// Every splat's disk ([`Disks::of_all`]), so that a walk copies a leaf's own splats as
+    /// one range of each array.
+    disks: Disks,
     pattern: Vec<(f32, f32)>,
     /// The border directions' cosines and sines (apart, so loops over them run in vector
     /// lanes).
@@ -258,7 +263,7 @@ impl AreaPass<'_> {
     }
 
     /// The disks of the same surface that can cover some point of disk i (i included), as
-    /// lanes ([`Near`]), from `cands` ([`Self::candidates`]). A disk j (radius r_j, slab t_j,
+    /// lanes ([`Lanes`]), from `cands` ([`Self::candidates`]). A disk j (radius r_j, slab t_j,
     /// normals at angle θ) covers points within r_j of its centre in its plane and t_j off it,
     /// so it can cover a point of disk i only when
     /// - its centre lies within r_i + √(r_j² + t_j²) of splat i's, and
@@ -269,14 +274,14 @@ impl AreaPass<'_> {
     ///
     /// The second test keeps a noisy wall's lanes to about those within r_i + r_j along it,
     /// however far the slabs reach off it.
-    fn near(&self, i: usize, cands: &Near, keep: &mut Vec<bool>, near: &mut Near) {
+    fn near(&self, i: usize, cands: &Disks, keep: &mut Vec<bool>, near: &mut Lanes) {
         let s = &self.splats[i];
         let (c, n, r) = (Vec3::from(s.position), Vec3::from(s.normal), s.radius);
         let m = cands.len();
         let (px, py, pz) = (&cands.px[..m], &cands.py[..m], &cands.pz[..m]);
         let (nx, ny, nz) = (&cands.nx[..m], &cands.ny[..m], &cands.nz[..m]);
-        let (radius, extent, material) =
-            (&cands.radius[..m], &cands.extent[..m], &cands.material[..m]);
+        let (radius, extent) = (&cands.radius[..m], &cands.extent[..m]);
+        let (material, weight) = (&cands.material[..m], &cands.weight[..m]);
         keep.clear();
         keep.resize(m, false);
         // One pass the compiler can run in vector lanes, then the copies.
@@ -290,13 +295,28 @@ impl AreaPass<'_> {
             // (|a| − r) cos θ ≤ r_j + |b| sin θ, squared (both sides ≥ 0 once cos θ ≥ 0.5).
             let side = r * cos + radius[l] + b.abs() * sin;
             keep[l] = (material[l] == s.material)
+                & (weight[l] > 0)
                 & (cos >= 0.5)
                 & (d2 <= reach * reach)
                 & ((d2 - b * b) * cos * cos <= side * side);
         }
+        let (u, v) = tangent_frame(s.normal);
+        let (u, v) = (Vec3::from(u), Vec3::from(v));
         near.clear();
         for (l, _) in keep.iter().enumerate().filter(|(_, &k)| k) {
-            near.push_lane(cands, l);
+            let d = Vec3::new(px[l], py[l], pz[l]) - c;
+            let nl = Vec3::new(nx[l], ny[l], nz[l]);
+            near.push(Lane {
+                h0: -d.dot(nl),
+                hu: r * u.dot(nl),
+                hv: r * v.dot(nl),
+                d0: d.length_squared(),
+                du: -2.0 * r * u.dot(d),
+                dv: -2.0 * r * v.dot(d),
+                r2: radius[l] * radius[l],
+                slab: cands.slab[l],
+                weight: weight[l],
+            });
         }
     }
 
@@ -307,13 +327,7 @@ impl AreaPass<'_> {
     /// (`extents`, [`Self::extents`]), misses the box of the splats' centres widened by their
     /// largest radius. A large disk from afar is found however large; a fixed box (twice a
     /// splat's own reach) collected three times the candidates on a dense noisy scan.
-    fn candidates(
-        &self,
-        todo: impl Iterator<Item = usize>,
-        slabs: &[f32],
-        extents: &[f32],
-        sc: &mut Scratch,
-    ) {
+    fn candidates(&self, todo: impl Iterator<Item = usize>, extents: &[f32], sc: &mut Scratch) {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut radius = 0.0f32;
         for i in todo {
@@ -345,7 +359,7 @@ impl AreaPass<'_> {
             }
             if w & node::LEAF != 0 {
                 let (own, _) = self.leaf_list(w);
-                sc.cands.extend(own.filter(|&j| self.dups.is_rep(j)));
+                sc.disks.extend_range(&self.disks, own);
                 continue;
             }
             let half = size * 0.5;
@@ -358,13 +372,6 @@ impl AreaPass<'_> {
                 sc.stack
                     .push((node::ptr(w) + child, clo + off * half, half));
             }
-        }
-        for &j in &sc.cands {
-            sc.disks.push(
-                &self.splats[j as usize],
-                slabs[j as usize],
-                self.dups.weight(j),
-            );
         }
     }
 
@@ -422,6 +429,7 @@ impl AreaPass<'_> {
     /// walls.
     fn own_splats_in_box(&self, bmin: Vec3, bmax: Vec3, sc: &mut Scratch) {
         sc.cands.clear();
+        sc.disks.clear();
         sc.stack.clear();
         sc.stack.push((0, Vec3::ZERO, 1.0));
         while let Some((slot, lo, size)) = sc.stack.pop() {
@@ -431,7 +439,8 @@ impl AreaPass<'_> {
             }
             if w & node::LEAF != 0 {
                 let (own, _) = self.leaf_list(w);
-                sc.cands.extend(own.filter(|&j| self.dups.is_rep(j)));
+                sc.cands.extend(own.clone());
+                sc.disks.extend_range(&self.disks, own);
                 continue;
             }
             push_children_in_box(w, lo, size, bmin, bmax, &mut sc.stack);
@@ -450,10 +459,6 @@ impl AreaPass<'_> {
             },
         );
         self.own_splats_in_box(bmin, bmax, sc);
-        sc.disks.clear();
-        for &j in &sc.cands {
-            sc.disks.push(&self.splats[j as usize], 0.0, 1);
-        }
     }
 
     /// Marks in `keep` the lanes of `disks` ([`Self::neighbours_of_run`]) on splat i's surface
@@ -463,7 +468,7 @@ impl AreaPass<'_> {
     fn mark_neighbours(
         &self,
         i: usize,
-        disks: &Near,
+        disks: &Disks,
         rise: f32,
         keep: &mut Vec<bool>,
         heights: &mut Vec<f32>,
@@ -474,7 +479,7 @@ impl AreaPass<'_> {
         let m = disks.len();
         let (px, py, pz) = (&disks.px[..m], &disks.py[..m], &disks.pz[..m]);
         let (nx, ny, nz) = (&disks.nx[..m], &disks.ny[..m], &disks.nz[..m]);
-        let material = &disks.material[..m];
+        let (material, weight) = (&disks.material[..m], &disks.weight[..m]);
         keep.clear();
         keep.resize(m, false);
         heights.clear();
@@ -483,6 +488,7 @@ impl AreaPass<'_> {
             let (dx, dy, dz) = (px[l] - c.x, py[l] - c.y, pz[l] - c.z);
             let h = (dx * n.x + dy * n.y + dz * n.z).abs();
             keep[l] = (material[l] == s.material)
+                & (weight[l] > 0)
                 & (nx[l] * n.x + ny[l] * n.y + nz[l] * n.z >= 0.5)
                 & (dx * dx + dy * dy + dz * dz <= reach * reach)
                 & (h <= rise);
@@ -646,7 +652,7 @@ impl AreaPass<'_> {
             .into_par_iter()
             .map_init(Scratch::default, |sc, run| {
                 if run.clone().any(todo) {
-                    self.candidates(run.clone().filter(|&i| todo(i)), slabs, &extents, sc);
+                    self.candidates(run.clone().filter(|&i| todo(i)), &extents, sc);
                 }
                 run.map(|i| {
                     if !todo(i) {
@@ -666,19 +672,18 @@ impl AreaPass<'_> {
 
     /// Splat i's share: its disk's samples that its `border` accepts, each weighted by one over
     /// the number of disks among `near` that cover it.
-    fn area(&self, i: usize, border: Border, near: &Near) -> f32 {
+    fn area(&self, i: usize, border: Border, near: &Lanes) -> f32 {
         let s = &self.splats[i];
-        let c = Vec3::from(s.position);
-        let (u, v) = tangent_frame(s.normal);
-        let (u, v) = (Vec3::from(u), Vec3::from(v));
         let mut acc = 0.0f32;
         for &(a, b) in &self.pattern {
             // The sample's tangent coordinates are (a, b) · radius by construction.
             if !self.accepts(border, a * s.radius, b * s.radius) {
                 continue;
             }
-            let x = c + (u * a + v * b) * s.radius;
-            acc += 1.0 / near.cover(x).max(1) as f32;
+            acc += 1.0
+                / near
+                    .cover(a, b, s.radius * s.radius * (a * a + b * b))
+                    .max(1) as f32;
         }
         std::f32::consts::PI * s.radius * s.radius * acc / self.pattern.len() as f32
     }
@@ -805,11 +810,11 @@ fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
 /// border row and well below a box's right angle.
 const CORNER_TURN: f32 = 40.0 * std::f32::consts::PI / 180.0;
 
-/// The disks that can cover a splat's samples (its [`AreaPass::near`] list: one surface, one
-/// material, normals within 60° of the splat's), lane by lane, so that a sample's cover count is
-/// one vector loop over them.
+/// Disks field by field (one array each): the whole pool ([`Disks::of_all`]), or a walk's
+/// candidates copied from it a leaf's range at a time, which a splat's filter reads in vector
+/// lanes.
 #[derive(Default)]
-struct Near {
+struct Disks {
     px: Vec<f32>,
     py: Vec<f32>,
     pz: Vec<f32>,
@@ -826,7 +831,7 @@ struct Near {
     weight: Vec<u32>,
 }
 
-impl Near {
+impl Disks {
     fn clear(&mut self) {
         for v in [
             &mut self.px,
@@ -849,51 +854,132 @@ impl Near {
         self.weight.len()
     }
 
-    fn push(&mut self, o: &Splat, slab: f32, weight: u32) {
-        let ([px, py, pz], [nx, ny, nz]) = (o.position, o.normal);
-        self.px.push(px);
-        self.py.push(py);
-        self.pz.push(pz);
-        self.nx.push(nx);
-        self.ny.push(ny);
-        self.nz.push(nz);
-        self.radius.push(o.radius);
-        self.slab.push(slab);
-        self.extent.push((o.radius * o.radius + slab * slab).sqrt());
-        self.material.push(o.material);
-        self.weight.push(weight);
+    /// Every splat's disk, with slab 0 ([`Self::set_slabs`] sets them) and weight
+    /// [`Duplicates::weight`]: 0 for the members of a group of identical splats but its
+    /// representative, so that a range of the pool can be copied whole.
+    fn of_all(splats: &[Splat], dups: &Duplicates) -> Disks {
+        let field = |f: fn(&Splat) -> f32| splats.par_iter().map(f).collect::<Vec<f32>>();
+        let n = splats.len();
+        Disks {
+            px: field(|s| s.position[0]),
+            py: field(|s| s.position[1]),
+            pz: field(|s| s.position[2]),
+            nx: field(|s| s.normal[0]),
+            ny: field(|s| s.normal[1]),
+            nz: field(|s| s.normal[2]),
+            radius: field(|s| s.radius),
+            slab: vec![0.0; n],
+            extent: field(|s| s.radius),
+            material: splats.par_iter().map(|s| s.material).collect(),
+            weight: (0..n as u32)
+                .into_par_iter()
+                .map(|j| dups.weight(j))
+                .collect(),
+        }
     }
 
-    /// Appends lane `l` of `from`.
-    fn push_lane(&mut self, from: &Near, l: usize) {
-        self.px.push(from.px[l]);
-        self.py.push(from.py[l]);
-        self.pz.push(from.pz[l]);
-        self.nx.push(from.nx[l]);
-        self.ny.push(from.ny[l]);
-        self.nz.push(from.nz[l]);
-        self.radius.push(from.radius[l]);
-        self.slab.push(from.slab[l]);
-        self.extent.push(from.extent[l]);
-        self.material.push(from.material[l]);
-        self.weight.push(from.weight[l]);
+    /// Sets every disk's slab, and its extent √(radius² + slab²) with it.
+    fn set_slabs(&mut self, slabs: &[f32]) {
+        self.slab.copy_from_slice(slabs);
+        let (radius, extent) = (&self.radius, &mut self.extent);
+        extent
+            .par_iter_mut()
+            .zip(radius.par_iter().zip(slabs))
+            .for_each(|(e, (&r, &t))| *e = (r * r + t * t).sqrt());
     }
 
-    /// Σ weight over the disks that cover `x`: within its radius of the disk's centre in its
-    /// plane and within its slab of the plane.
+    /// Appends the disks `range` of `from`.
+    fn extend_range(&mut self, from: &Disks, range: std::ops::Range<u32>) {
+        let r = range.start as usize..range.end as usize;
+        self.px.extend_from_slice(&from.px[r.clone()]);
+        self.py.extend_from_slice(&from.py[r.clone()]);
+        self.pz.extend_from_slice(&from.pz[r.clone()]);
+        self.nx.extend_from_slice(&from.nx[r.clone()]);
+        self.ny.extend_from_slice(&from.ny[r.clone()]);
+        self.nz.extend_from_slice(&from.nz[r.clone()]);
+        self.radius.extend_from_slice(&from.radius[r.clone()]);
+        self.slab.extend_from_slice(&from.slab[r.clone()]);
+        self.extent.extend_from_slice(&from.extent[r.clone()]);
+        self.material.extend_from_slice(&from.material[r.clone()]);
+        self.weight.extend_from_slice(&from.weight[r]);
+    }
+}
+
+/// One disk j that may cover samples of a splat i (centre c, radius r, tangent frame u, v),
+/// with what a sample x = c + r (a u + b v) needs, so that its tests are a few multiply-adds:
+/// the sample's height above plane j is `h0 + a hu + b hv` and its squared distance from centre
+/// j is `d0 + a du + b dv + r² (a² + b²)`.
+struct Lane {
+    h0: f32,
+    hu: f32,
+    hv: f32,
+    d0: f32,
+    du: f32,
+    dv: f32,
+    /// Disk j's squared radius.
+    r2: f32,
+    slab: f32,
+    weight: u32,
+}
+
+/// A splat's [`Lane`]s, field by field, so that a sample's cover count is one vector loop.
+#[derive(Default)]
+struct Lanes {
+    h0: Vec<f32>,
+    hu: Vec<f32>,
+    hv: Vec<f32>,
+    d0: Vec<f32>,
+    du: Vec<f32>,
+    dv: Vec<f32>,
+    r2: Vec<f32>,
+    slab: Vec<f32>,
+    weight: Vec<u32>,
+}
+
+impl Lanes {
+    fn clear(&mut self) {
+        for v in [
+            &mut self.h0,
+            &mut self.hu,
+            &mut self.hv,
+            &mut self.d0,
+            &mut self.du,
+            &mut self.dv,
+            &mut self.r2,
+            &mut self.slab,
+        ] {
+            v.clear();
+        }
+        self.weight.clear();
+    }
+
+    fn push(&mut self, l: Lane) {
+        self.h0.push(l.h0);
+        self.hu.push(l.hu);
+        self.hv.push(l.hv);
+        self.d0.push(l.d0);
+        self.du.push(l.du);
+        self.dv.push(l.dv);
+        self.r2.push(l.r2);
+        self.slab.push(l.slab);
+        self.weight.push(l.weight);
+    }
+
+    /// Σ weight over the disks that cover the sample at tangent coordinates (a, b) (in radii of
+    /// the splat) whose squared distance from the splat's centre is `rr`: within the disk's
+    /// radius of its centre along its plane and within its slab of the plane.
     #[inline]
-    fn cover(&self, x: Vec3) -> u32 {
+    fn cover(&self, a: f32, b: f32, rr: f32) -> u32 {
         let n = self.weight.len();
-        let (px, py, pz) = (&self.px[..n], &self.py[..n], &self.pz[..n]);
-        let (nx, ny, nz) = (&self.nx[..n], &self.ny[..n], &self.nz[..n]);
-        let (radius, slab) = (&self.radius[..n], &self.slab[..n]);
+        let (h0, hu, hv) = (&self.h0[..n], &self.hu[..n], &self.hv[..n]);
+        let (d0, du, dv) = (&self.d0[..n], &self.du[..n], &self.dv[..n]);
+        let (r2, slab, weight) = (&self.r2[..n], &self.slab[..n], &self.weight[..n]);
         let mut sum = 0u32;
         for l in 0..n {
-            let (dx, dy, dz) = (x.x - px[l], x.y - py[l], x.z - pz[l]);
-            let d2 = dx * dx + dy * dy + dz * dz;
-            let h = dx * nx[l] + dy * ny[l] + dz * nz[l];
-            let inside = (h.abs() <= slab[l]) & (d2 - h * h <= radius[l] * radius[l]);
-            sum += if inside { self.weight[l] } else { 0 };
+            let h = h0[l] + a * hu[l] + b * hv[l];
+            let d2 = d0[l] + a * du[l] + b * dv[l] + rr;
+            let inside = (h.abs() <= slab[l]) & (d2 - h * h <= r2[l]);
+            sum += weight[l] * u32::from(inside);
         }
         sum
     }
