@@ -11,7 +11,6 @@ use std::path::Path;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::closing;
 use crate::knn::Knn;
 use crate::ImportError;
 
@@ -174,20 +173,9 @@ fn estimate_distinct(
             }
             None => 0.0,
         };
-        // Where the k nearest close the point's neighbourhood (crate::closing), with the
-        // fit's normal; the rest are looked for once the normals are final.
-        let close = match (normals, radii) {
-            (Some(_), Some(_)) => closing::closing_d2(
-                fit.0.normal,
-                near.iter()
-                    .map(|&(j, d2)| (positions[j as usize] - positions[i], d2)),
-            ),
-            _ => None,
-        };
-        (fit, (r, close))
+        (fit, r)
     };
-    type Rows = (Vec<(Fit, f32)>, Vec<(f32, Option<f32>)>, Vec<u32>);
-    let (fits, radius_rows, graph): Rows = if kg == 0 {
+    let (fits, mut out_r, graph): (Vec<(Fit, f32)>, Vec<f32>, Vec<u32>) = if kg == 0 {
         let (f, r) = knn.map(kq, estimate_one).into_par_iter().unzip();
         (f, r, Vec::new())
     } else {
@@ -206,8 +194,6 @@ fn estimate_distinct(
         let (f, r) = rows.into_par_iter().map(|(f, r, _)| (f, r)).unzip();
         (f, r, graph)
     };
-    let (mut out_r, first_close): (Vec<f32>, Vec<Option<f32>>) =
-        radius_rows.into_par_iter().unzip();
     let mut out_n: Vec<Vec3> = fits.par_iter().map(|(f, _)| f.normal).collect();
     if let Some((fit, _)) = normals {
         widen(&knn, &mut out_n, &fits, fit.widen_above);
@@ -219,9 +205,6 @@ fn estimate_distinct(
     match radii.is_some() {
         true => replace_bad_radii(&mut out_r),
         false => out_r = Vec::new(),
-    }
-    if radii.is_some() && normals.is_some() {
-        closing::close_radii(&knn, positions, &out_n, &first_close, &mut out_r);
     }
     (out_n, out_r)
 }

@@ -6,7 +6,6 @@
 //! pipeline.toml's models into one splat set ([`load`]: transforms, materials). docs/import.md.
 
 pub mod clean;
-pub mod closing;
 pub mod e57;
 pub mod error;
 pub mod estimate;
