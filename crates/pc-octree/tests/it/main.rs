@@ -405,6 +405,18 @@ fn wgsl_records_match_rust_layouts() {
     );
 }
 
+/// The octree of a unit sphere's splats (16 area samples a disk), the sum of its splat areas
+/// and the sphere's area.
+fn unit_sphere_areas(s: &Soa) -> (Octree, f32, f32) {
+    let params = OctreeParams {
+        area_samples: 16,
+        ..Default::default()
+    };
+    let o = s.build(&[class::DIFFUSE], params).unwrap();
+    let total: f32 = o.splat_area.iter().sum();
+    (o, total, 4.0 * std::f32::consts::PI)
+}
+
 #[test]
 fn splat_areas_sum_to_the_surface_area() {
     // A closed sphere has no boundary: the union of the disks is the sphere (plus the thin
@@ -412,17 +424,7 @@ fn splat_areas_sum_to_the_surface_area() {
     for count in [2000usize, 8000] {
         let mut s = Soa::default();
         s.sphere(Vec3::ZERO, 1.0, count, 0);
-        let o = s
-            .build(
-                &[class::DIFFUSE],
-                OctreeParams {
-                    area_samples: 16,
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-        let total: f32 = o.splat_area.iter().sum();
-        let want = 4.0 * std::f32::consts::PI;
+        let (o, total, want) = unit_sphere_areas(&s);
         assert!(
             (total / want - 1.0).abs() < 0.02,
             "{count} splats: area {total} vs {want}"
@@ -464,17 +466,7 @@ fn noisy_splat_areas_sum_to_the_surface_area_at_every_density() {
             let tilted = (n + (u * gauss() + v * gauss()) * tilt).normalize();
             s.push(n * (1.0 + sigma * gauss()), tilted, clean.r[k], 0);
         }
-        let o = s
-            .build(
-                &[class::DIFFUSE],
-                OctreeParams {
-                    area_samples: 16,
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-        let total: f32 = o.splat_area.iter().sum();
-        let want = 4.0 * std::f32::consts::PI;
+        let (_, total, want) = unit_sphere_areas(&s);
         assert!(
             (total / want - 1.0).abs() < 0.01,
             "{count} splats, noise {:.2} radii: area {total} vs {want}",
