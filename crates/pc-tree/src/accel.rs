@@ -17,10 +17,11 @@
 //!   radii as separate lanes (28 bytes a disk, not the artifact's 64), so one chunk's tests are
 //!   SIMD arithmetic and a leaf's run streams through consecutive cache lines. The last chunk of
 //!   a run is padded with disks that cannot be hit (zero normal, negative radius²).
-//! - **Cold data apart.** The data-pool index and the border clip are read only for a disk the
-//!   ray crosses inside its radius.
+//! - **Cold data apart.** The data-pool index is read only for a disk the ray crosses inside its
+//!   radius, and the border clip from the disk's own record through it (a copy per listing cost
+//!   16 bytes a lane: 1 GB of a 20M-point scan's V-map).
 //!
-//! Memory: about 48 bytes per listed disk plus padding (3 listings per splat on scans).
+//! Memory: about 32 bytes per listed disk plus padding (3 listings per splat on scans).
 
 use pc_artifact::octree::{node, within_clip};
 use rayon::prelude::*;
@@ -55,13 +56,6 @@ const PAD: Chunk = Chunk {
     nz: [0.0; LANES],
     r2: [-1.0; LANES],
 };
-
-/// The cold part of one lane: data-pool index (`u32::MAX` for padding) and border clip.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Cold {
-    splat: u32,
-    clip: [f32; 4],
-}
 
 /// One leaf: its run of chunks, the view's node word, and the slab its listed disks lie in.
 #[repr(C, align(32))]
@@ -105,7 +99,8 @@ pub struct Accel {
     leaves: Vec<Leaf>,
     chunks: Vec<Chunk>,
     /// Per chunk lane (`chunk · LANES + lane`).
-    cold: Vec<Cold>,
+    /// Each lane's data-pool index (`u32::MAX` for padding).
+    cold: Vec<u32>,
 }
 
 impl Accel {
@@ -137,13 +132,7 @@ impl Accel {
             acc = l.end;
         }
         let mut chunks = vec![PAD; acc as usize];
-        let mut cold = vec![
-            Cold {
-                splat: u32::MAX,
-                clip: [0.0; 4]
-            };
-            acc as usize * LANES
-        ];
+        let mut cold = vec![u32::MAX; acc as usize * LANES];
         // Fill each leaf's run in parallel: runs are disjoint.
         let mut runs = Vec::with_capacity(offsets.len());
         let (mut rest, mut rest_cold) = (&mut chunks[..], &mut cold[..]);
@@ -164,10 +153,7 @@ impl Accel {
                     [c.px[l], c.py[l], c.pz[l]] = s.position;
                     [c.nx[l], c.ny[l], c.nz[l]] = s.normal;
                     c.r2[l] = s.radius * s.radius;
-                    run_cold[k] = Cold {
-                        splat: i,
-                        clip: s.clip,
-                    };
+                    run_cold[k] = i;
                 }
             });
         let (nodes, slabs) = blocks(view, &offsets, &leaves, &chunks);
@@ -236,7 +222,7 @@ impl Accel {
     /// Bytes held.
     pub fn memory(&self) -> usize {
         self.chunks.len() * std::mem::size_of::<Chunk>()
-            + self.cold.len() * std::mem::size_of::<Cold>()
+            + self.cold.len() * std::mem::size_of::<u32>()
             + self.leaves.len() * std::mem::size_of::<Leaf>()
             + self.nodes.len() * std::mem::size_of::<Block>()
     }
@@ -251,7 +237,8 @@ impl Accel {
         w: u32,
         limit: f32,
         any: bool,
-        between: Option<(&Between, &[pc_artifact::octree::Splat])>,
+        splats: &[pc_artifact::octree::Splat],
+        between: Option<&Between>,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
         let leaf = &self.leaves[node::ptr(w) as usize];
@@ -271,18 +258,19 @@ impl Accel {
                 if best.is_some_and(|h| t[l] >= h.t) {
                     continue;
                 }
-                let cold = &self.cold[(a + ci) * LANES + l];
+                let splat = self.cold[(a + ci) * LANES + l];
+                let record = &splats[splat as usize];
                 let (p, n) = ([c.px[l], c.py[l], c.pz[l]], [c.nx[l], c.ny[l], c.nz[l]]);
-                if let Some((b, splats)) = between {
-                    if b.ignores(t[l], n, splats[cold.splat as usize].material) {
+                if let Some(b) = between {
+                    if b.ignores(t[l], n, record.material) {
                         continue;
                     }
                 }
                 let x = [ox + dx * t[l], oy + dy * t[l], oz + dz * t[l]];
-                if within_clip(p, n, cold.clip, x) {
+                if within_clip(p, n, record.clip, x) {
                     best = Some(Hit {
                         t: t[l],
-                        splat: cold.splat,
+                        splat,
                         leaf: leaf.word,
                     });
                     if any {
@@ -324,7 +312,7 @@ impl Accel {
         let mut leaf = PackedLeaf(0);
         let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             leaf = PackedLeaf(node::ptr(w));
-            self.test(ray, w, limit, false, None, st)
+            self.test(ray, w, limit, false, view.splats, None, st)
         })?;
         Some((hit, leaf))
     }
@@ -351,17 +339,17 @@ impl Accel {
             while inside != 0 {
                 let l = inside.trailing_zeros() as usize;
                 inside &= inside - 1;
-                let cold = &self.cold[(a + ci) * LANES + l];
-                let radius = view.splats[cold.splat as usize].radius;
+                let splat = self.cold[(a + ci) * LANES + l];
+                let record = &view.splats[splat as usize];
                 let (p, sn) = (
                     glam::Vec3::new(c.px[l], c.py[l], c.pz[l]),
                     glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]),
                 );
-                if h[l].abs() <= thickness * radius
-                    && within_clip(p.into(), sn.into(), cold.clip, (x - sn * h[l]).into())
+                if h[l].abs() <= thickness * record.radius
+                    && within_clip(p.into(), sn.into(), record.clip, (x - sn * h[l]).into())
                 {
                     let u = 1.0 - rho2[l] / c.r2[l];
-                    out.push((cold.splat, u * u));
+                    out.push((splat, u * u));
                 }
             }
         }
@@ -406,9 +394,8 @@ impl Accel {
                 None
             }
         };
-        let between = between.map(|b| (b, view.splats));
         crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            self.test(ray, w, limit, true, between, st)
+            self.test(ray, w, limit, true, view.splats, between, st)
         })
         .is_some()
     }
