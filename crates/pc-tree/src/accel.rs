@@ -57,6 +57,14 @@ const PAD: Chunk = Chunk {
     r2: [-1.0; LANES],
 };
 
+/// What a leaf's test looks for: the nearest hit, or any hit (passing over those a [`Between`]
+/// ignores).
+#[derive(Clone, Copy)]
+enum Find<'a> {
+    Nearest,
+    Any(Option<&'a Between>),
+}
+
 /// One leaf: its run of chunks, the view's node word, and the slab its listed disks lie in.
 #[repr(C, align(32))]
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -227,8 +235,8 @@ impl Accel {
             + self.nodes.len() * std::mem::size_of::<Block>()
     }
 
-    /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`any`: the first
-    /// found). The arithmetic is [`crate::ray::intersect_splat`]'s, operation for operation,
+    /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`Find::Any`: the
+    /// first found), the disks' records read from `splats`. The arithmetic is [`crate::ray::intersect_splat`]'s, operation for operation,
     /// lane by lane; lanes are taken in listing order, so ties resolve as there.
     #[inline(always)]
     fn test(
@@ -236,11 +244,13 @@ impl Accel {
         ray: &Ray,
         w: u32,
         limit: f32,
-        any: bool,
-        splats: &[pc_artifact::octree::Splat],
-        between: Option<&Between>,
+        (splats, find): (&[pc_artifact::octree::Splat], Find),
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
+        let (any, between) = match find {
+            Find::Nearest => (false, None),
+            Find::Any(between) => (true, between),
+        };
         let leaf = &self.leaves[node::ptr(w) as usize];
         // No disk can be hit outside the leaf's slab.
         if leaf.slab.misses(ray, limit) {
@@ -312,7 +322,7 @@ impl Accel {
         let mut leaf = PackedLeaf(0);
         let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             leaf = PackedLeaf(node::ptr(w));
-            self.test(ray, w, limit, false, view.splats, None, st)
+            self.test(ray, w, limit, (view.splats, Find::Nearest), st)
         })?;
         Some((hit, leaf))
     }
@@ -395,7 +405,7 @@ impl Accel {
             }
         };
         crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            self.test(ray, w, limit, true, view.splats, between, st)
+            self.test(ray, w, limit, (view.splats, Find::Any(between)), st)
         })
         .is_some()
     }
