@@ -78,15 +78,17 @@ pub fn splat_areas(
     splat_leaf: &[u32],
     samples: u32,
 ) -> (Vec<f32>, Vec<[f32; 4]>) {
-    let dups = Duplicates::new(splats, splat_leaf);
+    let runs = leaf_runs(splat_leaf);
+    let dups = Duplicates::new(splats, &runs);
     let mut ctx = AreaPass {
         frame,
         nodes,
         begin_end,
         splats,
-        splat_leaf,
+        runs,
         dups: &dups,
         disks: Disks::of_all(splats, &dups),
+        node_extents: Vec::new(),
         pattern: disk_pattern(samples.max(1)).collect(),
         dirs: {
             let angle = |k: usize| k as f32 * std::f32::consts::TAU / BORDER_DIRS as f32;
@@ -98,12 +100,13 @@ pub fn splat_areas(
     };
     let slabs = dups.spread(ctx.slabs());
     ctx.disks.set_slabs(&slabs);
-    let unclipped = dups.spread(ctx.run(&slabs, None));
+    ctx.node_extents = ctx.node_extents();
+    let unclipped = dups.spread(ctx.run(None));
     let borders = dups.spread(ctx.borders(&unclipped));
     // An interior splat's clipped pass is its unclipped one, sample for sample (its share
     // accepts every sample, and the cover counts never look at borders): only the border
     // splats run again.
-    let areas = dups.spread(ctx.run(&slabs, Some((&borders, &unclipped))));
+    let areas = dups.spread(ctx.run(Some((&borders, &unclipped))));
     let clips = borders
         .par_iter()
         .zip(splats)
@@ -162,7 +165,7 @@ struct Duplicates {
 }
 
 impl Duplicates {
-    fn new(splats: &[Splat], splat_leaf: &[u32]) -> Duplicates {
+    fn new(splats: &[Splat], runs: &[std::ops::Range<usize>]) -> Duplicates {
         let n = splats.len();
         let key = |s: &Splat| -> [u32; 8] {
             let b = |x: f32| x.to_bits();
@@ -177,9 +180,10 @@ impl Duplicates {
                 s.material,
             ]
         };
-        let groups: Vec<Vec<(u32, u32)>> = leaf_runs(splat_leaf)
-            .into_par_iter()
+        let groups: Vec<Vec<(u32, u32)>> = runs
+            .par_iter()
             .filter(|r| r.len() > 1)
+            .cloned()
             .map(|r| {
                 let mut idx: Vec<u32> = (r.start as u32..r.end as u32).collect();
                 idx.sort_by_key(|&i| (key(&splats[i as usize]), i));
@@ -243,11 +247,15 @@ struct AreaPass<'a> {
     nodes: &'a [u32],
     begin_end: &'a [u32],
     splats: &'a [Splat],
-    splat_leaf: &'a [u32],
+    /// The leaves' own ranges of the pool ([`leaf_runs`]).
+    runs: Vec<std::ops::Range<usize>>,
     dups: &'a Duplicates,
     /// Every splat's disk ([`Disks::of_all`]), so that a walk copies a leaf's own splats as
     /// one range of each array.
     disks: Disks,
+    /// Per node-pool slot, the largest disk extent below it ([`Self::node_extents`]), once the
+    /// slabs are set.
+    node_extents: Vec<f32>,
     pattern: Vec<(f32, f32)>,
     /// The border directions' cosines and sines (apart, so loops over them run in vector
     /// lanes).
@@ -324,10 +332,10 @@ impl AreaPass<'_> {
     /// representatives among the own splats of every leaf that holds a disk whose centre can
     /// lie within r_i + √(r_j² + t_j²) of a splat i ([`Self::near`]'s first test), found by a
     /// walk that prunes a node when its cell, widened by the largest such extent below it
-    /// (`extents`, [`Self::extents`]), misses the box of the splats' centres widened by their
+    /// ([`Self::node_extents`]), misses the box of the splats' centres widened by their
     /// largest radius. A large disk from afar is found however large; a fixed box (twice a
     /// splat's own reach) collected three times the candidates on a dense noisy scan.
-    fn candidates(&self, todo: impl Iterator<Item = usize>, extents: &[f32], sc: &mut Scratch) {
+    fn candidates(&self, todo: impl Iterator<Item = usize>, sc: &mut Scratch) {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut radius = 0.0f32;
         for i in todo {
@@ -345,7 +353,7 @@ impl AreaPass<'_> {
             (lo - origin) * self.frame.inv_size,
             (hi - origin) * self.frame.inv_size,
         );
-        let widen = |slot: u32| (radius + extents[slot as usize]) * self.frame.inv_size;
+        let widen = |slot: u32| (radius + self.node_extents[slot as usize]) * self.frame.inv_size;
         sc.stack.clear();
         sc.stack.push((0, Vec3::ZERO, 1.0));
         while let Some((slot, clo, size)) = sc.stack.pop() {
@@ -375,23 +383,20 @@ impl AreaPass<'_> {
         }
     }
 
-    /// Per node-pool slot, the largest √(r² + t²) (radius, slab) of the splats below it: how
-    /// far from its centre a disk there can cover a point.
-    fn extents(&self, slabs: &[f32]) -> Vec<f32> {
-        fn visit(pass: &AreaPass, slabs: &[f32], slot: u32, out: &mut [f32]) -> f32 {
+    /// Per node-pool slot, the largest extent √(r² + t²) (radius, slab: [`Disks::extent`]) of
+    /// the splats below it: how far from its centre a disk there can cover a point.
+    fn node_extents(&self) -> Vec<f32> {
+        fn visit(pass: &AreaPass, slot: u32, out: &mut [f32]) -> f32 {
             let w = pass.nodes[slot as usize];
             let e = if w & node::EMPTY != 0 {
                 0.0
             } else if w & node::LEAF != 0 {
                 let (own, _) = pass.leaf_list(w);
-                own.map(|j| {
-                    let (r, t) = (pass.splats[j as usize].radius, slabs[j as usize]);
-                    (r * r + t * t).sqrt()
-                })
-                .fold(0.0, f32::max)
+                let own = own.start as usize..own.end as usize;
+                pass.disks.extent[own].iter().copied().fold(0.0, f32::max)
             } else {
                 (0..8)
-                    .map(|k| visit(pass, slabs, node::ptr(w) + k, out))
+                    .map(|k| visit(pass, node::ptr(w) + k, out))
                     .fold(0.0, f32::max)
             };
             out[slot as usize] = e;
@@ -399,7 +404,7 @@ impl AreaPass<'_> {
         }
         let mut out = vec![0.0; self.nodes.len()];
         if !self.nodes.is_empty() {
-            visit(self, slabs, 0, &mut out);
+            visit(self, 0, &mut out);
         }
         out
     }
@@ -523,8 +528,9 @@ impl AreaPass<'_> {
     /// Every leaf a splat's box meets, the union meets, and the walk visits the leaves in the
     /// same order either way, so each neighbourhood is what a walk of its own would give.
     fn borders(&self, unclipped: &[f32]) -> Vec<Border> {
-        let runs = leaf_runs(self.splat_leaf);
-        runs.into_par_iter()
+        self.runs
+            .par_iter()
+            .cloned()
             .map_init(Scratch::default, |sc, run| {
                 self.neighbours_of_run(run.clone(), sc);
                 run.map(|i| {
@@ -603,8 +609,9 @@ impl AreaPass<'_> {
     /// with 2 mm of noise) half a radius misses a third of the neighbours: every sample seems
     /// covered by fewer disks than cover it, and the wall's splats stood for twice its area.
     fn slabs(&self) -> Vec<f32> {
-        leaf_runs(self.splat_leaf)
-            .into_par_iter()
+        self.runs
+            .par_iter()
+            .cloned()
             .map_init(Scratch::default, |sc, run| {
                 self.neighbours_of_run(run.clone(), sc);
                 run.map(|i| {
@@ -643,16 +650,16 @@ impl AreaPass<'_> {
 
     /// One partition-of-unity pass, leaf by leaf; `borders` clips the border splats' shares,
     /// and the interior splats take their area from the unclipped pass given with them.
-    fn run(&self, slabs: &[f32], borders: Option<(&[Border], &[f32])>) -> Vec<f32> {
-        let extents = self.extents(slabs);
+    fn run(&self, borders: Option<(&[Border], &[f32])>) -> Vec<f32> {
         let todo = |i: usize| {
             self.dups.is_rep(i as u32) && borders.is_none_or(|(b, _)| b[i] != Border::Interior)
         };
-        leaf_runs(self.splat_leaf)
-            .into_par_iter()
+        self.runs
+            .par_iter()
+            .cloned()
             .map_init(Scratch::default, |sc, run| {
                 if run.clone().any(todo) {
-                    self.candidates(run.clone().filter(|&i| todo(i)), &extents, sc);
+                    self.candidates(run.clone().filter(|&i| todo(i)), sc);
                 }
                 run.map(|i| {
                     if !todo(i) {
