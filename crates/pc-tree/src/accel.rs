@@ -106,8 +106,7 @@ pub struct Accel {
     slabs: bool,
     leaves: Vec<Leaf>,
     chunks: Vec<Chunk>,
-    /// Per chunk lane (`chunk · LANES + lane`).
-    /// Each lane's data-pool index (`u32::MAX` for padding).
+    /// Each chunk lane's data-pool index (at `chunk · LANES + lane`; `u32::MAX` for padding).
     cold: Vec<u32>,
 }
 
