@@ -12,18 +12,36 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::knn::Knn;
+use crate::lines::{self, Shape};
 use crate::ImportError;
 
-/// How estimated normals are oriented (PCA gives a direction only up to sign).
+/// How estimated normals are oriented (PCA gives a direction only up to sign). A sensor or
+/// stations also tell each point's ray, along which a scanner's range noise lies: the line
+/// rule (docs/import.md, "Line sampling") reads its neighbourhoods across the rays.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Orientation {
+pub enum Orientation<'a> {
     /// Every normal faces this point (the scanner position): `n · (sensor - p) >= 0`.
     Sensor(Vec3),
-    /// Left as PCA gives them (the caller orients them, e.g. per scan station).
+    /// Every normal faces the station its point was scanned from, `stations[of[i]]` (an index
+    /// past the list leaves the normal unoriented and the point without a ray).
+    Stations { stations: &'a [Vec3], of: &'a [u32] },
+    /// Left as PCA gives them (the caller orients them).
     Unoriented,
     /// Consistent orientation by propagation over the k-nearest-neighbour graph, outward at the
     /// extremes of each connected part; see [`estimate_normals`].
     Propagate,
+}
+
+impl Orientation<'_> {
+    /// The unit direction from point `i` at `p` to its scanner, where known.
+    fn ray(&self, i: usize, p: Vec3) -> Option<Vec3> {
+        let s = match *self {
+            Orientation::Sensor(s) => s,
+            Orientation::Stations { stations, of } => *stations.get(*of.get(i)? as usize)?,
+            Orientation::Unoriented | Orientation::Propagate => return None,
+        };
+        (s - p).try_normalize()
+    }
 }
 
 /// Neighbours per point kept for the orientation graph (memory: 4 bytes each per point).
@@ -127,6 +145,16 @@ fn estimate(
 ) -> (Vec<Vec3>, Vec<f32>) {
     match Distinct::of(positions) {
         Some(d) => {
+            // Each distinct position is scanned from its first copy's station.
+            let of_first: Vec<u32>;
+            let normals = match normals {
+                Some((fit, Orientation::Stations { stations, of })) => {
+                    of_first = d.first.iter().map(|&i| of[i as usize]).collect();
+                    let of = &of_first[..];
+                    Some((fit, Orientation::Stations { stations, of }))
+                }
+                other => other,
+            };
             let (n, r) = estimate_distinct(&d.points, normals, radii);
             (d.spread(&n), d.spread(&r))
         }
@@ -173,9 +201,20 @@ fn estimate_distinct(
             }
             None => 0.0,
         };
-        (fit, r)
+        // Neighbours along a line leave both estimates unsure (crate::lines).
+        // (With the radius not asked, kr is 0 and only the normal's shape counts.)
+        let shape = match normals {
+            Some(_) => {
+                let (kn, kr) = (kn.min(near.len()), kr.min(near.len()));
+                let ray = orient.and_then(|o| o.ray(i, positions[i]));
+                Shape::of(positions, i, &near[..kn], &near[..kr], fit.0.normal, ray)
+            }
+            None => Shape::Around,
+        };
+        (fit, (r, shape))
     };
-    let (fits, mut out_r, graph): (Vec<(Fit, f32)>, Vec<f32>, Vec<u32>) = if kg == 0 {
+    type Rows = (Vec<(Fit, f32)>, Vec<(f32, Shape)>, Vec<u32>);
+    let (fits, radius_rows, graph): Rows = if kg == 0 {
         let (f, r) = knn.map(kq, estimate_one).into_par_iter().unzip();
         (f, r, Vec::new())
     } else {
@@ -194,9 +233,16 @@ fn estimate_distinct(
         let (f, r) = rows.into_par_iter().map(|(f, r, _)| (f, r)).unzip();
         (f, r, graph)
     };
+    let (mut out_r, shapes): (Vec<f32>, Vec<Shape>) = radius_rows.into_par_iter().unzip();
     let mut out_n: Vec<Vec3> = fits.par_iter().map(|(f, _)| f.normal).collect();
     if let Some((fit, _)) = normals {
         widen(&knn, &mut out_n, &fits, fit.widen_above);
+    }
+    if shapes.iter().any(|&s| s != Shape::Around) {
+        let kth2: Vec<f32> = fits.par_iter().map(|&(_, d2)| d2).collect();
+        let radii = radii.map(|_| &mut out_r[..]);
+        let ray = |i: usize| orient.and_then(|o| o.ray(i, positions[i]));
+        lines::close(&knn, &shapes, &kth2, kn, ray, &mut out_n, radii);
     }
     match orient {
         Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
@@ -225,6 +271,17 @@ fn orient_normals(
                 .zip(positions.par_iter())
                 .for_each(|(nrm, p)| {
                     if nrm.dot(s - *p) < 0.0 {
+                        *nrm = -*nrm;
+                    }
+                });
+        }
+        Orientation::Stations { .. } => {
+            normals
+                .par_iter_mut()
+                .zip(positions.par_iter())
+                .enumerate()
+                .for_each(|(i, (nrm, &p))| {
+                    if orient.ray(i, p).is_some_and(|u| nrm.dot(u) < 0.0) {
                         *nrm = -*nrm;
                     }
                 });
@@ -275,6 +332,24 @@ fn check_normals(
         ));
     }
     check_input(path, positions, k, "normal")?;
+    if let Orientation::Stations { stations, of } = orient {
+        if of.len() != positions.len() {
+            return Err(ImportError::estimate(
+                path,
+                format!(
+                    "{} station indices for {} points",
+                    of.len(),
+                    positions.len()
+                ),
+            ));
+        }
+        if let Some(s) = stations.iter().find(|s| !s.is_finite()) {
+            return Err(ImportError::estimate(
+                path,
+                format!("station {s} is not finite"),
+            ));
+        }
+    }
     if let Orientation::Sensor(s) = orient {
         if !s.is_finite() {
             return Err(ImportError::estimate(
@@ -392,6 +467,8 @@ fn check_input(path: &Path, positions: &[Vec3], k: usize, what: &str) -> Result<
 /// avoids both; copies then get their position's normal and radius.
 struct Distinct {
     points: Vec<Vec3>,
+    /// The input index of each distinct position's first copy.
+    first: Vec<u32>,
     /// Index into `points` of each input point.
     of: Vec<u32>,
 }
@@ -420,16 +497,21 @@ impl Distinct {
             }
         }
         drop(sorted);
-        let mut points = Vec::new();
+        let (mut points, mut firsts) = (Vec::new(), Vec::new());
         let mut id = vec![0u32; positions.len()];
         for (i, &f) in first.iter().enumerate() {
             if f as usize == i {
                 id[i] = points.len() as u32;
                 points.push(positions[i]);
+                firsts.push(i as u32);
             }
         }
         let of = first.par_iter().map(|&f| id[f as usize]).collect();
-        Some(Distinct { points, of })
+        Some(Distinct {
+            points,
+            first: firsts,
+            of,
+        })
     }
 
     /// Per-point values from per-distinct-position ones (none from none: what was not asked).
@@ -446,9 +528,9 @@ impl Distinct {
 
 /// A plane fitted by PCA to a point and the points around it.
 #[derive(Clone, Copy, Debug)]
-struct Fit {
+pub(crate) struct Fit {
     /// The unit eigenvector of the smallest eigenvalue.
-    normal: Vec3,
+    pub(crate) normal: Vec3,
     /// The smallest eigenvalue of the covariance (per point): the variance across the plane.
     thin: f32,
     /// The standard error of the normal's tilt, radians ([`Fit::of_offsets`]).
@@ -476,7 +558,7 @@ impl Fit {
     }
 
     /// The plane through a point and others at these offsets from it.
-    fn of_offsets(offsets: impl Iterator<Item = DVec3> + Clone) -> Fit {
+    pub(crate) fn of_offsets(offsets: impl Iterator<Item = DVec3> + Clone) -> Fit {
         let m = (offsets.clone().count() + 1) as f64;
         let mean = offsets.clone().sum::<DVec3>() / m; // the point itself contributes 0
         let mut c = [[0f64; 3]; 3];
@@ -630,6 +712,28 @@ fn pooled_thin(fits: &[(Fit, f32)], i: usize, inside: &[(u32, f32)]) -> f32 {
 
 /// Fits read for [`pooled_thin`] at most, besides the point's own.
 const POOLED: usize = 32;
+
+/// The second moments of offsets from a point about the point itself (not about their mean),
+/// largest first, and their axes.
+pub(crate) fn principal_axes(offsets: impl Iterator<Item = DVec3>) -> ([f64; 3], [DVec3; 3]) {
+    let mut c = [[0f64; 3]; 3];
+    for d in offsets {
+        let d = d.to_array();
+        for r in 0..3 {
+            for s in 0..3 {
+                c[r][s] += d[r] * d[s];
+            }
+        }
+    }
+    let (vals, vecs) = sym_eigen3(c);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
+    let axis = |k: usize| DVec3::new(vecs[0][k], vecs[1][k], vecs[2][k]);
+    (
+        order.map(|k| vals[k]),
+        [axis(order[0]), axis(order[1]), axis(order[2])],
+    )
+}
 
 /// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (Numerical
 /// Recipes §11.1). Returns the eigenvalues and the matrix whose *columns* are the unit

@@ -12,6 +12,7 @@ pub mod estimate;
 pub mod knn;
 pub mod las;
 mod las_guard;
+mod lines;
 pub mod load;
 pub mod ply;
 pub mod ply_write;

@@ -308,17 +308,17 @@ fn model_normals(
         }
         Some(list) if !list.is_empty() => {
             let of = scanner_of_points(path, pts, list.len())?;
-            let (mut n, r) = estimate(Orientation::Unoriented)?;
             let stations: Vec<Vec3> = list.iter().map(|&s| local(DVec3::from(s))).collect();
-            face_stations(&mut n, &pts.positions, &stations, &of);
+            let (stations, of) = (&stations[..], &of[..]);
+            let (n, r) = estimate(Orientation::Stations { stations, of })?;
             return Ok((n, Oriented::Stations(list.len()), r));
         }
         _ => {}
     }
     if let Some(of) = &pts.station_of {
-        let (mut n, r) = estimate(Orientation::Unoriented)?;
         let stations: Vec<Vec3> = pts.stations.iter().map(|&s| local(s)).collect();
-        face_stations(&mut n, &pts.positions, &stations, of);
+        let (stations, of) = (&stations[..], &of[..]);
+        let (n, r) = estimate(Orientation::Stations { stations, of })?;
         return Ok((n, Oriented::Stations(pts.stations.len()), r));
     }
     if let Some(s) = cfg.config.import.sensor {
@@ -357,21 +357,6 @@ fn scanner_of_points(path: &Path, pts: &PointSet, count: usize) -> Result<Vec<u3
             }
         })
         .collect()
-}
-
-/// Flip each normal to face the station its point was scanned from.
-fn face_stations(normals: &mut [Vec3], positions: &[Vec3], stations: &[Vec3], of: &[u32]) {
-    use rayon::prelude::*;
-    normals
-        .par_iter_mut()
-        .zip(positions.par_iter().zip(of.par_iter()))
-        .for_each(|(n, (p, &s))| {
-            if let Some(s) = stations.get(s as usize) {
-                if n.dot(*s - *p) < 0.0 {
-                    *n = -*n;
-                }
-            }
-        });
 }
 
 /// The `[import]` cleaning options applied to one model's points.

@@ -353,7 +353,22 @@ fn one_neighbour_pass_gives_what_two_give() {
         ] {
             let (n, r) = estimate_normals_and_radii(&pts, kn, orient, kr);
             let (n1, r1) = (estimate_normals(&pts, kn, orient), estimate_radii(&pts, kr));
-            assert_eq!(r, r1, "radii, k {kn}/{kr}");
+            // With the normals at hand the line rule (docs/import.md, "Line sampling") also
+            // raises the radii of points whose nearest lie on a line of their tangent plane;
+            // a radius-only pass has no plane and leaves them. Nothing else differs.
+            let raised = r.iter().zip(&r1).filter(|(a, b)| a != b).count();
+            assert!(
+                r.iter().zip(&r1).all(|(a, b)| a >= b),
+                "radii, k {kn}/{kr}: the line rule only raises"
+            );
+            // (Random neighbours line up now and then, about 1 % of them, and take the spacing
+            // across their line: up to twice the spacing radius on this Poisson sampling.)
+            let most = r.iter().zip(&r1).map(|(a, b)| a / b).fold(1.0, f32::max);
+            assert!(
+                raised * 50 < r.len() && most < 2.5,
+                "radii, k {kn}/{kr}: {raised} of {} raised, up to {most}×",
+                r.len()
+            );
             let off = n
                 .iter()
                 .zip(&n1)
@@ -507,5 +522,174 @@ fn a_smooth_curved_surface_keeps_its_nearest_neighbour_fit() {
     assert_eq!(
         estimate_normals(&pts, NormalFit::new(16), sensor),
         estimate_normals(&pts, NormalFit::fixed(16), sensor)
+    );
+}
+
+/// Rings about a station's zenith on the plane z = 0: `gap` apart, `along` apart on each, the
+/// first at radius 0.05; the points with x above `cut` left out (a straight border).
+fn zenith_rings(along: f32, gap: f32, cut: f32) -> Vec<Vec3> {
+    let mut pts = Vec::new();
+    for k in 0..12 {
+        let rho = 0.05 + k as f32 * gap;
+        let count = (std::f32::consts::TAU * rho / along) as usize;
+        for j in 0..count {
+            let a = j as f32 * std::f32::consts::TAU / count as f32;
+            pts.push(Vec3::new(rho * a.cos(), rho * a.sin(), 0.0));
+        }
+    }
+    pts.retain(|p| p.x <= cut);
+    pts
+}
+
+#[test]
+fn ring_sampling_is_closed_up_to_its_border() {
+    // A terrestrial station's zenith: rings of constant elevation, dense along each ring and
+    // six spacings apart across them, cut by a straight border (a skylight's edge). The 8
+    // nearest lie on the point's own ring, so the spacing radius (2.4 spacings) leaves the
+    // rings apart; the line rule (docs/import.md, "Line sampling") must close every point
+    // between the rings and reach no further past the border than its share of the gap.
+    let (along, gap, cut) = (0.002f32, 0.012f32, 0.1f32);
+    let pts = zenith_rings(along, gap, cut);
+    let up = Orientation::Sensor(Vec3::new(0.0, 0.0, 1.0));
+    let (normals, radii) = estimate_normals_and_radii(&pts, 16, up, 8);
+    let tilted = normals.iter().filter(|n| n.z < 0.99).count();
+    assert_eq!(tilted, 0, "normals off the plane");
+    let spacing_radii = estimate_radii(&pts, 8);
+    let covered = |x: Vec3, radii: &[f32]| {
+        pts.iter()
+            .zip(radii)
+            .any(|(p, &r)| (x - *p).length_squared() <= r * r)
+    };
+    // Points between the second and the second-to-last ring, on a polar grid, a gap or more
+    // inside the border.
+    let (mut open, mut open_before, mut tried) = (0, 0, 0);
+    for k in 0..40 {
+        let rho = 0.05 + 2.0 * gap + k as f32 * (7.0 * gap / 40.0);
+        for j in 0..90 {
+            let a = j as f32 * std::f32::consts::TAU / 90.0 + 0.013;
+            let x = Vec3::new(rho * a.cos(), rho * a.sin(), 0.0);
+            if x.x > cut - gap {
+                continue;
+            }
+            tried += 1;
+            open += usize::from(!covered(x, &radii));
+            open_before += usize::from(!covered(x, &spacing_radii));
+        }
+    }
+    assert!(
+        open_before * 6 > tried,
+        "the spacing radii leave the rings apart: {open_before} of {tried} open"
+    );
+    assert_eq!(open, 0, "{open} of {tried} points between the rings open");
+    // Past the border, nothing farther than CLOSE_FACTOR (0.6) of a gap and a millimetre.
+    let reach = cut + 0.6 * gap + 0.001;
+    let past = pts
+        .iter()
+        .zip(&radii)
+        .map(|(p, &r)| p.x + r)
+        .fold(f32::MIN, f32::max);
+    assert!(past <= reach, "a disk reaches x = {past}, past {reach}");
+}
+
+#[test]
+fn an_even_sampling_keeps_its_spacing_radii() {
+    // Jittered grids, noiseless and with noise across the plane: the line rule finds no line
+    // (or, where a few neighbours happen to line up, a spacing across no wider than theirs).
+    for (jitter, noise) in [(0.0, 0.0), (0.25, 0.0), (0.25, 0.3)] {
+        let mut rng = rng();
+        let mut pts = jittered_grid(60, 0.01, jitter);
+        for p in &mut pts {
+            p.z += noise * 0.01 * gauss(&mut rng);
+        }
+        let up = Orientation::Sensor(Vec3::new(0.3, 0.3, 1.0));
+        let (_, radii) = estimate_normals_and_radii(&pts, 16, up, 8);
+        let spacing = estimate_radii(&pts, 8);
+        let raised = radii.iter().zip(&spacing).filter(|(a, b)| a > b).count();
+        assert!(
+            raised * 200 <= pts.len(),
+            "jitter {jitter}, noise {noise}: {raised} of {} radii raised",
+            pts.len()
+        );
+    }
+}
+
+#[test]
+fn noisy_zenith_rings_keep_their_plane_across_the_ray() {
+    // The rings above a station 2.5 m below the plane, each point moved along its ray by range
+    // noise four times the spacing along a ring: the 16 nearest lie on one ring and spread
+    // along the ray as much as along the ring, so their plane stands on edge to the scanner.
+    // Read across the ray (the sensor tells it) the neighbourhood is a line, and the fit over
+    // the neighbouring rings finds the plane (docs/import.md, "Line sampling").
+    let sensor = Vec3::new(0.0, 0.0, -2.5);
+    let mut rng = rng();
+    let pts: Vec<Vec3> = zenith_rings(0.0005, 0.012, f32::INFINITY)
+        .into_iter()
+        .map(|p| p + (sensor - p).normalize() * 0.002 * gauss(&mut rng))
+        .collect();
+    let tilted = |normals: &[Vec3]| {
+        normals
+            .iter()
+            .filter(|n| n.z.abs() < 10f32.to_radians().cos())
+            .count()
+    };
+    let (normals, radii) = estimate_normals_and_radii(&pts, 16, Orientation::Sensor(sensor), 8);
+    let (blind, _) = estimate_normals_and_radii(&pts, 16, Orientation::Unoriented, 8);
+    assert!(
+        tilted(&blind) * 4 > pts.len(),
+        "without the ray {} of {} normals tilted past 10°",
+        tilted(&blind),
+        pts.len()
+    );
+    assert!(
+        tilted(&normals) * 50 < pts.len(),
+        "with the ray {} of {} normals tilted past 10°",
+        tilted(&normals),
+        pts.len()
+    );
+    assert!(
+        normals
+            .iter()
+            .zip(&pts)
+            .all(|(n, p)| n.dot(sensor - *p) >= 0.0),
+        "normals face the sensor"
+    );
+    let closing = radii.iter().filter(|&&r| r >= 0.5 * 0.012).count();
+    assert!(
+        closing * 10 > pts.len() * 9,
+        "{closing} of {} radii close the rings",
+        pts.len()
+    );
+}
+
+#[test]
+fn each_normal_faces_its_own_station() {
+    // A floor scanned from above (station 0) and from below (station 1, through a grating):
+    // each point's normal faces the station that saw it; a third index names no station and
+    // leaves its normal as the fit gives it, unit length all the same.
+    let pts = jittered_grid(30, 0.01, 0.2);
+    let stations = [Vec3::new(0.1, 0.1, 2.0), Vec3::new(0.2, 0.1, -2.0)];
+    let of: Vec<u32> = (0..pts.len() as u32).map(|i| i % 3).collect();
+    let orient = Orientation::Stations {
+        stations: &stations,
+        of: &of,
+    };
+    let normals = try_estimate_normals(Path::new("scan.las"), &pts, 16, orient).unwrap();
+    for ((n, &s), p) in normals.iter().zip(&of).zip(&pts) {
+        assert!((n.length() - 1.0).abs() < 1e-5);
+        if let Some(st) = stations.get(s as usize) {
+            assert!(n.dot(*st - *p) > 0.0, "point {p} of station {s}: {n}");
+        }
+    }
+    let short = &of[..5];
+    let orient = Orientation::Stations {
+        stations: &stations,
+        of: short,
+    };
+    let err = try_estimate_normals(Path::new("scan.las"), &pts, 16, orient)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("scan.las") && err.contains("5 station indices for 900 points"),
+        "{err}"
     );
 }
