@@ -11,6 +11,7 @@ use std::path::Path;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
+use crate::edge_on;
 use crate::knn::Knn;
 use crate::lines::{self, Shape};
 use crate::ImportError;
@@ -238,14 +239,20 @@ fn estimate_distinct(
     if let Some((fit, _)) = normals {
         widen(&knn, &mut out_n, &fits, fit.widen_above);
     }
+    let kth2: Vec<f32> = match normals {
+        Some(_) => fits.par_iter().map(|&(_, d2)| d2).collect(),
+        None => Vec::new(),
+    };
+    let ray = |i: usize| orient.and_then(|o| o.ray(i, positions[i]));
     if shapes.iter().any(|&s| s != Shape::Around) {
-        let kth2: Vec<f32> = fits.par_iter().map(|&(_, d2)| d2).collect();
         let radii = radii.map(|_| &mut out_r[..]);
-        let ray = |i: usize| orient.and_then(|o| o.ray(i, positions[i]));
         lines::close(&knn, &shapes, &kth2, kn, ray, &mut out_n, radii);
     }
     match orient {
-        Some(orient) => orient_normals(positions, &mut out_n, orient, &graph, kg),
+        Some(orient) => {
+            orient_normals(positions, &mut out_n, orient, &graph, kg);
+            edge_on::settle(&knn, &mut out_n, &kth2, ray);
+        }
         None => out_n = Vec::new(),
     }
     match radii.is_some() {

@@ -7,6 +7,7 @@
 
 pub mod clean;
 pub mod e57;
+mod edge_on;
 pub mod error;
 pub mod estimate;
 pub mod knn;
