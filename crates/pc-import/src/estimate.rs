@@ -622,6 +622,13 @@ const WIDEN_RADIUS: (f32, f32) = (2.0, 4.0);
 /// 3, median 1.6 (docs/import.md, "Noise: wider neighbourhoods"); the crease test bounds it
 /// from above.
 const WIDEN_FLAT: f32 = 2.5;
+/// A wider fit is also kept where it is at most this many times as thick (in variance) as the
+/// same ball at half its radius: range noise does not grow with the radius. Where the noise is
+/// deeper than the k nearest are wide (the 20M hall scan's zeniths: 2.5 mm of noise, the 16
+/// nearest within 4.6 mm), the narrower fits are thinner than the noise by chance and the
+/// test against their noise refused every wider fit (3.7 times their variance at 4 k-th
+/// distances, 1.3 times the half ball's).
+const WIDEN_GROWTH: f32 = 2.0;
 /// Fits whose own tilt error is below this share of the tolerance are taken as they are.
 const WIDEN_LOOK: f32 = 0.35;
 
@@ -673,13 +680,24 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
         // spanning the cloud.
         let cap = 2 * (most as usize) * (fits[0].0.count as usize).max(1);
         let wider = knn.map_within(&reach2, cap, |i, inside, offsets| {
-            let offsets = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
-            (Fit::of_offsets(offsets), pooled_thin(fits, i, inside))
+            let all = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
+            // The same ball at half the radius, for the growth test.
+            let quarter = reach2[i] / 4.0;
+            let half = all
+                .clone()
+                .zip(inside)
+                .filter(|&(_, &(_, d2))| d2 <= quarter)
+                .map(|(o, _)| o);
+            let (wide, half) = (Fit::of_offsets(all), Fit::of_offsets(half));
+            // Range noise does not thicken a fit as its ball grows; a crease or a curve does
+            // (4 and 16 times the variance for twice the radius).
+            let grows = half.count < 2 * fits[i].0.count || wide.thin > WIDEN_GROWTH * half.thin;
+            (wide, pooled_thin(fits, i, inside), grows)
         });
         (&mut *normals, fits, &mut reach2, &wider)
             .into_par_iter()
             .for_each(|(n, &(fit, d2), r2, wider)| {
-                let Some((f, noise)) = *wider else {
+                let Some((f, noise, grows)) = *wider else {
                     *r2 = 0.0; // given up (or never asked): not asked again
                     return;
                 };
@@ -690,7 +708,7 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
                 };
                 if error <= above || f.count <= fit.count {
                     *r2 = 0.0;
-                } else if f.thin <= WIDEN_FLAT * noise {
+                } else if f.thin <= WIDEN_FLAT * noise || !grows {
                     *n = f.normal;
                     *r2 = 0.0;
                 } else {

@@ -756,3 +756,35 @@ fn a_column_seen_edge_on_keeps_its_normals_outward() {
         &inward[..inward.len().min(4)]
     );
 }
+
+#[test]
+fn noise_deeper_than_the_nearest_are_wide_is_widened_through() {
+    // A dense face under range noise deeper than its 16 nearest are wide (a station's zenith
+    // on a 20M-point scan: 2.5 mm of noise, the 16 nearest within 4.6 mm). The nearest fit a
+    // blob, thinner than the noise by chance, so the noise pooled from them refuses every
+    // wider fit; the wider fit does not thicken from half its radius to its whole, as a
+    // crease would, and is kept.
+    // Scanned far denser than the noise, then merged (at 3.5 mm, which leaves the 16 nearest
+    // within about 4.6 mm, as on the scan) the way a scan's import merges it:
+    // what is left is spread evenly through the noise's depth.
+    let dense = noisy_face(400, 0.0005, 0.0025, Vec3::ZERO, [Vec3::X, Vec3::Y, Vec3::Z]);
+    let keep = pc_import::clean::merge_duplicates(&dense, 0.0035);
+    let pts: Vec<Vec3> = dense
+        .iter()
+        .zip(&keep)
+        .filter(|(_, &k)| k)
+        .map(|(p, _)| *p)
+        .collect();
+    let normals = estimate_normals(&pts, 16, Orientation::Sensor(Vec3::new(0.1, 0.1, 2.0)));
+    let mut tilt: Vec<f32> = normals
+        .iter()
+        .map(|n| n.z.clamp(-1.0, 1.0).acos().to_degrees())
+        .collect();
+    tilt.sort_by(f32::total_cmp);
+    let (median, p90) = (tilt[tilt.len() / 2], tilt[tilt.len() * 9 / 10]);
+    assert!(
+        median < 3.0 && p90 < 8.0,
+        "{} points, tilts: median {median}°, 90th percentile {p90}°",
+        pts.len()
+    );
+}
