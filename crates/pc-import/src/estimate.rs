@@ -251,7 +251,9 @@ fn estimate_distinct(
     match orient {
         Some(orient) => {
             orient_normals(positions, &mut out_n, orient, &graph, kg);
-            edge_on::settle(&knn, &mut out_n, &kth2, ray);
+            if let Orientation::Sensor(_) | Orientation::Stations { .. } = orient {
+                edge_on::settle(&knn, &mut out_n, &kth2, ray);
+            }
         }
         None => out_n = Vec::new(),
     }
@@ -272,17 +274,7 @@ fn orient_normals(
     kg: usize,
 ) {
     match orient {
-        Orientation::Sensor(s) => {
-            normals
-                .par_iter_mut()
-                .zip(positions.par_iter())
-                .for_each(|(nrm, p)| {
-                    if nrm.dot(s - *p) < 0.0 {
-                        *nrm = -*nrm;
-                    }
-                });
-        }
-        Orientation::Stations { .. } => {
+        Orientation::Sensor(_) | Orientation::Stations { .. } => {
             normals
                 .par_iter_mut()
                 .zip(positions.par_iter())
