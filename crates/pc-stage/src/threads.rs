@@ -8,6 +8,13 @@
 //! rayon's global pool can be built once: a build that fails leaves it failed for good. So the
 //! count is found first with plain threads that start and end at once, and only a count the
 //! system granted goes to rayon.
+//!
+//! Each worker also takes, before any work, the thread-local that rayon's work stealing first
+//! touches (crossbeam-epoch's handle). glibc allocates the record of a thread-local's
+//! destructor with its own `calloc`, outside Rust's allocator, and ends the process with
+//! `Fatal glibc error: failed to register TLS destructor: out of memory` where that fails: a
+//! worker that first looked for work once the stage had used its memory up died so instead of
+//! the stage's `out of memory` error (the same e2e test, now and then, on a loaded machine).
 
 use std::sync::mpsc;
 
@@ -27,9 +34,16 @@ pub fn start() -> anyhow::Result<usize> {
     }
     match rayon::ThreadPoolBuilder::new()
         .num_threads(want)
+        .start_handler(|_| {
+            crossbeam_epoch::is_pinned();
+        })
         .build_global()
     {
-        Ok(()) => Ok(want),
+        Ok(()) => {
+            // Every worker has run its start handler once it has run this.
+            rayon::broadcast(|_| ());
+            Ok(want)
+        }
         // Started already (rayon was used before): the pool is there.
         Err(e) if e.to_string().contains("already") => Ok(rayon::current_num_threads()),
         Err(e) => Err(refused(&e)),
