@@ -310,22 +310,45 @@ impl Artifact {
             .map_err(|e| missing_input(e, kind))
     }
 
+    /// Like [`open_input`](Artifact::open_input) for a reader of some of the artifact's
+    /// sections: the data of the sections `names` is checked (every section's bounds,
+    /// alignment and layout still are), and only they are handed out (another is
+    /// [`ArtifactError::MissingSection`]), so no unchecked byte is ever cast. The renderer
+    /// reads the photon map's photons, not its specular links: 26 of its 172 MB at 1M splats.
+    pub fn open_input_sections(
+        path: impl AsRef<Path>,
+        kind: ArtifactKind,
+        names: &[&str],
+    ) -> Result<Artifact, ArtifactError> {
+        let path = path.as_ref();
+        let (map, mut validated) = Artifact::map_checked(path, Some(kind), Sections::Only(names))
+            .map_err(|e| missing_input(e, kind))?;
+        validated
+            .sections
+            .retain(|s| names.contains(&s.name.as_str()));
+        Ok(Artifact::from_validated(path, map, validated))
+    }
+
     fn open_inner(path: &Path, expected: Option<ArtifactKind>) -> Result<Artifact, ArtifactError> {
         let (map, validated) = Artifact::map_checked(path, expected, Sections::Checked)?;
-        Ok(Artifact {
+        Ok(Artifact::from_validated(path, map, validated))
+    }
+
+    fn from_validated(path: &Path, map: Mmap, validated: Validated) -> Artifact {
+        Artifact {
             path: path.to_owned(),
             map,
             header: validated.header,
             sections: validated.sections,
             metadata: validated.metadata,
-        })
+        }
     }
 
     /// Maps the file at `path` and validates it (the sections' checksums as `sections` says).
     fn map_checked(
         path: &Path,
         expected: Option<ArtifactKind>,
-        sections: Sections,
+        sections: Sections<'_>,
     ) -> Result<(Mmap, Validated), ArtifactError> {
         let io_err = |e| ArtifactError::io(path, e);
         let file = File::open(path).map_err(io_err)?;
@@ -499,21 +522,34 @@ fn missing_input(e: ArtifactError, kind: ArtifactKind) -> ArtifactError {
 
 /// Whether [`validate`] checks the sections' checksums.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Sections {
+enum Sections<'n> {
     /// Every section's data against its checksum: an artifact whose sections are handed out.
     Checked,
     /// Not the data (its bounds, alignment and layout still): only the key is handed out
     /// ([`Artifact::input_key`]).
     Unread,
+    /// The data of the sections named (the others' as [`Sections::Unread`]).
+    Only(&'n [&'n str]),
 }
 
-/// Checks every byte of `bytes` (the whole file; the sections' data only when `sections` is
-/// [`Sections::Checked`]) before anything is cast.
+impl Sections<'_> {
+    /// Whether the data of the section `name` is checked.
+    fn checks(&self, name: &str) -> bool {
+        match self {
+            Sections::Checked => true,
+            Sections::Unread => false,
+            Sections::Only(names) => names.contains(&name),
+        }
+    }
+}
+
+/// Checks every byte of `bytes` (the whole file; the sections' data as `sections` says) before
+/// anything is cast.
 fn validate(
     path: &Path,
     bytes: &[u8],
     expected_kind: Option<ArtifactKind>,
-    sections: Sections,
+    sections: Sections<'_>,
 ) -> Result<Validated, ArtifactError> {
     let v = Checker {
         path,
@@ -555,7 +591,7 @@ fn validate(
 struct Checker<'a> {
     path: &'a Path,
     bytes: &'a [u8],
-    sections: Sections,
+    sections: Sections<'a>,
 }
 
 impl Checker<'_> {
@@ -745,7 +781,7 @@ impl Checker<'_> {
                 msg: format!("section `{name}` has a nonzero reserved field"),
             });
         }
-        if self.sections == Sections::Checked {
+        if self.sections.checks(&name) {
             self.checksum(&name, &self.bytes[range], entry.checksum)?;
         }
         Ok(SectionInfo {

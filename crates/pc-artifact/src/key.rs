@@ -231,24 +231,6 @@ impl KeyHasher {
     }
 }
 
-/// Identity of the running program: the xxh3-128 of its executable file, computed once per
-/// process. Stage keys include it, so a rebuilt stage (a changed algorithm) never reuses an
-/// artifact made by another build. Falls back to the package version when the executable cannot
-/// be read.
-pub fn build_id() -> Key {
-    static ID: std::sync::OnceLock<Key> = std::sync::OnceLock::new();
-    *ID.get_or_init(|| {
-        let mut h = KeyHasher::new();
-        match std::env::current_exe().map(|p| h.update_file(&p).map(|_| ())) {
-            Ok(Ok(())) => {}
-            _ => {
-                h.update_str(env!("CARGO_PKG_VERSION"));
-            }
-        }
-        h.finish()
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

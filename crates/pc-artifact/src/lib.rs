@@ -7,6 +7,7 @@
 //! [`container`].
 
 pub mod atomic;
+pub mod build_id;
 pub mod container;
 pub mod error;
 pub mod key;
@@ -22,12 +23,13 @@ pub mod vmap;
 pub mod writer;
 
 pub use atomic::write_file_atomically;
+pub use build_id::build_id;
 pub use container::{
     is_valid_section_name, Artifact, HeaderInfo, SectionInfo, FORMAT_VERSION, HEADER_SIZE, MAGIC,
     MAX_SECTION_NAME, MAX_STAGE_NAME, MAX_STAGE_VERSION, SECTION_ALIGN, TABLE_ENTRY_SIZE,
 };
 pub use error::{ArtifactError, METADATA_REGION, TABLE_REGION};
-pub use key::{build_id, Key, KeyHasher};
+pub use key::{Key, KeyHasher};
 pub use kind::ArtifactKind;
 pub use light::PointLight;
 pub use writer::ArtifactWriter;

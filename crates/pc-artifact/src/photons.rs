@@ -88,10 +88,41 @@ pub struct PhotonsView<'a> {
 
 impl<'a> PhotonsView<'a> {
     fn sections(a: &'a Artifact) -> Result<PhotonsView<'a>, ArtifactError> {
+        let map = PhotonMapView::sections(a)?;
         Ok(PhotonsView {
+            photons: map.photons,
+            deposit: map.deposit,
+            specular: SpecularView::sections(a)?,
+        })
+    }
+
+    /// The photons' checks ([`PhotonMapView::check`]) and the specular links'.
+    fn check(&self) -> Result<(), String> {
+        let map = PhotonMapView {
+            photons: self.photons,
+            deposit: self.deposit,
+        };
+        map.check()?;
+        self.specular.check(self.deposit.len())
+    }
+}
+
+/// The photons of a photon map without its specular links, checked ([`PhotonMapFile`]).
+#[derive(Clone, Copy)]
+pub struct PhotonMapView<'a> {
+    pub photons: &'a [Photon],
+    /// Per data-pool splat: the caustic power its photons carry (W, RGB).
+    pub deposit: &'a [[f32; 3]],
+}
+
+impl<'a> PhotonMapView<'a> {
+    /// The sections it reads.
+    const SECTIONS: [&'static str; 2] = [sections::PHOTONS, sections::DEPOSIT];
+
+    fn sections(a: &'a Artifact) -> Result<PhotonMapView<'a>, ArtifactError> {
+        Ok(PhotonMapView {
             photons: a.section(sections::PHOTONS)?,
             deposit: a.section(sections::DEPOSIT)?,
-            specular: SpecularView::sections(a)?,
         })
     }
 
@@ -126,7 +157,7 @@ impl<'a> PhotonsView<'a> {
                 self.deposit[j], sum[j]
             ));
         }
-        self.specular.check(splats)
+        Ok(())
     }
 }
 
@@ -139,21 +170,7 @@ impl Checked<PhotonsMeta> {
     /// deposit of another size, is [`ArtifactError::Stale`] (rerun pc-caustics).
     pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<PhotonsFile, ArtifactError> {
         let f = PhotonsFile::from_artifact(Artifact::open_input(path, ArtifactKind::Photons)?)?;
-        let stale = |why: String| f.art.stale(why, "pc-caustics");
-        if f.meta.octree_key != octree.key.to_string() {
-            return Err(stale(format!(
-                "it was traced on another octree than {}",
-                octree.path.display()
-            )));
-        }
-        let deposits = f.view().deposit.len();
-        if deposits != octree.splats {
-            return Err(stale(format!(
-                "its deposit holds {deposits} splats, the octree {} has {}",
-                octree.path.display(),
-                octree.splats
-            )));
-        }
+        fresh_for(&f.art, &f.meta, f.view().deposit.len(), octree)?;
         Ok(f)
     }
 
@@ -177,6 +194,69 @@ impl Checked<PhotonsMeta> {
     pub fn view(&self) -> PhotonsView<'_> {
         PhotonsView::sections(&self.art)
             .expect("the sections were checked when the file was opened")
+    }
+}
+
+/// The checks of every reader against the octree: traced on another octree, or a deposit of
+/// another size than its splats, is [`ArtifactError::Stale`] (rerun pc-caustics).
+fn fresh_for(
+    art: &Artifact,
+    meta: &PhotonsMeta,
+    deposits: usize,
+    octree: &OctreeId,
+) -> Result<(), ArtifactError> {
+    let stale = |why: String| art.stale(why, "pc-caustics");
+    if meta.octree_key != octree.key.to_string() {
+        return Err(stale(format!(
+            "it was traced on another octree than {}",
+            octree.path.display()
+        )));
+    }
+    if deposits != octree.splats {
+        return Err(stale(format!(
+            "its deposit holds {deposits} splats, the octree {} has {}",
+            octree.path.display(),
+            octree.splats
+        )));
+    }
+    Ok(())
+}
+
+/// A photon map opened for its photons alone (the renderer, pc-bake): the photon and deposit
+/// sections are checked as [`PhotonsFile`] checks them and handed out; the specular links
+/// (which only pc-fmm reads, 85 % of the file at 1M splats) are neither checked nor readable.
+pub struct PhotonMapFile {
+    art: Artifact,
+    meta: PhotonsMeta,
+}
+
+impl PhotonMapFile {
+    /// Open the photons of the photon map at `path` for the octree `octree` (stale as
+    /// [`PhotonsFile::open`] says).
+    pub fn open(path: impl AsRef<Path>, octree: &OctreeId) -> Result<PhotonMapFile, ArtifactError> {
+        let art =
+            Artifact::open_input_sections(path, ArtifactKind::Photons, &PhotonMapView::SECTIONS)?;
+        let meta: PhotonsMeta = art.metadata()?;
+        let view = PhotonMapView::sections(&art)?;
+        view.check().map_err(|m| art.invalid(m))?;
+        fresh_for(&art, &meta, view.deposit.len(), octree)?;
+        Ok(PhotonMapFile { art, meta })
+    }
+
+    /// The checked photons.
+    pub fn view(&self) -> PhotonMapView<'_> {
+        PhotonMapView::sections(&self.art)
+            .expect("the sections were checked when the file was opened")
+    }
+
+    /// The decoded metadata.
+    pub fn meta(&self) -> &PhotonsMeta {
+        &self.meta
+    }
+
+    /// The key in the header.
+    pub fn key(&self) -> crate::Key {
+        self.art.key()
     }
 }
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 use pc_artifact::octree::OctreeFile;
-use pc_artifact::photons::PhotonsFile;
+use pc_artifact::photons::PhotonMapFile;
 use pc_artifact::radiosity::RadiosityFile;
 use pc_artifact::{Artifact, ArtifactKind, Key, KeyHasher};
 use pc_config::LoadedConfig;
@@ -76,7 +76,7 @@ impl BakeStage {
         let materials = self.cfg.materials_for(&octree)?;
         let radiosity = RadiosityFile::open(&self.radiosity, &octree.id())?;
         let photons = match self.photons.wanted() {
-            true => Some(PhotonsFile::open(self.photons.path(), &octree.id())?),
+            true => Some(PhotonMapFile::open(self.photons.path(), &octree.id())?),
             false => None,
         };
         let key = key_of(

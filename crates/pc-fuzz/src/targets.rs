@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use pc_artifact::octree::{OctreeFile, OctreeView};
-use pc_artifact::photons::PhotonsFile;
+use pc_artifact::photons::{PhotonMapFile, PhotonMapView, PhotonsFile};
 use pc_artifact::radiosity::RadiosityFile;
 use pc_artifact::vmap::{VmapFile, VmapView};
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter};
@@ -194,7 +194,13 @@ fn use_artifact(a: Artifact) -> bool {
             .map(|f| use_vmap(&f.view(), None))
             .is_ok(),
         ArtifactKind::Photons => PhotonsFile::from_artifact(a)
-            .map(|f| use_photons(&f))
+            .map(|f| {
+                let v = f.view();
+                use_photons(PhotonMapView {
+                    photons: v.photons,
+                    deposit: v.deposit,
+                })
+            })
             .is_ok(),
         ArtifactKind::Radiosity => RadiosityFile::from_artifact(a)
             .map(|f| use_radiosity(&f))
@@ -258,9 +264,9 @@ fn use_vmap(v: &VmapView, octree: Option<&OctreeView>) {
     }
 }
 
-/// What the renderer does with a photon map: its kd-tree built and queried (both estimates).
-fn use_photons(f: &PhotonsFile) {
-    let v = f.view();
+/// What the renderer does with a photon map (read without its specular links): its grid and
+/// kd-tree built and queried (both estimates).
+fn use_photons(v: PhotonMapView) {
     for k in [0, 8] {
         let c = pc_raytrace::caustic::Caustics::new(v.photons, 0.05, k);
         for p in v.photons.iter().take(8) {
@@ -322,9 +328,16 @@ pub fn patched(kind: Kind, data: &[u8]) -> bool {
                 }
                 true
             }
-            Kind::Photons => PhotonsFile::open(path, &octree.id())
-                .map(|f| use_photons(&f))
-                .is_ok(),
+            Kind::Photons => {
+                let map = PhotonMapFile::open(path, &octree.id()).map(|f| use_photons(f.view()));
+                let whole = PhotonsFile::open(path, &octree.id());
+                // The renderer's reader checks a part of what pc-fmm's checks.
+                assert!(
+                    whole.is_err() || map.is_ok(),
+                    "a photon map accepted whole is accepted for its photons"
+                );
+                whole.is_ok()
+            }
             Kind::Radiosity => RadiosityFile::open(path, &octree.id())
                 .map(|f| {
                     assert_eq!(f.view().radiance.len(), octree.view().splats.len());

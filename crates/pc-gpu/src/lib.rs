@@ -48,10 +48,26 @@ impl GpuContext {
     /// Find an adapter (hardware first, then any software one) and open a device with the
     /// adapter's own limits, so large scenes fit.
     pub fn new() -> Result<GpuContext, GpuError> {
+        let adapter = GpuContext::adapter()?;
+        GpuContext::open(adapter)
+    }
+
+    /// A hardware adapter's context, or None where the adapter found is a software rasterizer
+    /// (its device is not opened: on a host without a GPU, opening llvmpipe's device was most
+    /// of the 0.1 s that `auto` spent before each stage's CPU work), or there is no adapter.
+    pub fn hardware() -> Option<GpuContext> {
+        let adapter = GpuContext::adapter().ok()?;
+        if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+            return None;
+        }
+        GpuContext::open(adapter).ok()
+    }
+
+    /// The adapter: hardware first, then any software one.
+    fn adapter() -> Result<wgpu::Adapter, GpuError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let mut last_err = String::from("no adapter");
-        let mut adapter = None;
         for fallback in [false, true] {
             let opts = wgpu::RequestAdapterOptions {
                 power_preference: wgpu::PowerPreference::HighPerformance,
@@ -60,14 +76,15 @@ impl GpuContext {
                 ..Default::default()
             };
             match pollster::block_on(instance.request_adapter(&opts)) {
-                Ok(a) => {
-                    adapter = Some(a);
-                    break;
-                }
+                Ok(a) => return Ok(a),
                 Err(e) => last_err = e.to_string(),
             }
         }
-        let adapter = adapter.ok_or(GpuError::NoAdapter(last_err))?;
+        Err(GpuError::NoAdapter(last_err))
+    }
+
+    /// A device on `adapter` with the adapter's own limits.
+    fn open(adapter: wgpu::Adapter) -> Result<GpuContext, GpuError> {
         let info = adapter.get_info();
         let desc = wgpu::DeviceDescriptor {
             label: Some("pcgi"),

@@ -34,7 +34,7 @@ pub fn gpu_for(backend: Backend, work: Work) -> Result<Option<GpuContext>, GpuEr
         Backend::Cpu => Ok(None),
         Backend::Gpu => GpuContext::new().map(Some),
         Backend::Auto if !auto_takes_gpu(work, rayon::current_num_threads()) => Ok(None),
-        Backend::Auto => Ok(GpuContext::new().ok().filter(|g| !g.is_software())),
+        Backend::Auto => Ok(GpuContext::hardware()),
     }
 }
 

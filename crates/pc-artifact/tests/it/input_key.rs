@@ -74,3 +74,43 @@ fn a_missing_input_names_the_stage_and_a_wrong_kind_is_refused() {
     let err = Artifact::input_key(&path, ArtifactKind::Vmap).unwrap_err();
     assert!(matches!(err, ArtifactError::WrongKind { .. }), "{err}");
 }
+
+/// `Artifact::open_input_sections`: the named sections' data is checked and handed out, the
+/// others are neither (a reader of a photon map's photons skips its specular links).
+#[test]
+fn an_open_of_some_sections_checks_and_hands_out_only_them() {
+    let (dir, path) = sample();
+    let art = Artifact::open(&path).unwrap();
+    let at = art.section_info("ids").unwrap().offset as usize;
+    drop(art);
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[at] ^= 0x40;
+    let bad = dir.path().join("bad.octree");
+    std::fs::write(&bad, &bytes).unwrap();
+    // A flipped byte in a section not read is not this reader's error...
+    let some = Artifact::open_input_sections(&bad, ArtifactKind::Octree, &["points"]).unwrap();
+    assert_eq!(some.section::<[f32; 4]>("points").unwrap(), points());
+    assert_eq!(some.key(), crate::common::key());
+    // ...and that section is not handed out.
+    match some.section::<u16>("ids").unwrap_err() {
+        ArtifactError::MissingSection { section, .. } => assert_eq!(section, "ids"),
+        other => panic!("expected a missing section, got {other}"),
+    }
+    // In a section read, it is.
+    match Artifact::open_input_sections(&bad, ArtifactKind::Octree, &["points", "ids"]).unwrap_err()
+    {
+        ArtifactError::Checksum { section, path, .. } => {
+            assert_eq!(section, "ids");
+            assert_eq!(path, bad);
+        }
+        other => panic!("expected a checksum error, got {other}"),
+    }
+    // The layout is checked whole: a truncated file is refused whatever is read.
+    std::fs::write(&bad, &bytes[..bytes.len() - 1]).unwrap();
+    let err = Artifact::open_input_sections(&bad, ArtifactKind::Octree, &["points"]).unwrap_err();
+    assert!(matches!(err, ArtifactError::Truncated { .. }), "{err}");
+    // A missing file names the stage that makes it.
+    let missing = dir.path().join("nothing.pcgi");
+    let err = Artifact::open_input_sections(&missing, ArtifactKind::Photons, &[]).unwrap_err();
+    assert!(matches!(err, ArtifactError::MissingInput { .. }), "{err}");
+}

@@ -10,7 +10,7 @@ use clap::Parser;
 use glam::Vec3;
 use pc_artifact::octree::tangent_frame;
 use pc_artifact::octree::OctreeFile;
-use pc_artifact::photons::PhotonsFile;
+use pc_artifact::photons::PhotonMapFile;
 use pc_raytrace::camera::Camera;
 use pc_raytrace::sample::rand;
 use pc_tree::{OctreeView, Ray, TraversalStats};
@@ -328,7 +328,7 @@ fn caustic_lookups(
     use pc_artifact::octree::class;
     use pc_raytrace::caustic::PhotonGrid;
     let path = cfg.photons_path();
-    let pa = PhotonsFile::open(&path, &art.id())?;
+    let pa = PhotonMapFile::open(&path, &art.id())?;
     let rt = &cfg.config.raytrace;
     let radius = pc_raytrace::stage::caustic_radius(rt, view);
     let pv = pa.view();
