@@ -12,6 +12,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::edge_on;
+use crate::eigen::{least_eigen, sym_eigen3};
 use crate::knn::Knn;
 use crate::lines::{self, Shape};
 use crate::ImportError;
@@ -576,18 +577,20 @@ impl Fit {
         c[1][0] = c[0][1];
         c[2][0] = c[0][2];
         c[2][1] = c[1][2];
-        let (vals, vecs) = sym_eigen3(c);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| vals[a].total_cmp(&vals[b]));
-        let best = order[0];
-        let v = DVec3::new(vecs[0][best], vecs[1][best], vecs[2][best]);
+        let (vals, v) = least_eigen(c).unwrap_or_else(|| {
+            let (vals, vecs) = sym_eigen3(c);
+            let mut order = [0usize, 1, 2];
+            order.sort_by(|&a, &b| vals[a].total_cmp(&vals[b]));
+            let axis = DVec3::new(vecs[0][order[0]], vecs[1][order[0]], vecs[2][order[0]]);
+            (order.map(|k| vals[k]), axis)
+        });
         let l = v.length();
         let normal = if l.is_finite() && l > 0.0 {
             (v / l).as_vec3()
         } else {
             Vec3::Z
         };
-        let (thin, narrow) = (vals[order[0]].max(0.0) / m, vals[order[1]].max(0.0) / m);
+        let (thin, narrow) = (vals[0].max(0.0) / m, vals[1].max(0.0) / m);
         // A plane's slope fitted by least squares to m points with residual variance σ² and
         // spread s² along an axis has a standard error σ / (s √m); σ² is m λ₀ / (m − 3).
         let error = if m > 3.0 && narrow > 0.0 {
@@ -750,52 +753,6 @@ pub(crate) fn principal_axes(offsets: impl Iterator<Item = DVec3>) -> ([f64; 3],
         order.map(|k| vals[k]),
         [axis(order[0]), axis(order[1]), axis(order[2])],
     )
-}
-
-/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (Numerical
-/// Recipes §11.1). Returns the eigenvalues and the matrix whose *columns* are the unit
-/// eigenvectors (`vecs[row][col]`). Robust for repeated eigenvalues and zero matrices.
-pub(crate) fn sym_eigen3(m: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut a = m;
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _sweep in 0..50 {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-        if off == 0.0 || off <= 1e-300 || off < diag * 1e-17 {
-            break;
-        }
-        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
-            let apq = a[p][q];
-            if apq == 0.0 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
-            let t = if theta.is_finite() {
-                theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
-            } else {
-                0.0
-            };
-            let t = if t.is_finite() { t } else { 0.0 };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            a[p][p] -= t * apq;
-            a[q][q] += t * apq;
-            a[p][q] = 0.0;
-            a[q][p] = 0.0;
-            let r = 3 - p - q;
-            let (arp, arq) = (a[r][p], a[r][q]);
-            a[r][p] = c * arp - s * arq;
-            a[p][r] = a[r][p];
-            a[r][q] = s * arp + c * arq;
-            a[q][r] = a[r][q];
-            for row in &mut v {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    ([a[0][0], a[1][1], a[2][2]], v)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -983,57 +940,6 @@ fn orient_seed(positions: &[Vec3], normals: &mut [Vec3], comp: &[u32]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn check_eigen(m: [[f64; 3]; 3]) {
-        let (vals, v) = sym_eigen3(m);
-        let scale = m
-            .iter()
-            .flatten()
-            .map(|x| x.abs())
-            .fold(0.0, f64::max)
-            .max(1e-300);
-        for e in 0..3 {
-            let x = [v[0][e], v[1][e], v[2][e]];
-            let len: f64 = x.iter().map(|a| a * a).sum::<f64>().sqrt();
-            assert!(
-                (len - 1.0).abs() < 1e-12,
-                "{m:?}: eigenvector {e} length {len}"
-            );
-            for r in 0..3 {
-                let mx: f64 = (0..3).map(|c| m[r][c] * x[c]).sum();
-                assert!(
-                    (mx - vals[e] * x[r]).abs() < 1e-12 * scale,
-                    "{m:?}: A v != λ v"
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn jacobi_eigen() {
-        check_eigen([[0.0; 3]; 3]);
-        check_eigen([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        check_eigen([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 3.0]]);
-        check_eigen([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]);
-        check_eigen([
-            [1e-20, 3e-21, 0.0],
-            [3e-21, 1e-20, 1e-22],
-            [0.0, 1e-22, 5e-33],
-        ]);
-        check_eigen([[1e8, 1.0, 1e-3], [1.0, 1e-8, 2.0], [1e-3, 2.0, 5.0]]);
-        // Pseudo-random matrices.
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
-        for _ in 0..1000 {
-            let (a, b, c, d, e, f) = (rnd(), rnd(), rnd(), rnd(), rnd(), rnd());
-            check_eigen([[a, b, c], [b, d, e], [c, e, f]]);
-        }
-    }
 
     #[test]
     fn distinct_positions_keep_first_copy_order() {

@@ -8,6 +8,7 @@
 pub mod clean;
 pub mod e57;
 mod edge_on;
+mod eigen;
 pub mod error;
 pub mod estimate;
 pub mod knn;
