@@ -38,7 +38,8 @@ pub(crate) fn least_eigen(m: [[f64; 3]; 3]) -> Option<([f64; 3], DVec3)> {
     let largest = q + 2.0 * p * phi.cos();
     let least = q + 2.0 * p * (phi + third).cos();
     let middle = 3.0 * q - largest - least;
-    if !(middle - least > 1e-6 * largest.abs().max(middle.abs())) {
+    let gap = middle - least;
+    if gap.is_nan() || gap <= 1e-6 * largest.abs().max(middle.abs()) {
         return None;
     }
     // The rows of m − λ₀ I span the plane normal to the axis: their longest cross product.
