@@ -111,6 +111,16 @@ pub(crate) fn sym_eigen3(m: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
 mod tests {
     use super::*;
 
+    /// Pseudo-random numbers uniform in [−1, 1) from `seed` (a linear congruential generator).
+    fn uniform(mut s: u64) -> impl FnMut() -> f64 {
+        move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        }
+    }
+
     fn check_eigen(m: [[f64; 3]; 3]) {
         let (vals, v) = sym_eigen3(m);
         let scale = m
@@ -149,13 +159,7 @@ mod tests {
         ]);
         check_eigen([[1e8, 1.0, 1e-3], [1.0, 1e-8, 2.0], [1e-3, 2.0, 5.0]]);
         // Pseudo-random matrices.
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(12345);
         for _ in 0..1000 {
             let (a, b, c, d, e, f) = (rnd(), rnd(), rnd(), rnd(), rnd(), rnd());
             check_eigen([[a, b, c], [b, d, e], [c, e, f]]);
@@ -166,13 +170,7 @@ mod tests {
     /// the fits it is there for: noisy planes, well apart.
     #[test]
     fn the_closed_form_agrees_with_jacobi() {
-        let mut s = 2024u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(2024);
         let mut answered = 0;
         for case in 0..4000 {
             // A neighbourhood's moments: 16 offsets on a tilted plane, noise from 0 to 10 %
