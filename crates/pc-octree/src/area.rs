@@ -152,7 +152,8 @@ struct Scratch {
     heights: Vec<f32>,
     /// The candidate disks of a leaf's splats ([`AreaPass::candidates`]).
     disks: Disks,
-    keep: Vec<bool>,
+    /// One byte a candidate lane: 1 where a filter keeps it ([`for_kept`]).
+    keep: Vec<u8>,
     lanes: Lanes,
 }
 
@@ -282,7 +283,7 @@ impl AreaPass<'_> {
     ///
     /// The second test keeps a noisy wall's lanes to about those within r_i + r_j along it,
     /// however far the slabs reach off it.
-    fn near(&self, i: usize, cands: &Disks, keep: &mut Vec<bool>, near: &mut Lanes) {
+    fn near(&self, i: usize, cands: &Disks, keep: &mut Vec<u8>, near: &mut Lanes) {
         let s = &self.splats[i];
         let (c, n, r) = (Vec3::from(s.position), Vec3::from(s.normal), s.radius);
         let m = cands.len();
@@ -291,7 +292,7 @@ impl AreaPass<'_> {
         let (radius, extent) = (&cands.radius[..m], &cands.extent[..m]);
         let (material, weight) = (&cands.material[..m], &cands.weight[..m]);
         keep.clear();
-        keep.resize(m, false);
+        keep.resize(m, 0);
         // One pass the compiler can run in vector lanes, then the copies.
         for l in 0..m {
             let cos = nx[l] * n.x + ny[l] * n.y + nz[l] * n.z;
@@ -302,16 +303,18 @@ impl AreaPass<'_> {
             let reach = r + extent[l];
             // (|a| − r) cos θ ≤ r_j + |b| sin θ, squared (both sides ≥ 0 once cos θ ≥ 0.5).
             let side = r * cos + radius[l] + b.abs() * sin;
-            keep[l] = (material[l] == s.material)
-                & (weight[l] > 0)
-                & (cos >= 0.5)
-                & (d2 <= reach * reach)
-                & ((d2 - b * b) * cos * cos <= side * side);
+            keep[l] = u8::from(
+                (material[l] == s.material)
+                    & (weight[l] > 0)
+                    & (cos >= 0.5)
+                    & (d2 <= reach * reach)
+                    & ((d2 - b * b) * cos * cos <= side * side),
+            );
         }
         let (u, v) = tangent_frame(s.normal);
         let (u, v) = (Vec3::from(u), Vec3::from(v));
         near.clear();
-        for (l, _) in keep.iter().enumerate().filter(|(_, &k)| k) {
+        for_kept(keep, |l| {
             let d = Vec3::new(px[l], py[l], pz[l]) - c;
             let nl = Vec3::new(nx[l], ny[l], nz[l]);
             near.push(Lane {
@@ -325,7 +328,7 @@ impl AreaPass<'_> {
                 slab: cands.slab[l],
                 weight: weight[l],
             });
-        }
+        });
     }
 
     /// Every disk that can cover a point of the splats `todo` (one leaf's), in `sc.disks`: the
@@ -475,7 +478,7 @@ impl AreaPass<'_> {
         i: usize,
         disks: &Disks,
         rise: f32,
-        keep: &mut Vec<bool>,
+        keep: &mut Vec<u8>,
         heights: &mut Vec<f32>,
     ) {
         let s = &self.splats[i];
@@ -486,17 +489,19 @@ impl AreaPass<'_> {
         let (nx, ny, nz) = (&disks.nx[..m], &disks.ny[..m], &disks.nz[..m]);
         let (material, weight) = (&disks.material[..m], &disks.weight[..m]);
         keep.clear();
-        keep.resize(m, false);
+        keep.resize(m, 0);
         heights.clear();
         heights.resize(m, 0.0);
         for l in 0..m {
             let (dx, dy, dz) = (px[l] - c.x, py[l] - c.y, pz[l] - c.z);
             let h = (dx * n.x + dy * n.y + dz * n.z).abs();
-            keep[l] = (material[l] == s.material)
-                & (weight[l] > 0)
-                & (nx[l] * n.x + ny[l] * n.y + nz[l] * n.z >= 0.5)
-                & (dx * dx + dy * dy + dz * dz <= reach * reach)
-                & (h <= rise);
+            keep[l] = u8::from(
+                (material[l] == s.material)
+                    & (weight[l] > 0)
+                    & (nx[l] * n.x + ny[l] * n.y + nz[l] * n.z >= 0.5)
+                    & (dx * dx + dy * dy + dz * dz <= reach * reach)
+                    & (h <= rise),
+            );
             heights[l] = h;
         }
     }
@@ -512,8 +517,8 @@ impl AreaPass<'_> {
             &mut sc.heights,
         );
         sc.near.clear();
-        let kept = sc.cands.iter().zip(&sc.keep).filter(|(_, &k)| k);
-        sc.near.extend(kept.map(|(&j, _)| j));
+        let (cands, near) = (&sc.cands, &mut sc.near);
+        for_kept(&sc.keep, |l| near.push(cands[l]));
     }
 
     /// Each splat's border status, from its same-surface neighbourhood (one query serves
@@ -634,12 +639,13 @@ impl AreaPass<'_> {
         let reach = self.reach(i);
         self.mark_neighbours(i, &sc.disks, reach, &mut sc.keep, &mut sc.heights);
         let mut k = 0;
-        for l in 0..sc.keep.len() {
-            if sc.keep[l] && sc.cands[l] as usize != i {
-                sc.heights[k] = sc.heights[l];
+        let (cands, heights) = (&sc.cands, &mut sc.heights);
+        for_kept(&sc.keep, |l| {
+            if cands[l] as usize != i {
+                heights[k] = heights[l];
                 k += 1;
             }
-        }
+        });
         sc.heights.truncate(k);
         if k < MIN_HEIGHTS {
             return 0.0;
@@ -693,6 +699,22 @@ impl AreaPass<'_> {
                     .max(1) as f32;
         }
         std::f32::consts::PI * s.radius * s.radius * acc / self.pattern.len() as f32
+    }
+}
+
+/// `f(l)` for every lane `l` that `keep` marks (one byte a lane, 0 or 1), in order. Eight
+/// lanes are read as one word, so the few kept among a walk's hundreds of candidates cost a
+/// word each (a byte-by-byte scan was the largest part of [`AreaPass::near`]).
+#[inline]
+fn for_kept(keep: &[u8], mut f: impl FnMut(usize)) {
+    for (w, c) in keep.chunks(8).enumerate() {
+        let mut word = [0u8; 8];
+        word[..c.len()].copy_from_slice(c);
+        let mut bits = u64::from_le_bytes(word);
+        while bits != 0 {
+            f(w * 8 + bits.trailing_zeros() as usize / 8);
+            bits &= bits - 1;
+        }
     }
 }
 
