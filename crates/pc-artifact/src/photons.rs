@@ -96,13 +96,17 @@ impl<'a> PhotonsView<'a> {
         })
     }
 
-    /// The photons' checks ([`PhotonMapView::check`]) and the specular links'.
-    fn check(&self) -> Result<(), String> {
-        let map = PhotonMapView {
+    /// The photons and the deposit alone, as the renderer reads them.
+    pub fn map(&self) -> PhotonMapView<'a> {
+        PhotonMapView {
             photons: self.photons,
             deposit: self.deposit,
-        };
-        map.check()?;
+        }
+    }
+
+    /// The photons' checks ([`PhotonMapView::check`]) and the specular links'.
+    fn check(&self) -> Result<(), String> {
+        self.map().check()?;
         self.specular.check(self.deposit.len())
     }
 }

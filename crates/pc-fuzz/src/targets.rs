@@ -194,13 +194,7 @@ fn use_artifact(a: Artifact) -> bool {
             .map(|f| use_vmap(&f.view(), None))
             .is_ok(),
         ArtifactKind::Photons => PhotonsFile::from_artifact(a)
-            .map(|f| {
-                let v = f.view();
-                use_photons(PhotonMapView {
-                    photons: v.photons,
-                    deposit: v.deposit,
-                })
-            })
+            .map(|f| use_photons(f.view().map()))
             .is_ok(),
         ArtifactKind::Radiosity => RadiosityFile::from_artifact(a)
             .map(|f| use_radiosity(&f))

@@ -57,7 +57,7 @@ impl GpuContext {
     /// of the 0.1 s that `auto` spent before each stage's CPU work), or there is no adapter.
     pub fn hardware() -> Option<GpuContext> {
         let adapter = GpuContext::adapter().ok()?;
-        if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+        if software(&adapter.get_info()) {
             return None;
         }
         GpuContext::open(adapter).ok()
@@ -115,7 +115,7 @@ impl GpuContext {
 
     /// True for software rasterizers such as llvmpipe.
     pub fn is_software(&self) -> bool {
-        self.info.device_type == wgpu::DeviceType::Cpu
+        software(&self.info)
     }
 
     /// The most bytes one storage binding may span (the device's binding and buffer limits).
@@ -345,6 +345,11 @@ impl GpuContext {
             layout,
         })
     }
+}
+
+/// Whether an adapter is a software rasterizer such as llvmpipe.
+fn software(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
 }
 
 /// The kind of one binding of a kernel's group 0.

@@ -152,6 +152,6 @@ mod tests {
         if address_space_cap().is_none() {
             assert_eq!(room_for(64), 64);
         }
-        assert!(room_for(1) == 1);
+        assert_eq!(room_for(1), 1);
     }
 }
