@@ -13,16 +13,23 @@ fn the_key_is_the_opened_artifacts() {
     assert_eq!(key, crate::common::key());
 }
 
-#[test]
-fn a_flipped_byte_in_a_section_is_left_to_the_open_that_reads_it() {
+/// The sample artifact with the first byte of `section` flipped, at `bad.octree` in the
+/// returned folder, and its bytes.
+fn with_a_flipped_byte_in(section: &str) -> (tempfile::TempDir, std::path::PathBuf, Vec<u8>) {
     let (dir, path) = sample();
     let art = Artifact::open(&path).unwrap();
-    let at = art.section_info("points").unwrap().offset as usize;
+    let at = art.section_info(section).unwrap().offset as usize;
     drop(art);
     let mut bytes = std::fs::read(&path).unwrap();
     bytes[at] ^= 0x40;
     let bad = dir.path().join("bad.octree");
     std::fs::write(&bad, &bytes).unwrap();
+    (dir, bad, bytes)
+}
+
+#[test]
+fn a_flipped_byte_in_a_section_is_left_to_the_open_that_reads_it() {
+    let (_dir, bad, _) = with_a_flipped_byte_in("points");
     assert_eq!(
         Artifact::input_key(&bad, ArtifactKind::Octree).unwrap(),
         crate::common::key()
@@ -79,14 +86,7 @@ fn a_missing_input_names_the_stage_and_a_wrong_kind_is_refused() {
 /// others are neither (a reader of a photon map's photons skips its specular links).
 #[test]
 fn an_open_of_some_sections_checks_and_hands_out_only_them() {
-    let (dir, path) = sample();
-    let art = Artifact::open(&path).unwrap();
-    let at = art.section_info("ids").unwrap().offset as usize;
-    drop(art);
-    let mut bytes = std::fs::read(&path).unwrap();
-    bytes[at] ^= 0x40;
-    let bad = dir.path().join("bad.octree");
-    std::fs::write(&bad, &bytes).unwrap();
+    let (dir, bad, bytes) = with_a_flipped_byte_in("ids");
     // A flipped byte in a section not read is not this reader's error...
     let some = Artifact::open_input_sections(&bad, ArtifactKind::Octree, &["points"]).unwrap();
     assert_eq!(some.section::<[f32; 4]>("points").unwrap(), points());
