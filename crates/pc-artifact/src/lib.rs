@@ -20,6 +20,7 @@ pub mod radiosity;
 pub mod reader;
 pub mod specular;
 pub mod vmap;
+pub mod walk;
 pub mod writer;
 
 pub use atomic::write_file_atomically;

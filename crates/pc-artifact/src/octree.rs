@@ -394,6 +394,9 @@ pub struct OctreeView<'a> {
     pub splat_area: &'a [f32],
     /// Node-pool index of the leaf that owns each splat.
     pub splat_leaf: &'a [u32],
+    /// The packed walk pc-octree wrote beside the tree, when the artifact holds one of this
+    /// build's layout (crate::walk); `None` for a tree in memory.
+    pub walk: Option<crate::walk::WalkView<'a>>,
 }
 
 impl<'a> OctreeView<'a> {
@@ -411,6 +414,7 @@ impl<'a> OctreeView<'a> {
             node_info: a.section(sections::NODE_INFO)?,
             splat_area: a.section(sections::SPLAT_AREA)?,
             splat_leaf: a.section(sections::SPLAT_LEAF)?,
+            walk: crate::walk::WalkView::sections(a)?,
         })
     }
 
@@ -520,7 +524,10 @@ impl<'a> OctreeView<'a> {
                 ));
             }
         }
-        Ok(())
+        match &self.walk {
+            Some(w) => w.check(self),
+            None => Ok(()),
+        }
     }
 
     /// The begin/end table is a chain of leaves, `begin, extra, refs…` each, closed by the

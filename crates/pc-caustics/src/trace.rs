@@ -44,7 +44,7 @@ pub enum Fate {
 /// The tracer's fixed inputs.
 pub struct Tracer<'a> {
     pub view: &'a OctreeView<'a>,
-    pub accel: &'a Accel,
+    pub accel: &'a Accel<'a>,
     pub materials: &'a [MaterialRecord],
     pub leaves: &'a Leaves,
     pub max_bounces: u32,

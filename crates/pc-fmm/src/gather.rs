@@ -436,7 +436,7 @@ pub fn gather_cpu(
 pub enum Gatherer<'a> {
     Cpu {
         view: &'a OctreeView<'a>,
-        accel: Accel,
+        accel: Accel<'a>,
         /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
         reflected: Vec<[f32; 3]>,
     },

@@ -215,7 +215,10 @@ fn use_octree(f: &OctreeFile) {
     let ranges = pc_tree::nodes::subtree_ranges(&v);
     let _ = pc_tree::nodes::normal_cones(&v, &ranges);
     let _ = pc_vmap::build::vnodes(&v, 16);
-    let accel = pc_tree::accel::Accel::new(&v);
+    // The packed lists built from the tree agree with the walk; the artifact's own (mapped
+    // where it has them: checked structure, coordinates as written) must only never panic.
+    let accel = pc_tree::accel::Accel::build(&v);
+    let mapped = pc_tree::accel::Accel::new(&v);
     let o = Vec3::from(v.frame.origin);
     let size = v.frame.size;
     let mut st = TraversalStats::default();
@@ -233,6 +236,8 @@ fn use_octree(f: &OctreeFile) {
             "the walk and the packed lists agree"
         );
         let _ = pc_tree::occluded(&v, &ray, &mut st);
+        let _ = mapped.intersect(&v, &ray, &mut st);
+        let _ = mapped.occluded(&v, &ray, &mut st);
     }
     let _ = pc_fmm::tree::build(&v, f.materials());
 }

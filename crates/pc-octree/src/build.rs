@@ -75,6 +75,7 @@ impl Octree {
             node_info: &self.node_info,
             splat_area: &self.splat_area,
             splat_leaf: &self.splat_leaf,
+            walk: None,
         }
     }
 }

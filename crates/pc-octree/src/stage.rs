@@ -146,6 +146,10 @@ pub fn write(
     w.section(sections::SPLAT_AREA, &octree.splat_area)?;
     w.section(sections::SPLAT_LEAF, &octree.splat_leaf)?;
     w.section(sections::MATERIALS, &records)?;
+    // The CPU walk's packed copy, mapped by every later stage instead of built by each.
+    let accel = pc_tree::accel::Accel::build(&octree.view());
+    pc_artifact::walk::write(&mut w, &accel.walk())?;
+    drop(accel);
     w.metadata(&meta)?;
     w.finish()?;
     Ok(())

@@ -118,7 +118,7 @@ pub struct Params {
 pub struct RenderScene<'a> {
     pub view: OctreeView<'a>,
     /// Packed leaf lists for the CPU walk (built by [`RenderScene::prepare_cpu`]).
-    pub accel: Option<pc_tree::accel::Accel>,
+    pub accel: Option<pc_tree::accel::Accel<'a>>,
     pub materials: Vec<MaterialRecord>,
     pub lights: Vec<PointLight>,
     pub emitters: EmitterTable,

@@ -23,7 +23,10 @@
 //!
 //! Memory: about 32 bytes per listed disk plus padding (3 listings per splat on scans).
 
+use std::borrow::Cow;
+
 use pc_artifact::octree::{node, within_clip};
+use pc_artifact::walk::{WalkBlock, WalkChunk, WalkLeaf, WalkView, BLOCK_WORDS};
 use rayon::prelude::*;
 
 use crate::between::Between;
@@ -31,20 +34,11 @@ use crate::ray::{Hit, Ray, Slab, TraversalStats};
 use crate::OctreeView;
 
 /// Disks per chunk.
-pub const LANES: usize = 4;
+pub use pc_artifact::walk::LANES;
 
-/// The hot part of [`LANES`] listed disks: centre, normal, squared radius, lane by lane.
-#[repr(C, align(16))]
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Chunk {
-    px: [f32; LANES],
-    py: [f32; LANES],
-    pz: [f32; LANES],
-    nx: [f32; LANES],
-    ny: [f32; LANES],
-    nz: [f32; LANES],
-    r2: [f32; LANES],
-}
+/// The hot part of [`LANES`] listed disks: centre, normal, squared radius, lane by lane (the
+/// artifact's record, so a mapped walk is read in place).
+type Chunk = WalkChunk;
 
 /// A lane that no ray hits: its normal is zero, so every ray counts as parallel to it.
 const PAD: Chunk = Chunk {
@@ -65,53 +59,68 @@ enum Find<'a> {
     Any(Option<&'a Between>),
 }
 
-/// One leaf: its run of chunks, the view's node word, and the slab its listed disks lie in.
-#[repr(C, align(32))]
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Leaf {
-    /// The leaf's chunks are `first .. end`.
-    first: u32,
-    end: u32,
-    /// The view's node word (what [`Hit::leaf`] reports).
-    word: u32,
-    slab: Slab,
-}
+/// One leaf: its run of chunks, the view's node word, and the slab its listed disks lie in
+/// (axis xyz, lo, hi: [`Slab::to_array`]).
+type Leaf = WalkLeaf;
 
 /// One internal node's eight child words and the slab of every disk listed below it: one cache
 /// line, so the walk reads the slab with the words it reads anyway. Block 0 holds the root
 /// word alone.
-#[repr(C, align(64))]
-#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-struct Block {
-    words: [u32; 8],
-    /// [`Slab`]'s axis, lo and hi as bits; `has_slab` 0 where it would not pay to test.
-    slab: [u32; 5],
-    has_slab: u32,
-    _pad: [u32; 2],
-}
-
-/// Words of a [`Block`]: an internal word points at its block's first word.
-const BLOCK_WORDS: u32 = 16;
+type Block = WalkBlock;
 
 /// A leaf's number in an [`Accel`] (its packed lists), as [`Accel::intersect_in`] reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PackedLeaf(u32);
 
-/// The packed copy of an octree for the CPU walk.
-pub struct Accel {
+/// The packed copy of an octree for the CPU walk: mapped from the artifact where pc-octree
+/// wrote it ([`pc_artifact::walk`]), else built in memory.
+pub struct Accel<'a> {
     /// The view's tree in [`Block`]s: leaf words hold their leaf number (SFC order), internal
     /// words the first word of their children's block.
-    nodes: Vec<Block>,
+    nodes: Cow<'a, [Block]>,
     /// Whether the blocks hold slabs (else `nodes` is the view's pool word for word).
     slabs: bool,
-    leaves: Vec<Leaf>,
-    chunks: Vec<Chunk>,
+    leaves: Cow<'a, [Leaf]>,
+    chunks: Cow<'a, [Chunk]>,
     /// Each chunk lane's data-pool index (at `chunk · LANES + lane`; `u32::MAX` for padding).
-    cold: Vec<u32>,
+    cold: Cow<'a, [u32]>,
 }
 
-impl Accel {
-    pub fn new(view: &OctreeView) -> Accel {
+impl<'a> Accel<'a> {
+    /// The walk of `view`: its artifact's packed walk where it has one (checked when the
+    /// artifact was opened), else a copy built now.
+    pub fn new(view: &OctreeView<'a>) -> Accel<'a> {
+        match view.walk {
+            Some(w) => Accel {
+                nodes: Cow::Borrowed(w.blocks),
+                slabs: w.slabs,
+                leaves: Cow::Borrowed(w.leaves),
+                chunks: Cow::Borrowed(w.chunks),
+                cold: Cow::Borrowed(w.cold),
+            },
+            None => Accel::build(view),
+        }
+    }
+
+    /// Whether this walk is the artifact's, mapped (not built in memory).
+    pub fn is_mapped(&self) -> bool {
+        matches!(self.chunks, Cow::Borrowed(_))
+    }
+
+    /// The sections pc-octree writes ([`pc_artifact::walk::write`]).
+    pub fn walk(&self) -> WalkView<'_> {
+        WalkView {
+            slabs: self.slabs,
+            blocks: &self.nodes,
+            leaves: &self.leaves,
+            chunks: &self.chunks,
+            cold: &self.cold,
+        }
+    }
+
+    /// The copy built in memory from the view's tree (the same whether or not the view has a
+    /// walk of its own).
+    pub fn build(view: &OctreeView) -> Accel<'static> {
         // Leaves in table order (the table lists leaves in SFC order).
         let t = view.begin_end;
         let mut offsets = Vec::new();
@@ -129,7 +138,7 @@ impl Accel {
                     first: 0,
                     end: ((r.end - r.start) as usize + refs.len()).div_ceil(LANES) as u32,
                     word: node::leaf(o),
-                    slab: slab(view, r.chain(refs.iter().copied())),
+                    slab: slab(view, r.chain(refs.iter().copied())).to_array(),
                 }
             })
             .collect();
@@ -165,11 +174,11 @@ impl Accel {
             });
         let (nodes, slabs) = blocks(view, &offsets, &leaves, &chunks);
         Accel {
-            nodes,
+            nodes: Cow::Owned(nodes),
             slabs,
-            leaves,
-            chunks,
-            cold,
+            leaves: Cow::Owned(leaves),
+            chunks: Cow::Owned(chunks),
+            cold: Cow::Owned(cold),
         }
     }
 
@@ -185,7 +194,7 @@ impl Accel {
     /// the leaf's slab and in the slab of each of its ancestors that has one (reached by the
     /// tree from the root, independently of how the slabs were gathered). For tests.
     pub fn verify_slabs(&self) -> Result<(), String> {
-        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes);
+        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
         let holds = |s: &Slab, (p, n, r): ([f32; 3], [f32; 3], f32)| {
             let (a, p, n) = (
                 glam::Vec3::from(s.axis),
@@ -203,7 +212,7 @@ impl Accel {
             }
             if node::is_leaf(w) {
                 let leaf = &self.leaves[node::ptr(w) as usize];
-                above.push(leaf.slab);
+                above.push(Slab::from_array(leaf.slab));
                 let run = &self.chunks[leaf.first as usize..leaf.end as usize];
                 for (k, d) in run.iter().flat_map(lane_disks).enumerate() {
                     if let Some(s) = above.iter().find(|s| !holds(s, d)) {
@@ -252,7 +261,7 @@ impl Accel {
         };
         let leaf = &self.leaves[node::ptr(w) as usize];
         // No disk can be hit outside the leaf's slab.
-        if leaf.slab.misses(ray, limit) {
+        if Slab::from_array(leaf.slab).misses(ray, limit) {
             return None;
         }
         let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
@@ -309,7 +318,7 @@ impl Accel {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<(Hit, PackedLeaf)> {
-        let nodes = bytemuck::cast_slice(&self.nodes);
+        let nodes = bytemuck::cast_slice(&self.nodes[..]);
         let slab = |w| {
             if self.slabs {
                 node_slab(nodes, w)
@@ -395,7 +404,7 @@ impl Accel {
         between: Option<&Between>,
         stats: &mut TraversalStats,
     ) -> bool {
-        let nodes = bytemuck::cast_slice(&self.nodes);
+        let nodes = bytemuck::cast_slice(&self.nodes[..]);
         let slab = |w| {
             if self.slabs {
                 node_slab(nodes, w)

@@ -19,7 +19,7 @@ pub trait Caster: Sync {
 /// The CPU caster: the renderer's traversal over packed leaf lists, rayon across rays.
 pub struct CpuCaster<'a> {
     pub view: &'a OctreeView<'a>,
-    pub accel: crate::accel::Accel,
+    pub accel: crate::accel::Accel<'a>,
 }
 
 impl<'a> CpuCaster<'a> {

@@ -73,6 +73,23 @@ impl Slab {
         hi: f32::INFINITY,
     };
 
+    /// `[axis x, y, z, lo, hi]`, as an artifact's leaf record holds it.
+    #[inline(always)]
+    pub fn to_array(self) -> [f32; 5] {
+        let [x, y, z] = self.axis;
+        [x, y, z, self.lo, self.hi]
+    }
+
+    /// The inverse of [`Slab::to_array`].
+    #[inline(always)]
+    pub fn from_array([x, y, z, lo, hi]: [f32; 5]) -> Slab {
+        Slab {
+            axis: [x, y, z],
+            lo,
+            hi,
+        }
+    }
+
     /// Whether the ray's stretch `[ray.t_min, limit]` stays outside the slab.
     #[inline(always)]
     pub fn misses(&self, ray: &Ray, limit: f32) -> bool {

@@ -188,3 +188,103 @@ fn structural_check_rejects_a_tampered_node_pool() {
     o.begin_end[last] = o.splats.len() as u32 + 1;
     assert!(o.view().check().is_err());
 }
+
+/// The artifact at `from` rewritten to `to` (fresh checksums), each section passed through
+/// `edit` (its name, element size and bytes; `None` drops it).
+fn rewrite(
+    from: &Path,
+    to: &Path,
+    mut edit: impl FnMut(&str, u32, Vec<u8>) -> Option<Vec<u8>>,
+) -> PathBuf {
+    let a = Artifact::open(from).unwrap();
+    let h = a.header();
+    let mut w =
+        pc_artifact::ArtifactWriter::create(to, h.kind, &h.stage, &h.stage_version, h.key).unwrap();
+    for s in a.sections() {
+        let bytes = a.section_bytes(&s.name).unwrap().to_vec();
+        if let Some(bytes) = edit(&s.name, s.elem_size, bytes) {
+            w.section_bytes(&s.name, s.elem_size, &bytes).unwrap();
+        }
+    }
+    w.metadata_raw(a.metadata_bytes().to_vec());
+    w.finish().unwrap()
+}
+
+#[test]
+fn the_packed_walk_is_written_once_and_mapped_by_every_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let (summary, _) = run_stage(&config, &[]);
+    let file = pc_artifact::octree::OctreeFile::open(&summary.path).unwrap();
+    let view = file.view();
+    let walk = view.walk.expect("pc-octree writes the packed walk");
+    let mapped = pc_tree::accel::Accel::new(&view);
+    assert!(mapped.is_mapped());
+    // Byte for byte the copy a reader would build from the tree itself.
+    let built = pc_tree::accel::Accel::build(&view);
+    let b = built.walk();
+    assert_eq!(walk.slabs, b.slabs);
+    assert_eq!(walk.blocks, b.blocks);
+    assert_eq!(walk.leaves, b.leaves);
+    assert_eq!(walk.chunks, b.chunks);
+    assert_eq!(walk.cold, b.cold);
+    // Without the sections (an octree written before them) the reader builds the same copy.
+    let bare = rewrite(&summary.path, &dir.path().join("bare.pcgi"), |n, _, b| {
+        (!n.starts_with("walk_")).then_some(b)
+    });
+    let file = pc_artifact::octree::OctreeFile::open(&bare).unwrap();
+    let view = file.view();
+    assert!(view.walk.is_none());
+    let own = pc_tree::accel::Accel::new(&view);
+    assert!(!own.is_mapped());
+    assert_eq!(own.walk().chunks, b.chunks);
+    // Nor is a walk of another layout read: it is built instead.
+    let other = rewrite(
+        &summary.path,
+        &dir.path().join("other.pcgi"),
+        |n, _, mut b| {
+            if n == "walk_info" {
+                b[..4].copy_from_slice(&(pc_artifact::walk::LAYOUT + 1).to_le_bytes());
+            }
+            Some(b)
+        },
+    );
+    let file = pc_artifact::octree::OctreeFile::open(&other).unwrap();
+    assert!(file.view().walk.is_none());
+}
+
+#[test]
+fn a_packed_walk_that_points_outside_is_rejected_when_opened() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_scene(dir.path());
+    let (summary, _) = run_stage(&config, &[]);
+    // Fresh checksums over wrong words (a buggy writer): the structural check must catch each.
+    let cases: [(&str, usize, u32, &str); 3] = [
+        // The root word, pointing past the blocks.
+        (
+            "walk_blocks",
+            0,
+            pc_artifact::octree::node::internal(1 << 20),
+            "walk_blocks",
+        ),
+        // A lane naming a splat that does not exist.
+        ("walk_cold", 0, 1 << 29, "walk_cold"),
+        // A leaf's run ending past the chunks.
+        ("walk_leaves", 1, u32::MAX, "walk_chunks"),
+    ];
+    for (k, (section, word, value, says)) in cases.into_iter().enumerate() {
+        let to = dir.path().join(format!("bad{k}.pcgi"));
+        let bad = rewrite(&summary.path, &to, |n, _, mut b| {
+            if n == section {
+                b[word * 4..word * 4 + 4].copy_from_slice(&value.to_le_bytes());
+            }
+            Some(b)
+        });
+        let err = pc_artifact::octree::OctreeFile::open(&bad)
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(says), "{section}: {err}");
+        assert!(err.contains(&format!("bad{k}.pcgi")), "{err}");
+    }
+}

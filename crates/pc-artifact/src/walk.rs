@@ -1,0 +1,240 @@
+//! The octree artifact's packed walk: the CPU walk's copy of the tree (pc-tree's `Accel`,
+//! docs/raytrace.md "The CPU walk's layout"), written by pc-octree beside the tree it copies so
+//! that every later stage maps it instead of building it in memory (docs/artifacts.md, "The
+//! packed walk").
+//!
+//! Five sections, all optional: an octree without them (written before they existed, or with
+//! another [`LAYOUT`]) is walked through a copy built in memory, with the same hits. When
+//! present and of this layout they are checked like every other section ([`WalkView::check`]):
+//! every word, run and index the walk follows stays in bounds, so a walk over them cannot
+//! index out of bounds whatever the file holds.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::octree::{node, OctreeView};
+use crate::Artifact;
+use crate::ArtifactError;
+
+/// Section names.
+pub mod sections {
+    pub const INFO: &str = "walk_info";
+    pub const BLOCKS: &str = "walk_blocks";
+    pub const LEAVES: &str = "walk_leaves";
+    pub const CHUNKS: &str = "walk_chunks";
+    pub const COLD: &str = "walk_cold";
+}
+
+/// Version of the records below and of what they mean; a reader of another layout builds its
+/// own copy instead.
+pub const LAYOUT: u32 = 1;
+
+/// Disks per [`WalkChunk`].
+pub const LANES: usize = 4;
+
+/// Words of a [`WalkBlock`]: an internal word points at its block's first word.
+pub const BLOCK_WORDS: u32 = 16;
+
+/// `walk_info`: one record.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct WalkInfo {
+    /// [`LAYOUT`] of the writer.
+    pub layout: u32,
+    /// [`LANES`] of the writer.
+    pub lanes: u32,
+    /// 1: the blocks are a tree of [`WalkBlock`]s with node slabs; 0: `walk_blocks` holds the
+    /// view's node pool word for word (leaf words rewritten), read as plain words.
+    pub slabs: u32,
+    pub _pad: u32,
+}
+
+/// One internal node's eight child words and the slab of every disk listed below it (one cache
+/// line). Block 0 holds the root word alone. Child words: a leaf word's pointer is the leaf's
+/// number in `walk_leaves`, an internal word's the first word of its children's block, an empty
+/// word is the view's.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct WalkBlock {
+    pub words: [u32; 8],
+    /// The slab's axis, lo and hi as bits; `has_slab` 0 where it would not pay to test.
+    pub slab: [u32; 5],
+    pub has_slab: u32,
+    pub _pad: [u32; 2],
+}
+
+/// One leaf: its run of chunks `first .. end`, the view's node word (what a hit reports) and
+/// the slab `lo ≤ axis · x ≤ hi` (axis xyz, lo, hi) that holds its listed disks.
+#[repr(C, align(32))]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct WalkLeaf {
+    pub first: u32,
+    pub end: u32,
+    pub word: u32,
+    pub slab: [f32; 5],
+}
+
+/// The hot part of [`LANES`] listed disks, lane by lane: centre, normal, squared radius. A
+/// padding lane has a zero normal and a negative squared radius (no ray hits it).
+#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct WalkChunk {
+    pub px: [f32; LANES],
+    pub py: [f32; LANES],
+    pub pz: [f32; LANES],
+    pub nx: [f32; LANES],
+    pub ny: [f32; LANES],
+    pub nz: [f32; LANES],
+    pub r2: [f32; LANES],
+}
+
+/// The packed walk's sections, cast (checked by [`WalkView::check`] before any walk).
+#[derive(Clone, Copy, Debug)]
+pub struct WalkView<'a> {
+    pub slabs: bool,
+    pub blocks: &'a [WalkBlock],
+    pub leaves: &'a [WalkLeaf],
+    pub chunks: &'a [WalkChunk],
+    /// Each chunk lane's data-pool index (`chunk · LANES + lane`; `u32::MAX` for padding).
+    pub cold: &'a [u32],
+}
+
+impl<'a> WalkView<'a> {
+    /// The sections of `a`, if it holds them in this [`LAYOUT`] (`None` otherwise: no walk, or
+    /// another layout's). A section of the wrong element size is an error, as anywhere.
+    pub(crate) fn sections(a: &'a Artifact) -> Result<Option<WalkView<'a>>, ArtifactError> {
+        if !a.has_section(sections::INFO) {
+            return Ok(None);
+        }
+        let info: &[WalkInfo] = a.section(sections::INFO)?;
+        let Some(&info) = info.first() else {
+            return Err(a.invalid("the `walk_info` section is empty"));
+        };
+        if info.layout != LAYOUT || info.lanes != LANES as u32 {
+            return Ok(None);
+        }
+        Ok(Some(WalkView {
+            slabs: info.slabs != 0,
+            blocks: a.section(sections::BLOCKS)?,
+            leaves: a.section(sections::LEAVES)?,
+            chunks: a.section(sections::CHUNKS)?,
+            cold: a.section(sections::COLD)?,
+        }))
+    }
+
+    /// The `walk_info` record these sections carry.
+    pub fn info(&self) -> WalkInfo {
+        WalkInfo {
+            layout: LAYOUT,
+            lanes: LANES as u32,
+            slabs: self.slabs as u32,
+            _pad: 0,
+        }
+    }
+
+    /// Structural checks against the tree they copy: the leaves are the view's, in its table
+    /// order, each run within the chunks; every lane names a splat or is padding no ray hits;
+    /// every child word the walk can follow stays within the blocks. What a check cannot see (a
+    /// disk's coordinates) the checksums guard.
+    pub fn check(&self, view: &OctreeView) -> Result<(), String> {
+        // The leaves in table order, as the view lists them.
+        let t = view.begin_end;
+        let mut o = 0usize;
+        let mut k = 0usize;
+        while o + 2 < t.len() {
+            let Some(l) = self.leaves.get(k) else {
+                return Err(format!(
+                    "walk_leaves has {} leaves; the tree has more",
+                    self.leaves.len()
+                ));
+            };
+            if l.word != node::leaf(o as u32) {
+                return Err(format!("walk leaf {k} is not the tree's leaf {k}"));
+            }
+            o += 2 + t[o + 1] as usize;
+            k += 1;
+        }
+        if k != self.leaves.len() {
+            return Err(format!(
+                "walk_leaves has {} leaves for the tree's {k}",
+                self.leaves.len()
+            ));
+        }
+        if let Some(i) = self
+            .leaves
+            .iter()
+            .position(|l| l.first > l.end || l.end as usize > self.chunks.len())
+        {
+            return Err(format!("walk leaf {i}'s run lies outside walk_chunks"));
+        }
+        if self.cold.len() != self.chunks.len() * LANES {
+            return Err(format!(
+                "walk_cold has {} entries for {} chunks of {LANES}",
+                self.cold.len(),
+                self.chunks.len()
+            ));
+        }
+        let splats = view.splats.len();
+        let lane_ok = |(i, &s): (usize, &u32)| {
+            let r2 = self.chunks[i / LANES].r2[i % LANES];
+            // Padding must be a lane no ray hits (a negative squared radius).
+            (s as usize) < splats || (s == u32::MAX && r2 < 0.0)
+        };
+        if let Some(i) = self.cold.iter().enumerate().position(|x| !lane_ok(x)) {
+            return Err(format!(
+                "walk_cold entry {i} names splat {} of {splats}",
+                self.cold[i]
+            ));
+        }
+        self.check_words()
+    }
+
+    /// Every word the walk follows: leaf words name a leaf, internal words a whole block (or, in
+    /// the flat layout, eight words) within the section.
+    fn check_words(&self) -> Result<(), String> {
+        let words: &[u32] = bytemuck::cast_slice(self.blocks);
+        if words.is_empty() {
+            return Err("walk_blocks is empty".into());
+        }
+        let span = if self.slabs { BLOCK_WORDS } else { 8 } as usize;
+        let bad = |w: u32| {
+            let p = node::ptr(w) as usize;
+            if node::is_empty(w) {
+                false
+            } else if node::is_leaf(w) {
+                p >= self.leaves.len()
+            } else {
+                p + span > words.len() || (self.slabs && !p.is_multiple_of(BLOCK_WORDS as usize))
+            }
+        };
+        let followed: Box<dyn Iterator<Item = (usize, u32)>> = if self.slabs {
+            // The root word, then each block's eight child words.
+            let children = self
+                .blocks
+                .iter()
+                .enumerate()
+                .skip(1)
+                .flat_map(|(b, blk)| blk.words.iter().map(move |&w| (b, w)));
+            Box::new(std::iter::once((0, words[0])).chain(children))
+        } else {
+            Box::new(words.iter().copied().enumerate())
+        };
+        for (at, w) in followed {
+            if bad(w) {
+                return Err(format!(
+                    "walk_blocks word {w:#x} (block {at}) points outside"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Write `walk`'s sections into an octree artifact being written.
+pub fn write(w: &mut crate::ArtifactWriter, walk: &WalkView) -> Result<(), ArtifactError> {
+    w.section(sections::INFO, &[walk.info()])?;
+    w.section(sections::BLOCKS, walk.blocks)?;
+    w.section(sections::LEAVES, walk.leaves)?;
+    w.section(sections::CHUNKS, walk.chunks)?;
+    w.section(sections::COLD, walk.cold)?;
+    Ok(())
+}
