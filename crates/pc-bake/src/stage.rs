@@ -72,7 +72,7 @@ impl BakeStage {
     }
 
     fn bake(&self, progress: &dyn Progress) -> Result<Summary, BakeError> {
-        let octree = OctreeFile::open(&self.octree)?;
+        let octree = OctreeFile::open_without_walk(&self.octree)?;
         let materials = self.cfg.materials_for(&octree)?;
         let radiosity = RadiosityFile::open(&self.radiosity, &octree.id())?;
         let photons = match self.photons.wanted() {

@@ -228,6 +228,10 @@ fn the_packed_walk_is_written_once_and_mapped_by_every_reader() {
     assert_eq!(walk.leaves, b.leaves);
     assert_eq!(walk.chunks, b.chunks);
     assert_eq!(walk.cold, b.cold);
+    // A reader that casts no rays opens the tree alone.
+    let lean = pc_artifact::octree::OctreeFile::open_without_walk(&summary.path).unwrap();
+    assert!(lean.view().walk.is_none());
+    assert_eq!(lean.view().splats, view.splats);
     // Without the sections (an octree written before them) the reader builds the same copy.
     let bare = rewrite(&summary.path, &dir.path().join("bare.pcgi"), |n, _, b| {
         (!n.starts_with("walk_")).then_some(b)
