@@ -1,6 +1,8 @@
-//! A render-time copy of the octree laid out for the CPU walk: the same cells, the same listed
-//! disks in the same order, the same arithmetic, so the hits are identical to
-//! [`OctreeView::intersect`]'s (tested); only where the bytes lie changes.
+//! A copy of the octree laid out for the CPU walk: the same cells, the same listed disks in the
+//! same order, the same arithmetic, so the hits are identical to [`OctreeView::intersect`]'s
+//! (tested); only where the bytes lie changes. pc-octree builds it ([`Accel::build`]) and writes
+//! it into the octree artifact ([`pc_artifact::walk`]); the other stages map it
+//! ([`Accel::new`]), and build their own only from an octree without it.
 //!
 //! The artifact's walk is bound by dependent cache misses, not arithmetic (perf on 1M splats:
 //! the node descent's loads, the begin/end table's, then the first splat record of each leaf).
@@ -21,7 +23,8 @@
 //!   radius, and the border clip from the disk's own record through it (a copy per listing cost
 //!   16 bytes a lane: 1 GB of a 20M-point scan's V-map).
 //!
-//! Memory: about 32 bytes per listed disk plus padding (3 listings per splat on scans).
+//! Memory: about 32 bytes per listed disk plus padding (3 listings per splat on scans; 136
+//! bytes a splat at the 100M-point scan), mapped page cache when read from the artifact.
 
 use std::borrow::Cow;
 
