@@ -83,6 +83,19 @@ pub mod node {
 pub struct BeginEnd;
 
 impl BeginEnd {
+    /// The offset of each leaf's entry, in table (SFC) order: the walk over a table that
+    /// [`OctreeView::check`] has passed (the packed walk's leaves follow this order).
+    pub fn offsets(table: &[u32]) -> impl Iterator<Item = u32> + '_ {
+        let mut o = 0usize;
+        std::iter::from_fn(move || {
+            (o + 2 < table.len()).then(|| {
+                let at = o;
+                o += 2 + table[o + 1] as usize;
+                at as u32
+            })
+        })
+    }
+
     /// Own splat range `[begin, end)` and the referenced splats of the leaf at `offset`.
     /// Returns `None` when the offset or the counts run outside the table.
     #[inline]

@@ -28,7 +28,7 @@
 
 use std::borrow::Cow;
 
-use pc_artifact::octree::{node, within_clip};
+use pc_artifact::octree::{node, within_clip, BeginEnd};
 use pc_artifact::walk::{WalkBlock, WalkChunk, WalkLeaf, WalkView, BLOCK_WORDS};
 use rayon::prelude::*;
 
@@ -125,13 +125,7 @@ impl<'a> Accel<'a> {
     /// walk of its own).
     pub fn build(view: &OctreeView) -> Accel<'static> {
         // Leaves in table order (the table lists leaves in SFC order).
-        let t = view.begin_end;
-        let mut offsets = Vec::new();
-        let mut o = 0usize;
-        while o + 2 < t.len() {
-            offsets.push(o as u32);
-            o += 2 + t[o + 1] as usize;
-        }
+        let offsets: Vec<u32> = BeginEnd::offsets(view.begin_end).collect();
         // Each leaf's slab and chunk count in parallel, then its run by a prefix sum.
         let mut leaves: Vec<Leaf> = offsets
             .par_iter()
