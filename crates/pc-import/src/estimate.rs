@@ -624,6 +624,11 @@ const WIDEN_FLAT: f32 = 2.5;
 /// test against their noise refused every wider fit (3.7 times their variance at 4 k-th
 /// distances, 1.3 times the half ball's).
 const WIDEN_GROWTH: f32 = 2.0;
+/// Where a wider fit's half ball lay within the noise's depth, the fit is tried once more in a
+/// ball whose half clears it: a half radius of at least `.0` standard deviations of the noise
+/// (the wider fit's thinness), the whole ball at most `.1` times the `k`-th neighbour's
+/// distance.
+const WIDEN_DEEP: (f32, f32) = (3.0, 8.0);
 /// Fits whose own tilt error is below this share of the tolerance are taken as they are.
 const WIDEN_LOOK: f32 = 0.35;
 
@@ -638,8 +643,11 @@ const WIDEN_LOOK: f32 = 0.35;
 /// again over every point within the radius that brings its error to `above`, at least
 /// [`WIDEN_RADIUS`]`.0` and at most `.1` times its `k`-th neighbour's distance. The wider
 /// fit is kept where it stays as flat as the noise ([`WIDEN_FLAT`]): near a crease or on a
-/// tight curve it does not, and a fit wider than the least radius is tried once more at the
-/// least; failing that, the `k`-nearest normal stays.
+/// tight curve it does not. Where the ball's half lay within the noise's depth (a scan merged
+/// closer than its noise is deep, which leaves blobs: the 100M hall scan's zeniths), its fit is
+/// tried once more in a ball whose half clears the noise ([`WIDEN_DEEP`]). A fit wider than
+/// the least radius that still fails is tried once more at the least; failing that, the
+/// `k`-nearest normal stays.
 ///
 /// The noise is not the fit's own thinness, a sample of `k + 1` points (±40 % at 17), but the
 /// median over the fits around it ([`pooled_thin`]): a fit that came out thin by chance is
@@ -666,14 +674,18 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
             }
         })
         .collect();
-    for _ in 0..2 {
+    // Whether a point's ball was already widened past the noise's depth (once at most).
+    let mut deepened = vec![false; fits.len()];
+    let deepest = WIDEN_DEEP.1 * WIDEN_DEEP.1;
+    // At most three balls a point: the first, one past the noise, the least.
+    for _ in 0..3 {
         if !reach2.iter().any(|&r| r > 0.0) {
             break;
         }
         // Twice the points of the widest ball on a plane (every k-nearest fit holds the same
         // k + 1): a stray point's ball, sized by its far neighbours, is given up instead of
         // spanning the cloud.
-        let cap = 2 * (most as usize) * (fits[0].0.count as usize).max(1);
+        let cap = 2 * (deepest as usize) * (fits[0].0.count as usize).max(1);
         let wider = knn.map_within(&reach2, cap, |i, inside, offsets| {
             let all = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
             // The same ball at half the radius, for the growth test.
@@ -689,9 +701,9 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
             let grows = half.count < 2 * fits[i].0.count || wide.thin > WIDEN_GROWTH * half.thin;
             (wide, pooled_thin(fits, i, inside), grows)
         });
-        (&mut *normals, fits, &mut reach2, &wider)
+        (&mut *normals, fits, &mut reach2, &mut deepened, &wider)
             .into_par_iter()
-            .for_each(|(n, &(fit, d2), r2, wider)| {
+            .for_each(|(n, &(fit, d2), r2, deep, wider)| {
                 let Some((f, noise, grows)) = *wider else {
                     *r2 = 0.0; // given up (or never asked): not asked again
                     return;
@@ -707,6 +719,15 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
                     *n = f.normal;
                     *r2 = 0.0;
                 } else {
+                    // The half ball lay within the noise's depth (the wide fit's thinness
+                    // measures it): its fit was a blob, and the test compared a blob with the
+                    // noise. Once, wide enough that the half ball clears it.
+                    let past = 4.0 * WIDEN_DEEP.0 * WIDEN_DEEP.0 * f.thin;
+                    if !*deep && *r2 < past && *r2 < deepest * d2 {
+                        *deep = true;
+                        *r2 = past.min(deepest * d2);
+                        return;
+                    }
                     // Not flat: once more at the least radius, if this was wider.
                     *r2 = match *r2 > least * d2 * 1.001 {
                         true => least * d2,
