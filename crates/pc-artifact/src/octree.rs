@@ -605,12 +605,18 @@ impl<'a> OctreeView<'a> {
 /// The descent of §8.5.11 on a normalised coordinate `q ∈ [0,1)³`.
 #[inline]
 pub fn locate_normalized(nodes: &[u32], q: impl Into<[f32; 3]>) -> Located {
+    descend_normalized(nodes, q, u32::MAX)
+}
+
+/// [`locate_normalized`], stopping at depth `max_depth` where the node there is internal.
+#[inline]
+pub fn descend_normalized(nodes: &[u32], q: impl Into<[f32; 3]>, max_depth: u32) -> Located {
     let mut q = q.into();
     let mut slot = 0u32;
     let mut depth = 0u32;
     loop {
         let w = nodes[slot as usize];
-        if w & (node::LEAF | node::EMPTY) != 0 {
+        if w & (node::LEAF | node::EMPTY) != 0 || depth == max_depth {
             return Located {
                 slot,
                 node: w,

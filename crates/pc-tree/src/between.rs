@@ -32,7 +32,8 @@
 //! shaders/common/traverse.wgsl (driven by [`crate::caster::GpuCaster`]).
 
 use glam::Vec3;
-use pc_artifact::octree::Splat;
+use pc_artifact::octree::{node, Splat};
+use rayon::prelude::*;
 
 use crate::ray::Ray;
 use crate::OctreeView;
@@ -107,39 +108,186 @@ pub fn own_zone(radius: f32, rough: f32, cos: f32) -> f32 {
 }
 
 /// The roughness of every octree leaf, per node-pool slot (zero elsewhere): the RMS height of
-/// its own splats' centres above the plane through its centroid about its mean normal. Range
-/// noise and the tilt of fitted normals show here; a leaf is small enough that a surface's
-/// curvature mostly does not. A leaf whose normals cancel (no mean normal) or spread
-/// ([`ROUGH_SPREAD`]: an edge) gets zero.
+/// a surface's splat centres above their plane, about its mean normal. Range noise and the tilt
+/// of fitted normals show here. A leaf whose normals spread ([`ROUGH_SPREAD`]: an edge) gets
+/// zero.
+///
+/// Measured over the smallest node from the leaf up that spans its own noise: a cube of edge
+/// `L` holds a slab of the surface at most `L` deep, so a leaf smaller than the noise is deep
+/// (a dense scan's: the 20M hall scan's leaves are 5-10 mm, its ceiling's noise 2.5 mm, with
+/// centres 3.5 mm about their plane at a station's zenith) reads only the noise it cuts off,
+/// 1.3 mm there, a leaf of a few splats reads less still (one splat: zero), and a surface on a
+/// cube face splits its noise between two cubes. So a node is read with its column, its two
+/// neighbours of its depth along the axis nearest its normal; from the leaf up, the first
+/// node at least [`ROUGH_SPAN`] of its column's roughness wide, the column holding at least
+/// [`ROUGH_COUNT`] splats, gives the leaf's, at most [`ROUGH_CLIMB`] levels up and while the
+/// nodes stay flat; a smooth surface's leaf is its own. docs/vmap.md, "Roughness wider than a
+/// leaf".
 pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
-    // Per leaf: Σ h², Σ (1 − n·n̄), count.
-    let mut sum = vec![(0.0f64, 0.0f64, 0u32); view.nodes.len()];
+    let n = view.nodes.len();
+    // Per node: its subtree's own splats' count, Σ p, Σ p pᵀ (upper triangle) and Σ n, about
+    // the root cube's centre (f64: the variance is millimetres² under metres²).
+    let c = (Vec3::from(view.frame.origin) + 0.5 * view.frame.size).as_dvec3();
+    let mut m = vec![Moments::default(); n];
     for (s, &l) in view.splats.iter().zip(view.splat_leaf) {
-        let info = &view.node_info[l as usize];
-        let axis = Vec3::from(info.normal);
-        let h = (Vec3::from(s.position) - Vec3::from(info.centroid)).dot(axis);
-        let e = &mut sum[l as usize];
-        e.0 += (h as f64) * (h as f64);
-        e.1 += (1.0 - Vec3::from(s.normal).dot(axis)) as f64;
-        e.2 += 1;
+        m[l as usize].add(Vec3::from(s.position).as_dvec3() - c, Vec3::from(s.normal));
     }
-    sum.into_iter()
-        .map(|(h2, spread, n)| {
-            let flat = n > 0 && spread / (n as f64) < ROUGH_SPREAD as f64;
-            if flat {
-                (h2 / n as f64).sqrt() as f32
-            } else {
-                0.0
+    // Children follow their parent in the pool: bottom-up in reverse, and each node's parent
+    // and depth top-down.
+    let mut parent = vec![u32::MAX; n];
+    let mut depth = vec![0u8; n];
+    for slot in 0..n {
+        let w = view.nodes[slot];
+        if !node::is_leaf(w) && !node::is_empty(w) {
+            let first = node::ptr(w) as usize;
+            for ch in first..first + 8 {
+                parent[ch] = slot as u32;
+                depth[ch] = depth[slot] + 1;
             }
+        }
+    }
+    for slot in (0..n).rev() {
+        let p = parent[slot];
+        if p != u32::MAX {
+            let child = m[slot];
+            m[p as usize].merge(&child);
+        }
+    }
+    // Per node: its roughness about its mean normal, and whether its normals agree.
+    let rough: Vec<(f32, bool)> = m
+        .par_iter()
+        .zip(view.node_info)
+        .map(|(m, info)| m.rough(Vec3::from(info.normal)))
+        .collect();
+    // A node's column: itself and its two neighbours of its depth along the axis its normal
+    // is nearest (a surface lying on a cube face splits its noise between two cubes).
+    let column = |at: usize| -> (f32, u32) {
+        let axis = Vec3::from(view.node_info[at].normal);
+        let k = axis.abs().max_position();
+        let edge = view.frame.size as f64 / (1u64 << depth[at]) as f64;
+        let mean = m[at].p / m[at].count.max(1) as f64 + c;
+        let mut sum = m[at];
+        for side in [-1.0, 1.0] {
+            let mut q = mean;
+            q[k] += side * edge;
+            let q = q.as_vec3().to_array();
+            if let Some(nb) = view
+                .normalized(q)
+                .and_then(|q| at_depth(view.nodes, q, depth[at]))
+            {
+                sum.merge(&m[nb as usize]);
+            }
+        }
+        (sum.rough(axis).0, sum.count)
+    };
+    (0..n)
+        .into_par_iter()
+        .map(|slot| {
+            if !node::is_leaf(view.nodes[slot]) || !rough[slot].1 {
+                return 0.0;
+            }
+            let mut at = slot;
+            let mut read = 0.0;
+            for _ in 0..=ROUGH_CLIMB {
+                let edge = view.frame.size / (1u64 << depth[at]) as f32;
+                let (sigma, count) = column(at);
+                read = sigma;
+                if count >= ROUGH_COUNT && edge >= ROUGH_SPAN * sigma {
+                    break;
+                }
+                match parent[at] {
+                    p if p != u32::MAX && rough[p as usize].1 => at = p as usize,
+                    _ => break,
+                }
+            }
+            read
         })
         .collect()
+}
+
+/// The node of depth `target` that holds the normalised point `q`, `None` where the descent
+/// ends in a leaf or an empty node above it.
+fn at_depth(nodes: &[u32], q: [f32; 3], target: u8) -> Option<u32> {
+    let at = pc_artifact::octree::descend_normalized(nodes, q, target as u32);
+    (at.depth == target as u32).then_some(at.slot)
 }
 
 /// A leaf counts as one rough surface only where its splats' normals agree, their mean
 /// `1 − n·n̄` below this (about 20°): a leaf across an edge (a wall meeting the ceiling) has
 /// heights about its mean plane as large as itself, which are geometry, not noise, and its
-/// splats' fitted normals blend the two faces; its own zones stay a radius high.
+/// splats' fitted normals blend the two faces; its own zones stay a radius high. So does a
+/// node above a rough leaf: its roughness is read no higher than its normals agree.
 const ROUGH_SPREAD: f32 = 0.06;
+
+/// A node's column spans its noise where the node is this many times as wide as the column's
+/// roughness: the column, three nodes deep, holds the noise to well past three standard
+/// deviations either side of the node's middle.
+const ROUGH_SPAN: f32 = 6.0;
+
+/// Fewer splats than this read no roughness worth the name (one reads zero).
+const ROUGH_COUNT: u32 = 8;
+
+/// At most this many levels above a leaf (16 times its width): farther up, a curved
+/// surface's bend would read as noise.
+const ROUGH_CLIMB: usize = 4;
+
+/// A node's splat moments for [`leaf_roughness`].
+#[derive(Clone, Copy, Default)]
+struct Moments {
+    count: u32,
+    p: glam::DVec3,
+    pp: [f64; 6],
+    n: Vec3,
+}
+
+impl Moments {
+    fn add(&mut self, p: glam::DVec3, n: Vec3) {
+        self.count += 1;
+        self.p += p;
+        let pp = [
+            p.x * p.x,
+            p.x * p.y,
+            p.x * p.z,
+            p.y * p.y,
+            p.y * p.z,
+            p.z * p.z,
+        ];
+        for (a, b) in self.pp.iter_mut().zip(pp) {
+            *a += b;
+        }
+        self.n += n;
+    }
+
+    fn merge(&mut self, o: &Moments) {
+        self.count += o.count;
+        self.p += o.p;
+        for (a, b) in self.pp.iter_mut().zip(o.pp) {
+            *a += b;
+        }
+        self.n += o.n;
+    }
+
+    /// The RMS height of the centres about their centroid's plane of normal `axis`, and
+    /// whether the normals agree with `axis` ([`ROUGH_SPREAD`]); `(0, false)` without splats
+    /// or an axis.
+    fn rough(&self, axis: Vec3) -> (f32, bool) {
+        if self.count == 0 || axis == Vec3::ZERO {
+            return (0.0, false);
+        }
+        let k = self.count as f64;
+        let a = axis.as_dvec3();
+        let mean = self.p / k;
+        let [xx, xy, xz, yy, yz, zz] = self.pp.map(|v| v / k);
+        // aᵀ (E[p pᵀ] − mean meanᵀ) a
+        let second = a.x * a.x * xx
+            + a.y * a.y * yy
+            + a.z * a.z * zz
+            + 2.0 * (a.x * a.y * xy + a.x * a.z * xz + a.y * a.z * yz);
+        let var = (second - a.dot(mean).powi(2)).max(0.0);
+        let spread = 1.0 - self.n.dot(axis) / self.count as f32;
+        (var.sqrt() as f32, spread < ROUGH_SPREAD)
+    }
+}
 
 /// A visibility segment between two surface points: `ray` from the first end (at `t = 0`)
 /// toward the second, whose own zones end at `t = zones[0]` (hits before it on the surface

@@ -152,6 +152,37 @@ fn a_rough_floor_sees_the_wall_it_faces_whole() {
 }
 
 #[test]
+fn a_leaf_smaller_than_its_noise_reads_the_noise_of_its_surface() {
+    // A floor whose range noise (1.5 spacings) is deeper than its leaves of up to 8 splats
+    // are wide: a leaf holds the slab of the noise its cube cuts, and a leaf of a few splats
+    // reads less still (one splat: none). Every splat's leaf reads the floor's noise, from the
+    // smallest node above it that spans it.
+    let (h, sigma) = (0.01, 0.015);
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut s = Soa::default();
+    s.rect(Vec3::ZERO, Vec3::X * 0.5, -Vec3::Z * 0.5, h, 0, &mut rng);
+    for k in 0..s.len() {
+        let g: f32 = (0..4).map(|_| rng.random_range(-1.0f32..1.0)).sum::<f32>() * 0.866;
+        s.p[k] += s.n[k] * (g * sigma);
+    }
+    let o = s.build(8);
+    let view = o.view();
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let mut read: Vec<f32> = view
+        .splat_leaf
+        .iter()
+        .map(|&l| rough[l as usize] / sigma)
+        .collect();
+    read.sort_by(f32::total_cmp);
+    let (p10, median) = (read[read.len() / 10], read[read.len() / 2]);
+    println!("roughness over the noise: median {median}, 10th percentile {p10}");
+    assert!(
+        (0.85..1.15).contains(&median) && p10 > 0.7,
+        "roughness over the noise: median {median}, 10th percentile {p10}"
+    );
+}
+
+#[test]
 fn gpu_segments_match_the_cpu() {
     let Some(ctx) = pc_gpu::test_context() else {
         return;
