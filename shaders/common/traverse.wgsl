@@ -64,6 +64,30 @@ fn is_own(o: Own, s: Splat) -> bool {
     return dot(s.normal, o.normal) > OWN_COS && s.material == o.material;
 }
 
+// Twins of pc_tree::between::{OWN_HEIGHT, OWN_SLOPE, OWN_ROUGH, OWN_REACH}.
+const OWN_HEIGHT: f32 = 1.0;
+const OWN_SLOPE: f32 = 0.1;
+const OWN_ROUGH: f32 = 5.0;
+const OWN_REACH: f32 = 32.0;
+
+// How far along a ray leaving a splat the splat's own zone reaches (twin of own_zone).
+fn own_zone(radius: f32, rough: f32, cos_n: f32) -> f32 {
+    let h = OWN_HEIGHT * radius + OWN_ROUGH * rough;
+    let reach = OWN_REACH * h;
+    let rise = cos_n - OWN_SLOPE;
+    if rise * reach <= h {
+        return reach;
+    }
+    return h / rise;
+}
+
+// The ends of a ray leaving splat s (on a leaf of roughness `rough`) along dir, the far end no
+// surface (twin of Between::leaving).
+fn leaving(s: Splat, rough: f32, dir: vec3<f32>) -> Ends {
+    let none = Own(vec3<f32>(0.0), INVALID);
+    return Ends(Own(s.normal, s.material), none, vec2<f32>(own_zone(s.radius, rough, dot(s.normal, dir)), 3.40282347e38), vec2<f32>(0.0));
+}
+
 // Whether a hit at t on splat s is an end's own surface (twin of Between::ignores).
 fn ignored(e: Ends, t: f32, s: Splat) -> bool {
     return (t < e.zones.x && is_own(e.own0, s)) || (t > e.zones.y && is_own(e.own1, s));

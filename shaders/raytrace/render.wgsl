@@ -89,6 +89,17 @@ fn stored_radiance(j: u32) -> vec3<f32> {
 // The photons sorted by hash bucket, and each bucket's first photon (params.grid_mask + 2 entries).
 @group(0) @binding(13) var<storage, read> photons: array<Photon>;
 @group(0) @binding(14) var<storage, read> grid_offsets: array<u32>;
+// Each octree leaf's roughness per node-pool slot (pc_tree::between::leaf_roughness) in direct
+// mode, for the shadow rays' own zones.
+@group(0) @binding(15) var<storage, read> leaf_rough: array<f32>;
+
+// A shadow ray leaving the surface of splat `own`, past that surface's own roughness (twin of
+// RenderScene::occluded_leaving).
+fn occluded_leaving(x: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, own: u32) -> bool {
+    let s = splats[own];
+    let ends = leaving(s, leaf_rough[splat_leaf[own]], dir);
+    return trace_between(x, dir, t_min, t_max, true, ends).found;
+}
 
 const F32_MAX: f32 = 3.40282347e38;
 
@@ -141,7 +152,7 @@ fn emitter_pdf(k: u32) -> f32 {
     return bitcast<f32>(emitters[k].y) - prev;
 }
 
-fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u32) -> vec3<f32> {
+fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, own: u32, pixel: u32, k: u32, bounce: u32) -> vec3<f32> {
     var e = vec3<f32>(0.0);
     for (var li = 0u; li < params.light_count; li = li + 1u) {
         let l = lights[li];
@@ -150,7 +161,7 @@ fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u3
         let d = sqrt(d2);
         let dir = to / d;
         let c = dot(n, dir);
-        if c > 0.0 && !occluded(x, dir, delta, d * (1.0 - 1e-4)) {
+        if c > 0.0 && !occluded_leaving(x, dir, delta, d * (1.0 - 1e-4), own) {
             e = e + l.intensity * c / d2;
         }
     }
@@ -170,7 +181,7 @@ fn direct(x: vec3<f32>, n: vec3<f32>, delta: f32, pixel: u32, k: u32, bounce: u3
             let dir = to / d;
             let cos_x = dot(n, dir);
             let cos_y = -dot(sj.normal, dir);
-            if cos_x > 0.0 && cos_y > 0.0 && !occluded(x, dir, delta, d - params.self_hit * sj.radius) {
+            if cos_x > 0.0 && cos_y > 0.0 && !occluded_leaving(x, dir, delta, d - params.self_hit * sj.radius, own) {
                 let pdf_area = emitter_pdf(ke) / splat_area[j];
                 e = e + materials[sj.material].radiance * (cos_x * cos_y / (d2 * pdf_area)) * inv_n;
             }
@@ -377,7 +388,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
             res.rgb = res.rgb + throughput * albedo / PI * caustic(x, n);
         }
         if params.mode == 1u {
-            res.rgb = res.rgb + throughput * albedo / PI * direct(x, n, delta, pixel, k, bounce);
+            res.rgb = res.rgb + throughput * albedo / PI * direct(x, n, delta, hit.splat, pixel, k, bounce);
         }
         break;
     }

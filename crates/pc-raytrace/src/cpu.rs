@@ -164,7 +164,12 @@ pub fn trace_sample(
         }
         if p.mode == 1 {
             out.rgb += throughput * albedo / PI
-                * direct(sc, (x, n, delta), SampleAt { pixel, k, bounce }, counts);
+                * direct(
+                    sc,
+                    (x, n, delta, hit.splat),
+                    SampleAt { pixel, k, bounce },
+                    counts,
+                );
         }
         break;
     }
@@ -180,13 +185,14 @@ pub struct SampleAt {
     pub bounce: u32,
 }
 
-/// Irradiance at `x` (normal `n`; shadow rays start `delta` from it) from the point lights and
-/// the emitting splats, with shadow rays. Emitters are sampled in proportion to power; a point
+/// Irradiance at `x` (normal `n`, on the splat `own`; shadow rays start `delta` from it and
+/// pass over that splat's own rough surface, [`RenderScene::occluded_leaving`]) from the point
+/// lights and the emitting splats, with shadow rays. Emitters are sampled in proportion to power; a point
 /// uniform on the chosen disk stands for the splat's area (`splat_area`), so the estimator is
 /// unbiased for the union of the disks.
 pub fn direct(
     sc: &RenderScene,
-    (x, n, delta): (Vec3, Vec3, f32),
+    (x, n, delta, own): (Vec3, Vec3, f32, u32),
     at: SampleAt,
     counts: &mut RayCounts,
 ) -> Vec3 {
@@ -208,7 +214,7 @@ pub fn direct(
                 t_min: delta,
                 t_max: d * (1.0 - 1e-4),
             };
-            if !sc.occluded(&shadow, &mut counts.traversal) {
+            if !sc.occluded_leaving(shadow, own, &mut counts.traversal) {
                 e += Vec3::from(l.intensity) * cos / d2;
             }
         }
@@ -237,7 +243,7 @@ pub fn direct(
                     t_min: delta,
                     t_max: d - p.self_hit * sj.radius,
                 };
-                if !sc.occluded(&shadow, &mut counts.traversal) {
+                if !sc.occluded_leaving(shadow, own, &mut counts.traversal) {
                     let pdf_area = sc.emitters.pdf(ke) / view.splat_area[j];
                     let radiance = Vec3::from(sc.materials[sj.material as usize].radiance);
                     e += radiance * (cos_x * cos_y / (d2 * pdf_area)) * inv_n;

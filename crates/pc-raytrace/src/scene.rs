@@ -128,6 +128,9 @@ pub struct RenderScene<'a> {
     pub radiance: Option<&'a [[f32; 3]]>,
     /// pc-caustics' photon map: diffuse hits add its density estimate.
     pub caustics: Option<crate::caustic::Caustics<'a>>,
+    /// Each octree leaf's roughness (`pc_tree::between::leaf_roughness`, per node-pool slot)
+    /// in `direct` mode, for the shadow rays' own zones; empty otherwise.
+    pub rough: Vec<f32>,
 }
 
 impl<'a> RenderScene<'a> {
@@ -166,9 +169,17 @@ impl<'a> RenderScene<'a> {
             stored_radiance: 0,
             ..Default::default()
         };
+        // The preview's shadow rays pass over their own surface's roughness, as pc-fmm's do.
+        let rough = match params.mode {
+            1 if !lights.is_empty() || params.emitter_count > 0 => {
+                pc_tree::between::leaf_roughness(&view)
+            }
+            _ => Vec::new(),
+        };
         RenderScene {
             view,
             accel: None,
+            rough,
             materials,
             lights,
             emitters,
@@ -255,6 +266,25 @@ impl<'a> RenderScene<'a> {
         match &self.accel {
             Some(a) => a.occluded(&self.view, ray, st),
             None => pc_tree::occluded(&self.view, ray, st),
+        }
+    }
+
+    /// A shadow ray leaving the surface of splat `own` (hit at the ray's origin): it passes
+    /// over that surface's own roughness (`pc_tree::between`), through the packed lists when
+    /// prepared. WGSL twin: `occluded_leaving` in shaders/raytrace/render.wgsl.
+    #[inline]
+    pub fn occluded_leaving(
+        &self,
+        ray: pc_tree::Ray,
+        own: u32,
+        st: &mut pc_tree::TraversalStats,
+    ) -> bool {
+        let s = &self.view.splats[own as usize];
+        let rough = self.rough[self.view.splat_leaf[own as usize] as usize];
+        let seg = pc_tree::Between::leaving(ray, (s, rough));
+        match &self.accel {
+            Some(a) => a.occluded_between(&self.view, &seg, st),
+            None => pc_tree::occluded_between(&self.view, &seg, st),
         }
     }
 

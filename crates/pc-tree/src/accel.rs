@@ -382,6 +382,17 @@ impl<'a> Accel<'a> {
         self.walk_any(view, ray, None, stats)
     }
 
+    /// Whether a disk blocks the segment, passing over those [`Between::ignores`]
+    /// (unaccelerated twin: [`crate::ray::occluded_between`]).
+    pub fn occluded_between(
+        &self,
+        view: &OctreeView,
+        seg: &Between,
+        stats: &mut TraversalStats,
+    ) -> bool {
+        self.walk_any(view, &seg.ray, Some(seg), stats)
+    }
+
     /// Visibility of many segments between surfaces (rayon across segments): `true` where
     /// nothing but the ends' own surfaces lies between ([`Between::ignores`]).
     pub fn visible_between(&self, view: &OctreeView, segs: &[Between]) -> Vec<bool> {

@@ -19,6 +19,7 @@
 use glam::Vec3;
 use pc_artifact::octree::{node, Splat};
 
+use crate::between::Between;
 use crate::OctreeView;
 
 /// A ray with its valid parameter interval.
@@ -154,15 +155,27 @@ fn below(x: f32) -> f32 {
 
 /// The nearest splat hit in `[ray.t_min, ray.t_max]`.
 pub fn intersect(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
-    walk(view, ray, stats, false)
+    walk(view, ray, stats, false, None)
 }
 
 /// Whether any splat is hit in `[ray.t_min, ray.t_max]` (shadow rays).
 pub fn occluded(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
-    walk(view, ray, stats, true).is_some()
+    walk(view, ray, stats, true, None).is_some()
 }
 
-fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> Option<Hit> {
+/// Whether a splat blocks the segment, passing over the hits [`Between::ignores`]
+/// (the unaccelerated twin of [`crate::accel::Accel::occluded_between`]).
+pub fn occluded_between(view: &OctreeView, seg: &Between, stats: &mut TraversalStats) -> bool {
+    walk(view, &seg.ray, stats, true, Some(seg)).is_some()
+}
+
+fn walk(
+    view: &OctreeView,
+    ray: &Ray,
+    stats: &mut TraversalStats,
+    any: bool,
+    between: Option<&Between>,
+) -> Option<Hit> {
     walk_with(
         view,
         view.nodes,
@@ -174,8 +187,10 @@ fn walk(view: &OctreeView, ray: &Ray, stats: &mut TraversalStats, any: bool) -> 
             let mut best: Option<Hit> = None;
             stats.splat_tests += (range.end - range.start) as u64 + refs.len() as u64;
             for i in range.chain(refs.iter().copied()) {
-                if let Some(th) = intersect_splat(ray.origin, ray.dir, &view.splats[i as usize]) {
-                    if th >= ray.t_min && th <= limit && best.is_none_or(|b| th < b.t) {
+                let s = &view.splats[i as usize];
+                if let Some(th) = intersect_splat(ray.origin, ray.dir, s) {
+                    let own = between.is_some_and(|b| b.ignores(th, s.normal, s.material));
+                    if th >= ray.t_min && th <= limit && !own && best.is_none_or(|b| th < b.t) {
                         best = Some(Hit {
                             t: th,
                             splat: i,

@@ -40,6 +40,7 @@ pub struct GpuRenderer {
     radiance: pc_gpu::Buffer,
     photons: pc_gpu::Buffer,
     grid_offsets: pc_gpu::Buffer,
+    leaf_rough: pc_gpu::Buffer,
     /// The photon-map fields of [`Params`].
     grid: Params,
 }
@@ -53,13 +54,13 @@ impl GpuRenderer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
-        b.extend([Binding::ReadOnly; 3]);
+        b.extend([Binding::ReadOnly; 4]);
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
-        if limit < 13 {
+        if limit < 14 {
             return Err(GpuError::Device {
                 adapter: ctx.describe(),
                 msg: format!(
-                    "the renderer needs 13 storage buffers per stage, the adapter allows {limit}"
+                    "the renderer needs 14 storage buffers per stage, the adapter allows {limit}"
                 ),
             });
         }
@@ -77,6 +78,11 @@ impl GpuRenderer {
             ctx.storage("lights", bytemuck::cast_slice(&sc.lights))?,
             ctx.storage("emitters", bytemuck::cast_slice(&emitters))?,
         ];
+        // The leaves' roughness for direct mode's shadow rays (one unused word otherwise).
+        let leaf_rough = match sc.rough.is_empty() {
+            true => ctx.storage("leaf_rough", &[0u8; 4])?,
+            false => ctx.storage("leaf_rough", bytemuck::cast_slice(&sc.rough))?,
+        };
         // The radiosity artifact's mapped section, as it is.
         let radiance = match sc.radiance {
             Some(r) => ctx.storage("radiance", bytemuck::cast_slice(r))?,
@@ -118,6 +124,7 @@ impl GpuRenderer {
             radiance,
             photons,
             grid_offsets,
+            leaf_rough,
             grid,
         })
     }
@@ -169,6 +176,7 @@ impl GpuRenderer {
             bind.push(&self.radiance);
             bind.push(&self.photons);
             bind.push(&self.grid_offsets);
+            bind.push(&self.leaf_rough);
             self.kernel
                 .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
             let bytes = ctx.read(&out, (w * rows) as u64 * pixel_bytes)?;

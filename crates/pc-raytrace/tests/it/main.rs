@@ -112,6 +112,73 @@ fn point_light_over_a_plane_matches_the_inverse_square_law() {
     assert!(worst < 1e-3, "worst relative error {worst}");
 }
 
+#[test]
+fn a_noisy_floor_is_not_shadowed_by_its_own_noise_in_the_preview() {
+    // A scanned floor's range noise (half a spacing) under a low light: the preview's shadow
+    // rays leave the floor at about 14°, through the neighbouring disks that stand proud of
+    // it. They pass over the floor's own roughness, as pc-fmm's do, so the noisy floor shows
+    // the noiseless floor's light; plain shadow rays would lose much of it.
+    let floor = |sigma: f32| {
+        let mut rng = Pcg64::seed_from_u64(4);
+        let mut s = Soa::default();
+        s.rect(Vec3::ZERO, Vec3::X, -Vec3::Z, 0.02, 0, &mut rng);
+        for k in 0..s.len() {
+            let g: f32 = (0..4)
+                .map(|_| rand::Rng::random_range(&mut rng, -1.0f32..1.0))
+                .sum();
+            s.p[k] += s.n[k] * (g * 0.866 * sigma);
+        }
+        s
+    };
+    let mats = vec![diffuse(0.5)];
+    let light = PointLight::new([4.0, 1.0, 0.0], [20.0; 3]);
+    let cam = camera(Vec3::new(0.0, 3.0, 0.0), Vec3::ZERO, -Vec3::Z, 30.0, 32, 32);
+    let mean = |s: &Soa| {
+        let o = s.build(&mats);
+        let mut sc = RenderScene::new(
+            o.view(),
+            mats.clone(),
+            &[light],
+            &cam,
+            &params(4, ShadingMode::Direct),
+        );
+        sc.prepare_cpu();
+        let (img, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+        // And how many plain shadow rays from the splat centres the floor itself blocks.
+        let mut st = pc_tree::TraversalStats::default();
+        let blocked = o
+            .view()
+            .splats
+            .iter()
+            .filter(|p| {
+                let x = Vec3::from(p.position);
+                let to = Vec3::from(light.position) - x;
+                let ray = pc_tree::Ray {
+                    origin: x,
+                    dir: to.normalize(),
+                    t_min: 0.5 * p.radius,
+                    t_max: to.length(),
+                };
+                pc_tree::occluded(&o.view(), &ray, &mut st)
+            })
+            .count() as f32
+            / o.view().splats.len() as f32;
+        let m = img.rgb.iter().map(|p| p[0]).sum::<f32>() / img.rgb.len() as f32;
+        (m, blocked)
+    };
+    let (smooth, _) = mean(&floor(0.0));
+    let (noisy, blocked) = mean(&floor(0.01));
+    println!("noisy floor {noisy}, smooth {smooth}, plain rays blocked on {blocked}");
+    assert!(
+        (noisy / smooth - 1.0).abs() < 0.03,
+        "noisy floor {noisy}, smooth {smooth}"
+    );
+    assert!(
+        blocked > 0.2,
+        "plain rays blocked on {blocked} of the floor only"
+    );
+}
+
 /// The first-hit point of pixel i's sample 0, from the camera and the recorded depth.
 fn reconstruct(sc: &RenderScene, _img: &pc_raytrace::image::Image, i: u32, depth: f32) -> Vec3 {
     let w = sc.params.width;
