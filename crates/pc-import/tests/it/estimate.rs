@@ -757,18 +757,12 @@ fn a_column_seen_edge_on_keeps_its_normals_outward() {
     );
 }
 
-#[test]
-fn noise_deeper_than_the_nearest_are_wide_is_widened_through() {
-    // A dense face under range noise deeper than its 16 nearest are wide (a station's zenith
-    // on a 20M-point scan: 2.5 mm of noise, the 16 nearest within 4.6 mm). The nearest fit a
-    // blob, thinner than the noise by chance, so the noise pooled from them refuses every
-    // wider fit; the wider fit does not thicken from half its radius to its whole, as a
-    // crease would, and is kept.
-    // Scanned far denser than the noise, then merged (at 3.5 mm, which leaves the 16 nearest
-    // within about 4.6 mm, as on the scan) the way a scan's import merges it:
-    // what is left is spread evenly through the noise's depth.
+/// A dense face (0.5 mm apart) under 2.5 mm of range noise, merged at `merge` the way a scan's
+/// import merges it (what is left is spread evenly through the noise's depth): how many points
+/// are left, and the median and 90th percentile of their normals' tilts in degrees.
+fn merged_noisy_face_tilts(merge: f32) -> (usize, f32, f32) {
     let dense = noisy_face(400, 0.0005, 0.0025, Vec3::ZERO, [Vec3::X, Vec3::Y, Vec3::Z]);
-    let keep = pc_import::clean::merge_duplicates(&dense, 0.0035);
+    let keep = pc_import::clean::merge_duplicates(&dense, merge);
     let pts: Vec<Vec3> = dense
         .iter()
         .zip(&keep)
@@ -781,11 +775,21 @@ fn noise_deeper_than_the_nearest_are_wide_is_widened_through() {
         .map(|n| n.z.clamp(-1.0, 1.0).acos().to_degrees())
         .collect();
     tilt.sort_by(f32::total_cmp);
-    let (median, p90) = (tilt[tilt.len() / 2], tilt[tilt.len() * 9 / 10]);
+    (pts.len(), tilt[tilt.len() / 2], tilt[tilt.len() * 9 / 10])
+}
+
+#[test]
+fn noise_deeper_than_the_nearest_are_wide_is_widened_through() {
+    // A dense face under range noise deeper than its 16 nearest are wide (a station's zenith
+    // on a 20M-point scan: 2.5 mm of noise, the 16 nearest within 4.6 mm). The nearest fit a
+    // blob, thinner than the noise by chance, so the noise pooled from them refuses every
+    // wider fit; the wider fit does not thicken from half its radius to its whole, as a
+    // crease would, and is kept. Merged at 3.5 mm, which leaves the 16 nearest within about
+    // 4.6 mm, as on the scan.
+    let (n, median, p90) = merged_noisy_face_tilts(0.0035);
     assert!(
         median < 3.0 && p90 < 8.0,
-        "{} points, tilts: median {median}°, 90th percentile {p90}°",
-        pts.len()
+        "{n} points, tilts: median {median}°, 90th percentile {p90}°"
     );
 }
 
@@ -797,24 +801,9 @@ fn noise_deeper_than_the_widened_ball_is_widened_past_it() {
     // is a blob; the growth test compared that blob with the noise and refused the wider fit
     // (median tilt 21°, 90th percentile 71°). The ball is widened once more, until its half
     // clears the noise.
-    let dense = noisy_face(400, 0.0005, 0.0025, Vec3::ZERO, [Vec3::X, Vec3::Y, Vec3::Z]);
-    let keep = pc_import::clean::merge_duplicates(&dense, 0.002);
-    let pts: Vec<Vec3> = dense
-        .iter()
-        .zip(&keep)
-        .filter(|(_, &k)| k)
-        .map(|(p, _)| *p)
-        .collect();
-    let normals = estimate_normals(&pts, 16, Orientation::Sensor(Vec3::new(0.1, 0.1, 2.0)));
-    let mut tilt: Vec<f32> = normals
-        .iter()
-        .map(|n| n.z.clamp(-1.0, 1.0).acos().to_degrees())
-        .collect();
-    tilt.sort_by(f32::total_cmp);
-    let (median, p90) = (tilt[tilt.len() / 2], tilt[tilt.len() * 9 / 10]);
+    let (n, median, p90) = merged_noisy_face_tilts(0.002);
     assert!(
         median < 2.0 && p90 < 8.0,
-        "{} points, tilts: median {median}°, 90th percentile {p90}°",
-        pts.len()
+        "{n} points, tilts: median {median}°, 90th percentile {p90}°"
     );
 }
