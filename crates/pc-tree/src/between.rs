@@ -153,23 +153,23 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
             m[p as usize].merge(&child);
         }
     }
-    // Per node: its roughness about its mean normal, and whether its normals agree.
-    let rough: Vec<(f32, bool)> = m
+    // Per node: whether its normals agree (an edge's do not).
+    let flat: Vec<bool> = m
         .par_iter()
         .zip(view.node_info)
-        .map(|(m, info)| m.rough(Vec3::from(info.normal)))
+        .map(|(m, info)| m.flat(Vec3::from(info.normal)))
         .collect();
+    let edge = |at: usize| view.frame.size / (1u64 << depth[at]) as f32;
     // A node's column: itself and its two neighbours of its depth along the axis its normal
     // is nearest (a surface lying on a cube face splits its noise between two cubes).
     let column = |at: usize| -> (f32, u32) {
         let axis = Vec3::from(view.node_info[at].normal);
         let k = axis.abs().max_position();
-        let edge = view.frame.size as f64 / (1u64 << depth[at]) as f64;
         let mean = m[at].p / m[at].count.max(1) as f64 + c;
         let mut sum = m[at];
         for side in [-1.0, 1.0] {
             let mut q = mean;
-            q[k] += side * edge;
+            q[k] += side * edge(at) as f64;
             let q = q.as_vec3().to_array();
             if let Some(nb) = view
                 .normalized(q)
@@ -178,25 +178,24 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
                 sum.merge(&m[nb as usize]);
             }
         }
-        (sum.rough(axis).0, sum.count)
+        (sum.rough(axis), sum.count)
     };
     (0..n)
         .into_par_iter()
         .map(|slot| {
-            if !node::is_leaf(view.nodes[slot]) || !rough[slot].1 {
+            if !node::is_leaf(view.nodes[slot]) || !flat[slot] {
                 return 0.0;
             }
             let mut at = slot;
             let mut read = 0.0;
             for _ in 0..=ROUGH_CLIMB {
-                let edge = view.frame.size / (1u64 << depth[at]) as f32;
                 let (sigma, count) = column(at);
                 read = sigma;
-                if count >= ROUGH_COUNT && edge >= ROUGH_SPAN * sigma {
+                if count >= ROUGH_COUNT && edge(at) >= ROUGH_SPAN * sigma {
                     break;
                 }
                 match parent[at] {
-                    p if p != u32::MAX && rough[p as usize].1 => at = p as usize,
+                    p if p != u32::MAX && flat[p as usize] => at = p as usize,
                     _ => break,
                 }
             }
@@ -267,12 +266,19 @@ impl Moments {
         self.n += o.n;
     }
 
-    /// The RMS height of the centres about their centroid's plane of normal `axis`, and
-    /// whether the normals agree with `axis` ([`ROUGH_SPREAD`]); `(0, false)` without splats
-    /// or an axis.
-    fn rough(&self, axis: Vec3) -> (f32, bool) {
-        if self.count == 0 || axis == Vec3::ZERO {
-            return (0.0, false);
+    /// Whether the normals agree with `axis` ([`ROUGH_SPREAD`]); not without splats or an
+    /// axis.
+    fn flat(&self, axis: Vec3) -> bool {
+        self.count > 0
+            && axis != Vec3::ZERO
+            && 1.0 - self.n.dot(axis) / (self.count as f32) < ROUGH_SPREAD
+    }
+
+    /// The RMS height of the centres about their centroid's plane of normal `axis`; zero
+    /// without splats.
+    fn rough(&self, axis: Vec3) -> f32 {
+        if self.count == 0 {
+            return 0.0;
         }
         let k = self.count as f64;
         let a = axis.as_dvec3();
@@ -284,8 +290,7 @@ impl Moments {
             + a.z * a.z * zz
             + 2.0 * (a.x * a.y * xy + a.x * a.z * xz + a.y * a.z * yz);
         let var = (second - a.dot(mean).powi(2)).max(0.0);
-        let spread = 1.0 - self.n.dot(axis) / self.count as f32;
-        (var.sqrt() as f32, spread < ROUGH_SPREAD)
+        var.sqrt() as f32
     }
 }
 

@@ -189,8 +189,11 @@ fn walk(
             for i in range.chain(refs.iter().copied()) {
                 let s = &view.splats[i as usize];
                 if let Some(th) = intersect_splat(ray.origin, ray.dir, s) {
-                    let own = between.is_some_and(|b| b.ignores(th, s.normal, s.material));
-                    if th >= ray.t_min && th <= limit && !own && best.is_none_or(|b| th < b.t) {
+                    if th >= ray.t_min
+                        && th <= limit
+                        && best.is_none_or(|b| th < b.t)
+                        && !between.is_some_and(|b| b.ignores(th, s.normal, s.material))
+                    {
                         best = Some(Hit {
                             t: th,
                             splat: i,
