@@ -116,7 +116,7 @@ fn curve_order(positions: &[Vec3]) -> Vec<u32> {
 }
 
 /// The low 21 bits of `x` spread to every third bit.
-fn spread(x: u32) -> u64 {
+pub(crate) fn spread(x: u32) -> u64 {
     let mut v = u64::from(x) & 0x1f_ffff;
     v = (v | v << 32) & 0x001f_0000_0000_ffff;
     v = (v | v << 16) & 0x001f_0000_ff00_00ff;
