@@ -1,15 +1,16 @@
 // requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
 // The final gather (docs/fmm.md, "Final gather"): one thread per splat to gather, which casts a
-// stratified grid of cosine-distributed rays from its centre with the surface-aware self-hit
-// rule and averages the reflected radiance L − Lₑ of the splats they hit from the front.
+// stratified grid of cosine-distributed rays from its centre, each passing over its own rough
+// surface within its own zone (`leaving`, common/traverse.wgsl), and averages the reflected
+// radiance L − Lₑ of the splats they hit from the front.
 // Line-by-line twin of pc_fmm::gather::gather_splat (crates/pc-fmm/src/gather.rs), from the same
 // counter-based random numbers. Driven by pc_fmm::gather::GpuGather.
 
 struct GatherParams {
     strata: u32,
-    self_hit: f32,
     count: u32,
-    _pad: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 // The splat to gather (written by the host) and its gathered light (written here).
@@ -34,11 +35,13 @@ const GATHER_SEED: u32 = 0x67617468u;
 @group(0) @binding(7) var<storage, read> reflected: array<vec4<f32>>;
 @group(0) @binding(8) var<uniform> params: GatherParams;
 @group(0) @binding(9) var<storage, read_write> slots: array<GatherSlot>;
+// Each octree leaf's roughness, per node-pool slot (pc_tree::between::leaf_roughness).
+@group(0) @binding(10) var<storage, read> leaf_rough: array<f32>;
 
 fn gather(i: u32) -> vec3<f32> {
     let s = splats[i];
     let n = s.normal;
-    let skip = params.self_hit * s.radius;
+    let rough = leaf_rough[splat_leaf[i]];
     let m = f32(params.strata);
     let count = params.strata * params.strata;
     var sum = vec3<f32>(0.0);
@@ -46,7 +49,7 @@ fn gather(i: u32) -> vec3<f32> {
         let u1 = (f32(k / params.strata) + rand4(GATHER_SEED, i, k, 0u)) / m;
         let u2 = (f32(k % params.strata) + rand4(GATHER_SEED, i, k, 1u)) / m;
         let dir = cosine_dir(n, u1, u2);
-        let hit = trace_leaving(s.position, dir, n, LEAVE_EPS * s.radius, skip);
+        let hit = trace_between(s.position, dir, LEAVE_EPS * s.radius, 3.40282347e38, false, leaving(s, rough, dir));
         if hit.found && dot(splats[hit.splat].normal, dir) < 0.0 {
             sum = sum + reflected[hit.splat].xyz;
         }

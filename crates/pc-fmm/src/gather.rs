@@ -12,9 +12,10 @@
 //! `gather_error` are gathered, the worst first, at most `gather_share` of the active splats
 //! ([`run`]).
 //!
-//! How: each splat casts a stratified grid of cosine-distributed rays from its centre, with the
-//! surface-aware self-hit rule, and averages the reflected radiance `L − Lₑ` of the splats they
-//! hit from the front ([`gather_splat`]): an unbiased estimate of `(T (L − Lₑ))_i`, the light
+//! How: each splat casts a stratified grid of cosine-distributed rays from its centre, each
+//! passing over its own rough surface as the V-map's rays do (its own zone,
+//! [`pc_tree::Between::leaving`]), and averages the reflected radiance `L − Lₑ` of the splats
+//! they hit from the front ([`gather_splat`]): an unbiased estimate of `(T (L − Lₑ))_i`, the light
 //! the FMM's `T` would bring, with visibility per ray. Specular splats (whose light reaches
 //! diffuse ones through `S`), back faces and the sky give nothing. The CPU twin of
 //! `shaders/fmm/gather.wgsl` ([`GpuGather`]): the same rays from the same random numbers.
@@ -26,7 +27,7 @@ use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::accel::Accel;
 use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::rng::rand;
-use pc_tree::{first_hit_leaving, OctreeView, Ray, TraversalStats};
+use pc_tree::{Between, OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
 
 /// Standard deviations of the V-map's sampling noise a misstatement must stand out by.
@@ -190,7 +191,6 @@ pub fn run(
     }
     let pilot = GatherRays {
         strata: PILOT_RAYS.isqrt(),
-        ..rays
     };
     let g = gatherer.gather(pilot, &pilot_splats)?;
     let through = specular(&pilot_splats);
@@ -358,16 +358,13 @@ fn children<'v>(view: &'v OctreeView<'v>, slot: u32) -> impl Iterator<Item = u32
 pub struct GatherRays {
     /// The rays of a splat form a `strata × strata` grid over the cosine-weighted hemisphere.
     pub strata: u32,
-    /// Δ of §8.5.6 in radii of the splat a ray leaves (the surface-aware rule).
-    pub self_hit: f32,
 }
 
 impl GatherRays {
     /// `rays` per splat, rounded down to a square.
-    pub fn new(rays: u32, self_hit: f32) -> GatherRays {
+    pub fn new(rays: u32) -> GatherRays {
         GatherRays {
             strata: (rays as f64).sqrt().floor() as u32,
-            self_hit,
         }
     }
 
@@ -387,28 +384,27 @@ impl GatherRays {
 }
 
 /// The mean reflected radiance that splat `i`'s rays find (`reflected`: `L − Lₑ` of every splat,
-/// zero where a splat takes no part): its gathered `T (L − Lₑ)`. WGSL twin: `gather` in
-/// shaders/fmm/gather.wgsl.
+/// zero where a splat takes no part): its gathered `T (L − Lₑ)`. Each ray passes over its own
+/// rough surface within its own zone (`rough`: each octree leaf's roughness,
+/// [`pc_tree::between::leaf_roughness`]), as the V-map's rays do: on the 20M hall scan the
+/// Δ rule alone (hits on splats facing like the origin ignored within half a radius) let 61 % of
+/// the rays end on the back of the surface's own noise and bring nothing, 1.1 % with the own
+/// zone. WGSL twin: `gather` in shaders/fmm/gather.wgsl.
 pub fn gather_splat(
-    view: &OctreeView,
-    accel: &Accel,
+    (view, accel, rough): (&OctreeView, &Accel, &[f32]),
     reflected: &[[f32; 3]],
     rays: GatherRays,
     i: u32,
     stats: &mut TraversalStats,
 ) -> [f32; 3] {
     let s = &view.splats[i as usize];
-    let n = Vec3::from(s.normal);
-    let skip = rays.self_hit * s.radius;
+    let own = (s, rough[view.splat_leaf[i as usize] as usize]);
     let count = rays.strata * rays.strata;
     let mut sum = Vec3::ZERO;
     for k in 0..count {
-        let ray = rays.ray(view, i, k);
-        let hit = first_hit_leaving(view.splats, &ray, n, skip, |r| {
-            accel.intersect(view, r, stats)
-        });
-        if let Some(h) = hit {
-            if Vec3::from(view.splats[h.splat as usize].normal).dot(ray.dir) < 0.0 {
+        let seg = Between::leaving(rays.ray(view, i, k), own);
+        if let Some(h) = accel.intersect_between(view, &seg, stats) {
+            if Vec3::from(view.splats[h.splat as usize].normal).dot(seg.ray.dir) < 0.0 {
                 sum += Vec3::from(reflected[h.splat as usize]);
             }
         }
@@ -418,8 +414,7 @@ pub fn gather_splat(
 
 /// [`gather_splat`] for each of `splats` (rayon across splats).
 pub fn gather_cpu(
-    view: &OctreeView,
-    accel: &Accel,
+    scene: (&OctreeView, &Accel, &[f32]),
     reflected: &[[f32; 3]],
     rays: GatherRays,
     splats: &[u32],
@@ -427,7 +422,7 @@ pub fn gather_cpu(
     splats
         .par_iter()
         .map_init(TraversalStats::default, |st, &i| {
-            gather_splat(view, accel, reflected, rays, i, st)
+            gather_splat(scene, reflected, rays, i, st)
         })
         .collect()
 }
@@ -437,6 +432,8 @@ pub enum Gatherer<'a> {
     Cpu {
         view: &'a OctreeView<'a>,
         accel: Accel<'a>,
+        /// Each octree leaf's roughness ([`pc_tree::between::leaf_roughness`]).
+        rough: Vec<f32>,
         /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
         reflected: Vec<[f32; 3]>,
     },
@@ -444,11 +441,16 @@ pub enum Gatherer<'a> {
 }
 
 impl<'a> Gatherer<'a> {
-    /// The CPU gather of `reflected` (per splat, [`reflected`]).
-    pub fn cpu(view: &'a OctreeView<'a>, reflected: Vec<[f32; 3]>) -> Gatherer<'a> {
+    /// The CPU gather of `reflected` (per splat, [`reflected`]), each leaf of roughness `rough`.
+    pub fn cpu(
+        view: &'a OctreeView<'a>,
+        rough: Vec<f32>,
+        reflected: Vec<[f32; 3]>,
+    ) -> Gatherer<'a> {
         Gatherer::Cpu {
             view,
             accel: Accel::new(view),
+            rough,
             reflected,
         }
     }
@@ -459,8 +461,9 @@ impl<'a> Gatherer<'a> {
             Gatherer::Cpu {
                 view,
                 accel,
+                rough,
                 reflected,
-            } => Ok(gather_cpu(view, accel, reflected, rays, splats)),
+            } => Ok(gather_cpu((view, accel, rough), reflected, rays, splats)),
             Gatherer::Gpu(g) => g.gather(rays, splats),
         }
     }
@@ -493,9 +496,8 @@ pub fn reflected(radiance: &[[f32; 3]], emission: &[[f32; 3]], active: &[bool]) 
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct GpuParams {
     strata: u32,
-    self_hit: f32,
     count: u32,
-    _pad: u32,
+    _pad: [u32; 2],
 }
 
 /// WGSL `GatherSlot`: the splat to gather (in) and its gathered light (out).
@@ -522,29 +524,36 @@ pub struct GpuGather {
     octree: GpuOctree,
     /// `L − Lₑ` of every splat, padded to `vec4`.
     reflected: pc_gpu::Buffer,
+    /// Each octree leaf's roughness.
+    rough: pc_gpu::Buffer,
 }
 
 impl GpuGather {
     /// Upload the octree (its shading parts too: the shared `optics.wgsl` declares them) and
-    /// the reflected radiance to gather, `reflected` ([`reflected`]).
+    /// the reflected radiance to gather, `reflected` ([`reflected`]), with each leaf's
+    /// roughness `rough`.
     pub fn new(
         ctx: GpuContext,
         view: &OctreeView,
+        rough: &[f32],
         reflected: &[[f32; 3]],
     ) -> Result<GpuGather, GpuError> {
         let mut b = vec![Binding::Uniform];
         b.extend([Binding::ReadOnly; 7]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
+        b.push(Binding::ReadOnly);
         let kernel = ctx.kernel("fmm/gather", &gpu_source()?, "main", &b)?;
         let octree = GpuOctree::upload(&ctx, view, OctreeParts::Shade)?;
         let padded: Vec<[f32; 4]> = reflected.iter().map(|r| [r[0], r[1], r[2], 0.0]).collect();
         let reflected = ctx.storage("reflected", bytemuck::cast_slice(&padded))?;
+        let rough = ctx.storage("leaf_rough", bytemuck::cast_slice(rough))?;
         Ok(GpuGather {
             ctx,
             kernel,
             octree,
             reflected,
+            rough,
         })
     }
 
@@ -569,12 +578,15 @@ impl GpuGather {
             let sb = ctx.storage("gather_slots", bytemuck::cast_slice(&slots))?;
             let params = GpuParams {
                 strata: rays.strata,
-                self_hit: rays.self_hit,
                 count: chunk.len() as u32,
-                _pad: 0,
+                _pad: [0; 2],
             };
             let pb = ctx.uniform("gather_params", bytemuck::bytes_of(&params));
-            let binds: Vec<&pc_gpu::Buffer> = self.octree.buffers().chain([rb, &pb, &sb]).collect();
+            let binds: Vec<&pc_gpu::Buffer> = self
+                .octree
+                .buffers()
+                .chain([rb, &pb, &sb, &self.rough])
+                .collect();
             self.kernel.run(ctx, &binds, grid(chunk.len() as u32, 64))?;
             let size = std::mem::size_of_val(slots.as_slice()) as u64;
             let bytes = ctx.read(&sb, size)?;
@@ -603,8 +615,8 @@ mod tests {
 
     #[test]
     fn rays_round_down_to_a_square() {
-        assert_eq!(GatherRays::new(256, 0.5).strata, 16);
-        assert_eq!(GatherRays::new(255, 0.5).strata, 15);
-        assert_eq!(GatherRays::new(0, 0.5).strata, 0);
+        assert_eq!(GatherRays::new(256).strata, 16);
+        assert_eq!(GatherRays::new(255).strata, 15);
+        assert_eq!(GatherRays::new(0).strata, 0);
     }
 }

@@ -196,7 +196,7 @@ fn final_gather(
     p: &FmmParams,
     backend: Backend,
 ) -> Result<gather::Gathered, FmmError> {
-    let rays = gather::GatherRays::new(p.gather_rays, vmap.meta().params.self_hit);
+    let rays = gather::GatherRays::new(p.gather_rays);
     let how = gather::Selection::of(p);
     let leaves = match rays.strata {
         0 => Vec::new(),
@@ -206,17 +206,25 @@ fn final_gather(
         return Ok(Default::default());
     }
     let reflected = gather::reflected(radiance, &sys.emission, &pts.active);
+    // The gather's rays pass over their own rough surface, as the V-map's do.
+    let rough = pc_tree::between::leaf_roughness(view);
     let gatherer = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
         pc_stage::Work::Precompute,
         |ctx| {
-            let g = gather::GpuGather::new(ctx, view, &reflected)?;
+            let g = gather::GpuGather::new(ctx, view, &rough, &reflected)?;
             Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(g)))
         },
-        || Ok(gather::Gatherer::cpu(view, reflected.clone())),
+        || {
+            Ok(gather::Gatherer::cpu(
+                view,
+                rough.clone(),
+                reflected.clone(),
+            ))
+        },
     )?;
-    drop(reflected);
+    drop((reflected, rough));
     let solved = gather::Solved {
         radiance,
         source: &sys.source,

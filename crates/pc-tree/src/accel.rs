@@ -58,7 +58,7 @@ const PAD: Chunk = Chunk {
 /// ignores).
 #[derive(Clone, Copy)]
 enum Find<'a> {
-    Nearest,
+    Nearest(Option<&'a Between>),
     Any(Option<&'a Between>),
 }
 
@@ -244,6 +244,16 @@ impl<'a> Accel<'a> {
     /// first found), the disks' records read from `splats`. The arithmetic is [`crate::ray::intersect_splat`]'s, operation for operation,
     /// lane by lane; lanes are taken in listing order, so ties resolve as there.
     #[inline(always)]
+    /// The node words as the walk reads them, and each internal node's slab where the blocks
+    /// hold them.
+    fn walk_parts(&self) -> (&[u32], impl Fn(u32) -> Option<Slab> + '_) {
+        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
+        (nodes, move |w| match self.slabs {
+            true => node_slab(nodes, w),
+            false => None,
+        })
+    }
+
     fn test(
         &self,
         ray: &Ray,
@@ -253,7 +263,7 @@ impl<'a> Accel<'a> {
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
         let (any, between) = match find {
-            Find::Nearest => (false, None),
+            Find::Nearest(between) => (false, between),
             Find::Any(between) => (true, between),
         };
         let leaf = &self.leaves[node::ptr(w) as usize];
@@ -315,21 +325,36 @@ impl<'a> Accel<'a> {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<(Hit, PackedLeaf)> {
-        let nodes = bytemuck::cast_slice(&self.nodes[..]);
-        let slab = |w| {
-            if self.slabs {
-                node_slab(nodes, w)
-            } else {
-                None
-            }
-        };
+        let (nodes, slab) = self.walk_parts();
         // The walk returns at the first leaf that gives a hit: the last leaf tested.
         let mut leaf = PackedLeaf(0);
         let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             leaf = PackedLeaf(node::ptr(w));
-            self.test(ray, w, limit, (view.splats, Find::Nearest), st)
+            self.test(ray, w, limit, (view.splats, Find::Nearest(None)), st)
         })?;
         Some((hit, leaf))
+    }
+
+    /// The nearest hit along `seg.ray` that [`Between::ignores`] does not pass over: a ray
+    /// leaving a rough surface ([`Between::leaving`]) finds the first other surface, not the
+    /// noise of its own. WGSL twin: `trace_between` with `any_hit` false,
+    /// shaders/common/traverse.wgsl.
+    pub fn intersect_between(
+        &self,
+        view: &OctreeView,
+        seg: &Between,
+        stats: &mut TraversalStats,
+    ) -> Option<Hit> {
+        let (nodes, slab) = self.walk_parts();
+        crate::ray::walk_with(view, nodes, &seg.ray, stats, slab, |w, limit, st| {
+            self.test(
+                &seg.ray,
+                w,
+                limit,
+                (view.splats, Find::Nearest(Some(seg))),
+                st,
+            )
+        })
     }
 
     /// Same as [`crate::covering`] for the leaf the hit was found in, read from the packed
@@ -412,14 +437,7 @@ impl<'a> Accel<'a> {
         between: Option<&Between>,
         stats: &mut TraversalStats,
     ) -> bool {
-        let nodes = bytemuck::cast_slice(&self.nodes[..]);
-        let slab = |w| {
-            if self.slabs {
-                node_slab(nodes, w)
-            } else {
-                None
-            }
-        };
+        let (nodes, slab) = self.walk_parts();
         crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             self.test(ray, w, limit, (view.splats, Find::Any(between)), st)
         })

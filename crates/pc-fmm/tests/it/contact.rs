@@ -146,8 +146,8 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
         albedo: &sys.albedo,
         active: &pts.active,
     };
-    let gatherer = gather::Gatherer::cpu(&view, reflected);
-    let rays = gather::GatherRays::new(p.gather_rays, 0.5);
+    let gatherer = gather::Gatherer::cpu(&view, pc_tree::between::leaf_roughness(&view), reflected);
+    let rays = gather::GatherRays::new(p.gather_rays);
     let how = gather::Selection::of(&p);
     let leaves = gather::candidates(&view, &sc.vmap(), how);
     let g = gather::run(&sc.vmap(), &leaves, solved, how, rays, &gatherer, &|_| None).unwrap();
@@ -168,5 +168,83 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
         splats.len() * 10 < view.splats.len(),
         "{} splats gathered",
         splats.len()
+    );
+}
+
+/// A closed box whose every splat is moved along its normal by range noise and tilted by up to
+/// about 8° (a scan's noise and the normals fitted to it), all reflecting `L − Lₑ = 1`: every
+/// gather ray of a floor splat meets the front of some wall, so the floor gathers 1. Rays that
+/// counted the floor's own noise as a surface (the Δ rule alone) brought nothing back from the
+/// disks they hit from behind; each ray now passes over its own zone, as the V-map's do.
+#[test]
+fn a_noisy_floor_gathers_the_room_not_its_own_noise() {
+    let h = 0.05;
+    let mut soa = crate::box_scene(h);
+    let mut rng = Pcg64::seed_from_u64(5);
+    for k in 0..soa.len() {
+        use rand::Rng;
+        let g: f32 = (0..4).map(|_| rng.random_range(-1.0f32..1.0)).sum::<f32>() * 0.866;
+        soa.p[k] += soa.n[k] * (g * 0.4 * h);
+        let tilt = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let t = tilt - soa.n[k] * tilt.dot(soa.n[k]);
+        soa.n[k] = (soa.n[k] + t * 0.14).normalize();
+    }
+    let sc = scene(&soa, vec![diffuse(0.7), diffuse(0.5), diffuse(0.3)], 16);
+    let view = sc.octree.view();
+    let ones = vec![[1.0f32; 3]; view.splats.len()];
+    // Floor splats away from the walls and the cube.
+    let floor: Vec<u32> = (0..view.splats.len() as u32)
+        .filter(|&i| {
+            let s = &view.splats[i as usize];
+            let p = Vec3::from(s.position);
+            s.normal[1] > 0.9 && p.x.abs() < 0.8 && p.z.abs() < 0.8 && p.x.min(p.z) < -0.1
+        })
+        .collect();
+    assert!(floor.len() > 100, "{} floor splats", floor.len());
+    let accel = pc_tree::accel::Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let rays = gather::GatherRays::new(64);
+    let got = gather::gather_cpu((&view, &accel, &rough), &ones, rays, &floor);
+    let mean = got.iter().map(|g| g[0] as f64).sum::<f64>() / got.len() as f64;
+    // The same rays with the Δ rule alone: a hit within half a radius on a splat facing like
+    // the floor passed over, any other hit taken.
+    let mut st = pc_tree::TraversalStats::default();
+    let (mut front, mut all) = (0usize, 0usize);
+    for &i in &floor {
+        let s = &view.splats[i as usize];
+        for k in 0..64 {
+            let u = |c: u32| pc_tree::rng::rand(0x6761_7468, i, k, c);
+            let ray = pc_tree::Ray {
+                origin: s.position.into(),
+                dir: pc_tree::cosine_dir(s.normal, u(0), u(1)),
+                t_min: 1e-3 * s.radius,
+                t_max: f32::INFINITY,
+            };
+            let n = Vec3::from(s.normal);
+            let hit = pc_tree::first_hit_leaving(view.splats, &ray, n, 0.5 * s.radius, |r| {
+                accel.intersect(&view, r, &mut st)
+            });
+            all += 1;
+            front += hit.is_some_and(|h| {
+                Vec3::from(view.splats[h.splat as usize].normal).dot(ray.dir) < 0.0
+            }) as usize;
+        }
+    }
+    let delta = front as f64 / all as f64;
+    println!(
+        "{} floor splats gather {mean:.4}; the Δ rule alone {delta:.4}",
+        floor.len()
+    );
+    assert!(
+        delta < 0.9,
+        "the noise must matter: the Δ rule alone gathers {delta:.4}"
+    );
+    assert!(
+        mean > 0.97,
+        "a noisy floor gathers {mean:.4} of its closed room's light"
     );
 }

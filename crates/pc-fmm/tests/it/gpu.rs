@@ -318,10 +318,11 @@ fn gpu_gather_matches_the_cpu() {
         })
         .collect();
     let splats: Vec<u32> = (0..n as u32).step_by(3).collect();
-    let rays = pc_fmm::gather::GatherRays::new(64, 0.5);
+    let rays = pc_fmm::gather::GatherRays::new(64);
     let accel = pc_tree::accel::Accel::new(&view);
-    let cpu = pc_fmm::gather::gather_cpu(&view, &accel, &radiance, rays, &splats);
-    let gpu = pc_fmm::gather::GpuGather::new(ctx, &view, &radiance)
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let cpu = pc_fmm::gather::gather_cpu((&view, &accel, &rough), &radiance, rays, &splats);
+    let gpu = pc_fmm::gather::GpuGather::new(ctx, &view, &rough, &radiance)
         .unwrap()
         .gather(rays, &splats)
         .unwrap();

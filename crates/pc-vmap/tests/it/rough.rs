@@ -246,3 +246,57 @@ fn gpu_segments_match_the_cpu() {
     assert!(seen > 1000 && seen < segs.len() - 1000);
     assert!(seen > seen_plain + 500);
 }
+
+/// The nearest hit a ray leaving a rough floor meets past its own zone
+/// (`Accel::intersect_between`, the final gather's walk) is the one a walk from hit to hit finds,
+/// passing over each hit [`Between::ignores`]: the same splat at the same distance, ray for ray.
+#[test]
+fn the_nearest_hit_past_the_own_zone_is_the_first_one_not_ignored() {
+    let (s, floor) = floor_and_wall(0.3);
+    let o = s.build(8);
+    let view = o.view();
+    let accel = pc_tree::accel::Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let mut rng = Pcg64::seed_from_u64(11);
+    let mut st = TraversalStats::default();
+    let (mut hits, mut passed) = (0, 0);
+    let floor_rays = (0..view.splats.len())
+        .filter(|&i| (view.splats[i].source as usize) < floor)
+        .flat_map(|i| [i; 4]);
+    for i in floor_rays {
+        let sp = &view.splats[i];
+        let ray = Ray {
+            origin: sp.position.into(),
+            dir: pc_tree::cosine_dir(sp.normal, rng.random(), rng.random()),
+            t_min: 1e-3 * sp.radius,
+            t_max: f32::INFINITY,
+        };
+        let seg = Between::leaving(ray, (sp, rough[view.splat_leaf[i] as usize]));
+        let got = accel.intersect_between(&view, &seg, &mut st);
+        let mut r = ray;
+        let want = loop {
+            match accel.intersect(&view, &r, &mut st) {
+                Some(h) => {
+                    let hs = &view.splats[h.splat as usize];
+                    if !seg.ignores(h.t, hs.normal, hs.material) {
+                        break Some(h);
+                    }
+                    passed += 1;
+                    r.t_min = h.t * (1.0 + 1e-6) + f32::MIN_POSITIVE;
+                }
+                None => break None,
+            }
+        };
+        assert_eq!(
+            got.map(|h| (h.splat, h.t)),
+            want.map(|h| (h.splat, h.t)),
+            "splat {i}"
+        );
+        hits += got.is_some() as usize;
+    }
+    println!("{hits} hits; {passed} hits on the floor's own noise passed over");
+    assert!(
+        hits > 100 && passed > 100,
+        "{hits} hits, {passed} passed over"
+    );
+}
