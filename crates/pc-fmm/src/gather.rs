@@ -449,7 +449,7 @@ impl<'a> Gatherer<'a> {
     ) -> Gatherer<'a> {
         Gatherer::Cpu {
             view,
-            accel: Accel::new(view),
+            accel: Accel::new(view).with_own_surfaces(view),
             rough,
             reflected,
         }

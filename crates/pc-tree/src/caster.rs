@@ -26,7 +26,7 @@ impl<'a> CpuCaster<'a> {
     pub fn new(view: &'a OctreeView<'a>) -> Self {
         CpuCaster {
             view,
-            accel: crate::accel::Accel::new(view),
+            accel: crate::accel::Accel::new(view).with_own_surfaces(view),
         }
     }
 }

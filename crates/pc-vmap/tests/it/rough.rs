@@ -249,13 +249,15 @@ fn gpu_segments_match_the_cpu() {
 
 /// The nearest hit a ray leaving a rough floor meets past its own zone
 /// (`Accel::intersect_between`, the final gather's walk) is the one a walk from hit to hit finds,
-/// passing over each hit [`Between::ignores`]: the same splat at the same distance, ray for ray.
+/// passing over each hit [`Between::ignores`]: the same splat at the same distance, ray for ray,
+/// and the same again where the walk passes whole over the leaves of the own zone.
 #[test]
 fn the_nearest_hit_past_the_own_zone_is_the_first_one_not_ignored() {
     let (s, floor) = floor_and_wall(0.3);
     let o = s.build(8);
     let view = o.view();
     let accel = pc_tree::accel::Accel::new(&view);
+    let skipping = pc_tree::accel::Accel::new(&view).with_own_surfaces(&view);
     let rough = pc_tree::between::leaf_roughness(&view);
     let mut rng = Pcg64::seed_from_u64(11);
     let mut st = TraversalStats::default();
@@ -273,6 +275,12 @@ fn the_nearest_hit_past_the_own_zone_is_the_first_one_not_ignored() {
         };
         let seg = Between::leaving(ray, (sp, rough[view.splat_leaf[i] as usize]));
         let got = accel.intersect_between(&view, &seg, &mut st);
+        // Passing whole over the leaves of the floor's own zone changes nothing.
+        let skipping = skipping.intersect_between(&view, &seg, &mut st);
+        assert_eq!(
+            skipping.map(|h| (h.splat, h.t)),
+            got.map(|h| (h.splat, h.t))
+        );
         let mut r = ray;
         let want = loop {
             match accel.intersect(&view, &r, &mut st) {
