@@ -28,6 +28,8 @@ fn main() -> anyhow::Result<()> {
     let f = &cfg.config.fmm.params;
     let (_, pts) = tree::build(&view, &materials);
     let caster = pc_tree::caster::CpuCaster::new(&view);
+    let rough = pc_tree::between::LazyRoughness::new(&view);
+    let lights = (&lights[..], &rough);
     let base = pc_fmm::stage::point_light_system(&view, &materials, &pts, &vm, lights, &caster)?;
     let self_hit = vm.meta().params.self_hit;
     let mut times = Vec::new();

@@ -433,7 +433,7 @@ pub enum Gatherer<'a> {
         view: &'a OctreeView<'a>,
         accel: Accel<'a>,
         /// Each octree leaf's roughness ([`pc_tree::between::leaf_roughness`]).
-        rough: Vec<f32>,
+        rough: &'a [f32],
         /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
         reflected: Vec<[f32; 3]>,
     },
@@ -444,7 +444,7 @@ impl<'a> Gatherer<'a> {
     /// The CPU gather of `reflected` (per splat, [`reflected`]), each leaf of roughness `rough`.
     pub fn cpu(
         view: &'a OctreeView<'a>,
-        rough: Vec<f32>,
+        rough: &'a [f32],
         reflected: Vec<[f32; 3]>,
     ) -> Gatherer<'a> {
         Gatherer::Cpu {

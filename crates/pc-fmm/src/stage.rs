@@ -13,6 +13,7 @@ use pc_artifact::vmap::VmapFile;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointLight};
 use pc_config::{Backend, LoadedConfig};
 use pc_stage::{OptionalInput, Progress, Stage};
+use pc_tree::between::LazyRoughness;
 use pc_tree::caster::Caster;
 use rayon::prelude::*;
 
@@ -63,13 +64,14 @@ pub fn point_light_system(
     materials: &[MaterialRecord],
     pts: &Points,
     vmap: &VmapFile,
-    lights: &[PointLight],
+    (lights, rough): (&[PointLight], &LazyRoughness),
     caster: &dyn Caster,
 ) -> Result<System, FmmError> {
     let v = vmap.view();
     let seen = LightLists {
         vmap: &v,
         self_hit: vmap.meta().params.self_hit,
+        rough,
     };
     Ok(system::system(view, materials, pts, lights, seen, caster)?)
 }
@@ -91,11 +93,12 @@ fn source_term(
     pts: &Points,
     vmap: &VmapFile,
     photons: Option<&PhotonsFile>,
-    cfg: &LoadedConfig,
+    (cfg, rough): (&LoadedConfig, &LazyRoughness),
 ) -> Result<(System, EmitterRays, Vec<[f32; 3]>), FmmError> {
     let p = &cfg.config.fmm.params;
     let caster = pc_tree::caster::CpuCaster::new(view);
-    let mut sys = point_light_system(view, materials, pts, vmap, &cfg.config.lights, &caster)?;
+    let lights = (&cfg.config.lights[..], rough);
+    let mut sys = point_light_system(view, materials, pts, vmap, lights, &caster)?;
     let sampling = EmitterSampling {
         samples: p.emitter_samples,
         probes: p.emitter_probes,
@@ -187,7 +190,7 @@ fn solve(
 /// through mirrors and glass.
 #[allow(clippy::too_many_arguments)]
 fn final_gather(
-    view: &OctreeView,
+    (view, rough): (&OctreeView, &LazyRoughness),
     vmap: &VmapFile,
     pts: &Points,
     sys: &System,
@@ -207,22 +210,16 @@ fn final_gather(
     }
     let reflected = gather::reflected(radiance, &sys.emission, &pts.active);
     // The gather's rays pass over their own rough surface, as the V-map's do.
-    let rough = pc_tree::between::leaf_roughness(view);
+    let rough = rough.get();
     let gatherer = pc_stage::gpu_or_cpu(
         STAGE,
         backend,
         pc_stage::Work::Precompute,
         |ctx| {
-            let g = gather::GpuGather::new(ctx, view, &rough, &reflected)?;
+            let g = gather::GpuGather::new(ctx, view, rough, &reflected)?;
             Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(g)))
         },
-        || {
-            Ok(gather::Gatherer::cpu(
-                view,
-                rough.clone(),
-                reflected.clone(),
-            ))
-        },
+        || Ok(gather::Gatherer::cpu(view, rough, reflected.clone())),
     )?;
     drop((reflected, rough));
     let solved = gather::Solved {
@@ -265,6 +262,9 @@ pub fn run(
         |what: &str, t: Instant| timings.push((what.to_string(), t.elapsed().as_secs_f64()));
     let octree = OctreeFile::open(&inputs.octree)?;
     let view = octree.view();
+    // Each octree leaf's roughness, when the point lights' shadow rays or the final gather first
+    // need it.
+    let rough = LazyRoughness::new(&view);
     let lights = &cfg.config.lights;
     let vmap = VmapFile::open(&inputs.vmap, &octree.id(), lights)?;
     let photons = match inputs.photons.wanted() {
@@ -281,8 +281,14 @@ pub fn run(
 
     progress.phase("direct light");
     let t = Instant::now();
-    let (sys, emitter, caustic) =
-        source_term(&view, &materials, &pts, &vmap, photons.as_ref(), cfg)?;
+    let (sys, emitter, caustic) = source_term(
+        &view,
+        &materials,
+        &pts,
+        &vmap,
+        photons.as_ref(),
+        (cfg, &rough),
+    )?;
     time("source term", t);
 
     // On a large scan the unknowns are clusters of splats (crate::cluster).
@@ -358,7 +364,8 @@ pub fn run(
 
     progress.phase("final gather");
     let t = Instant::now();
-    let gathered = final_gather(&view, &vmap, &pts, &sys, &mut solved, specular, &p, backend)?;
+    let scene = (&view, &rough);
+    let gathered = final_gather(scene, &vmap, &pts, &sys, &mut solved, specular, &p, backend)?;
     time("final gather", t);
     timings.push((
         "per iteration".to_string(),

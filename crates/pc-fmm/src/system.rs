@@ -49,6 +49,8 @@ pub struct LightLists<'a> {
     pub vmap: &'a VmapView<'a>,
     /// Shadow rays ignore hits within this many radii of the splat they leave (the V-map's).
     pub self_hit: f32,
+    /// Each octree leaf's roughness, for the shadow rays' own zones.
+    pub rough: &'a pc_tree::between::LazyRoughness<'a>,
 }
 
 /// Shadow rays cast at once (a batch is large enough to keep a GPU busy).
@@ -82,12 +84,8 @@ pub fn system(
             sys.emission[i] = m.radiance;
         }
     }
-    // Each octree leaf's roughness, for the shadow rays' own zones.
-    let rough = match lights.is_empty() {
-        true => Vec::new(),
-        false => pc_tree::between::leaf_roughness(view),
-    };
     for (l, light) in lights.iter().enumerate() {
+        let rough = seen.rough.get();
         let light_position = Vec3::from(light.position);
         let list = seen.vmap.light_list(l);
         let mut partial: Vec<u32> = Vec::new();

@@ -294,6 +294,35 @@ impl Moments {
     }
 }
 
+/// Each octree leaf's roughness ([`leaf_roughness`]), computed at its first use and shared by
+/// every later one (a stage whose several passes may each need it, or none).
+pub struct LazyRoughness<'v> {
+    view: &'v OctreeView<'v>,
+    rough: std::sync::OnceLock<Vec<f32>>,
+}
+
+impl std::fmt::Debug for LazyRoughness<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LazyRoughness")
+            .field("computed", &self.rough.get().is_some())
+            .finish()
+    }
+}
+
+impl<'v> LazyRoughness<'v> {
+    pub fn new(view: &'v OctreeView<'v>) -> LazyRoughness<'v> {
+        LazyRoughness {
+            view,
+            rough: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Per node-pool slot, as [`leaf_roughness`] gives it.
+    pub fn get(&self) -> &[f32] {
+        self.rough.get_or_init(|| leaf_roughness(self.view))
+    }
+}
+
 /// A visibility segment between two surface points: `ray` from the first end (at `t = 0`)
 /// toward the second, whose own zones end at `t = zones[0]` (hits before it on the surface
 /// `ends[0]` are ignored) and begin at `t = zones[1]` (after it, on `ends[1]`).

@@ -146,7 +146,8 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
         albedo: &sys.albedo,
         active: &pts.active,
     };
-    let gatherer = gather::Gatherer::cpu(&view, pc_tree::between::leaf_roughness(&view), reflected);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let gatherer = gather::Gatherer::cpu(&view, &rough, reflected);
     let rays = gather::GatherRays::new(p.gather_rays);
     let how = gather::Selection::of(&p);
     let leaves = gather::candidates(&view, &sc.vmap(), how);
