@@ -334,10 +334,6 @@ impl<'a> Accel<'a> {
             + self.nodes.len() * std::mem::size_of::<Block>()
     }
 
-    /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`Find::Any`: the
-    /// first found), the disks' records read from `splats`. The arithmetic is [`crate::ray::intersect_splat`]'s, operation for operation,
-    /// lane by lane; lanes are taken in listing order, so ties resolve as there.
-    #[inline(always)]
     /// The node words as the walk reads them, and each internal node's slab where the blocks
     /// hold them.
     fn walk_parts(&self) -> (&[u32], impl Fn(u32) -> Option<Slab> + '_) {
@@ -348,6 +344,12 @@ impl<'a> Accel<'a> {
         })
     }
 
+    /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`Find::Any`: the
+    /// first found), the disks' records read from `splats`, passing over those `between`
+    /// ignores (`Find::Nearest(Some(_))`, `Find::Any(Some(_))`). The arithmetic is
+    /// [`crate::ray::intersect_splat`]'s, operation for operation, lane by lane; lanes are taken
+    /// in listing order, so ties resolve as there.
+    #[inline(always)]
     fn test(
         &self,
         ray: &Ray,
