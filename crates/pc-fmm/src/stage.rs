@@ -221,7 +221,7 @@ fn final_gather(
         },
         || Ok(gather::Gatherer::cpu(view, rough, reflected.clone())),
     )?;
-    drop((reflected, rough));
+    drop(reflected);
     let solved = gather::Solved {
         radiance,
         source: &sys.source,

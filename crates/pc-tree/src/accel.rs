@@ -334,16 +334,6 @@ impl<'a> Accel<'a> {
             + self.nodes.len() * std::mem::size_of::<Block>()
     }
 
-    /// The node words as the walk reads them, and each internal node's slab where the blocks
-    /// hold them.
-    fn walk_parts(&self) -> (&[u32], impl Fn(u32) -> Option<Slab> + '_) {
-        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
-        (nodes, move |w| match self.slabs {
-            true => node_slab(nodes, w),
-            false => None,
-        })
-    }
-
     /// The nearest hit in `[ray.t_min, limit]` among the leaf's listed disks (`Find::Any`: the
     /// first found), the disks' records read from `splats`, passing over those `between`
     /// ignores (`Find::Nearest(Some(_))`, `Find::Any(Some(_))`). The arithmetic is
@@ -428,14 +418,7 @@ impl<'a> Accel<'a> {
         ray: &Ray,
         stats: &mut TraversalStats,
     ) -> Option<(Hit, PackedLeaf)> {
-        let (nodes, slab) = self.walk_parts();
-        // The walk returns at the first leaf that gives a hit: the last leaf tested.
-        let mut leaf = PackedLeaf(0);
-        let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            leaf = PackedLeaf(node::ptr(w));
-            self.test(ray, w, limit, (view.splats, Find::Nearest(None)), st)
-        })?;
-        Some((hit, leaf))
+        self.cast(view, ray, Find::Nearest(None), stats)
     }
 
     /// The nearest hit along `seg.ray` that [`Between::ignores`] does not pass over: a ray
@@ -448,16 +431,8 @@ impl<'a> Accel<'a> {
         seg: &Between,
         stats: &mut TraversalStats,
     ) -> Option<Hit> {
-        let (nodes, slab) = self.walk_parts();
-        crate::ray::walk_with(view, nodes, &seg.ray, stats, slab, |w, limit, st| {
-            self.test(
-                &seg.ray,
-                w,
-                limit,
-                (view.splats, Find::Nearest(Some(seg))),
-                st,
-            )
-        })
+        self.cast(view, &seg.ray, Find::Nearest(Some(seg)), stats)
+            .map(|(hit, _)| hit)
     }
 
     /// Same as [`crate::covering`] for the leaf the hit was found in, read from the packed
@@ -540,11 +515,30 @@ impl<'a> Accel<'a> {
         between: Option<&Between>,
         stats: &mut TraversalStats,
     ) -> bool {
-        let (nodes, slab) = self.walk_parts();
-        crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
-            self.test(ray, w, limit, (view.splats, Find::Any(between)), st)
-        })
-        .is_some()
+        self.cast(view, ray, Find::Any(between), stats).is_some()
+    }
+
+    /// The walk of `ray` through the packed tree, each leaf tested for what `find` asks: the
+    /// hit, and the packed number of the leaf it was found in (the walk returns at the first
+    /// leaf that gives a hit: the last leaf tested).
+    fn cast(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        find: Find,
+        stats: &mut TraversalStats,
+    ) -> Option<(Hit, PackedLeaf)> {
+        let nodes: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
+        let slab = |w| match self.slabs {
+            true => node_slab(nodes, w),
+            false => None,
+        };
+        let mut leaf = PackedLeaf(0);
+        let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
+            leaf = PackedLeaf(node::ptr(w));
+            self.test(ray, w, limit, (view.splats, find), st)
+        })?;
+        Some((hit, leaf))
     }
 }
 
