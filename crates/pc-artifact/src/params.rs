@@ -332,8 +332,10 @@ pub struct FmmParams {
     /// own direct light plus its cluster's gathered light (docs/fmm.md, "Scale").
     /// 1,000..=4,000,000,000.
     pub max_elements: u64,
-    /// Final gather (docs/fmm.md, "Final gather"): rays per gathered splat, in a stratified
-    /// √n × √n grid of cosine directions (rounded down to a square); 0: no final gather.
+    /// Final gather (docs/fmm.md, "Final gather"): rays per gathered splat's footprint, which
+    /// the gathered splats within its disk share ("Pooled rays"); each casts a stratified grid of
+    /// cosine directions, √n × √n (rounded down to a square) where it is alone, fewer among
+    /// others; 0: no final gather.
     /// 0..=65,536.
     pub gather_rays: u32,
     /// A V-map leaf's splats are gathered when its links' shared fractions misstate the light

@@ -16,7 +16,8 @@
 //! passing over its own rough surface as the V-map's rays do (its own zone,
 //! [`pc_tree::Between::leaving`]), and averages the reflected radiance `L − Lₑ` of the splats
 //! they hit from the front ([`gather_splat`]): an unbiased estimate of `(T (L − Lₑ))_i`, the light
-//! the FMM's `T` would bring, with visibility per ray. Specular splats (whose light reaches
+//! the FMM's `T` would bring, with visibility per ray. The gathered splats within a splat's disk
+//! pool their rays for it ([`crate::pool`]), so each casts its share of `gather_rays`. Specular splats (whose light reaches
 //! diffuse ones through `S`), back faces and the sky give nothing. The CPU twin of
 //! `shaders/fmm/gather.wgsl` ([`GpuGather`]): the same rays from the same random numbers.
 
@@ -29,6 +30,8 @@ use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::rng::rand;
 use pc_tree::{Between, OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
+
+use crate::pool::Footprints;
 
 /// Standard deviations of the V-map's sampling noise a misstatement must stand out by.
 pub const Z: f32 = 3.0;
@@ -156,14 +159,16 @@ pub struct Gathered {
 /// links.
 pub type SpecularAt<'a> = &'a dyn Fn(&[u32]) -> Option<Vec<[f32; 3]>>;
 
-/// The final gather over the candidate `leaves` ([`candidates`]): a pilot of [`PILOT_RAYS`] rays
-/// per splat measures how far off the light of each group of [`GROUP`] neighbouring splats is
-/// ([`rank`]); the groups off by more than `how.error` are gathered with `rays`, the most off
-/// first, at most `how.share` of the active
-/// splats. Each gathered splat's radiance becomes its source plus its albedo times its gathered
-/// light and what `specular` brings it through mirrors and glass.
+/// The final gather over the candidate `leaves` ([`candidates`]) of the octree `view`: a pilot
+/// of [`PILOT_RAYS`] rays per splat measures how far off the light of each group of [`GROUP`]
+/// neighbouring splats is ([`rank`]); the groups off by more than `how.error` are gathered,
+/// the most off first, at most `how.share` of the active splats, with `rays` for each splat's
+/// footprint ([`Footprints`]: the gathered splats within its disk share theirs). Each gathered
+/// splat's radiance becomes its source plus its albedo times its gathered light and what
+/// `specular` brings it through mirrors and glass.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
+    view: &OctreeView,
     vmap: &VmapView,
     candidates: &[Candidate],
     solved: Solved,
@@ -212,8 +217,11 @@ pub fn run(
     if out.splats.is_empty() {
         return Ok(out);
     }
-    let light = gatherer.gather(rays, &out.splats)?;
-    out.rays += out.splats.len() as u64 * (rays.strata * rays.strata) as u64;
+    // The rays are pooled over each splat's footprint (crate::pool).
+    let feet = Footprints::new(view, &out.splats);
+    let strata = feet.strata(rays);
+    let light = feet.pool(&gather_grids(gatherer, &out.splats, &strata)?, &strata);
+    out.rays += strata.iter().map(|&s| (s * s) as u64).sum::<u64>();
     out.radiance = taken
         .iter()
         .zip(&light)
@@ -223,6 +231,28 @@ pub fn run(
         })
         .collect();
     Ok(out)
+}
+
+/// Each of `splats` gathered with its own grid of `strata × strata` rays, one call of the
+/// gatherer per grid.
+fn gather_grids(
+    gatherer: &Gatherer,
+    splats: &[u32],
+    strata: &[u32],
+) -> Result<Vec<[f32; 3]>, GpuError> {
+    let mut grids = strata.to_vec();
+    grids.sort_unstable();
+    grids.dedup();
+    let mut light = vec![[0.0; 3]; splats.len()];
+    for grid in grids {
+        let ks: Vec<usize> = (0..splats.len()).filter(|&k| strata[k] == grid).collect();
+        let these: Vec<u32> = ks.iter().map(|&k| splats[k]).collect();
+        let found = gatherer.gather(GatherRays { strata: grid }, &these)?;
+        for (k, l) in ks.into_iter().zip(found) {
+            light[k] = l;
+        }
+    }
+    Ok(light)
 }
 
 /// The candidates the pilot visits (ascending slots): the most suspect first ([`Candidate`]),

@@ -20,6 +20,7 @@ pub mod gpu_work;
 pub mod lanes;
 pub(crate) mod par;
 pub mod plan;
+pub mod pool;
 pub mod shaft;
 pub mod solve;
 pub mod specular;

@@ -234,6 +234,7 @@ fn final_gather(
             .map(|(s, density)| s.at_splats(density, splats))
     };
     let g = gather::run(
+        view,
         &vmap.view(),
         &leaves,
         solved,

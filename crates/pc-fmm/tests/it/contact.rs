@@ -151,7 +151,17 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
     let rays = gather::GatherRays::new(p.gather_rays);
     let how = gather::Selection::of(&p);
     let leaves = gather::candidates(&view, &sc.vmap(), how);
-    let g = gather::run(&sc.vmap(), &leaves, solved, how, rays, &gatherer, &|_| None).unwrap();
+    let g = gather::run(
+        &view,
+        &sc.vmap(),
+        &leaves,
+        solved,
+        how,
+        rays,
+        &gatherer,
+        &|_| None,
+    )
+    .unwrap();
     for (&i, l) in g.splats.iter().zip(&g.radiance) {
         radiance[i as usize] = *l;
     }

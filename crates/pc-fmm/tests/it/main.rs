@@ -18,6 +18,7 @@ pub use pc_testkit::Soa;
 
 mod contact;
 mod gpu;
+mod pool;
 mod specular;
 
 /// An octree with its V-map: the links and the per-node tables.
