@@ -41,12 +41,13 @@ const SAMPLING_DIRECTION: u32 = 2u;
 struct PhotonParams {
     seed: u32,
     max_bounces: u32,
-    self_hit: f32,
     aim_count: u32,
     // This dispatch traces photons id_offset .. id_offset + count.
     id_offset: u32,
     count: u32,
-    _pad: vec2<u32>,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // One photon's fate (twin of pc_artifact::photons::Photon; `fate` in place of its padding).
@@ -81,6 +82,17 @@ const DIM_BOUNCE: u32 = 8u;
 @group(0) @binding(9) var<storage, read> aims: array<Aim>;
 @group(0) @binding(10) var<uniform> params: PhotonParams;
 @group(0) @binding(11) var<storage, read_write> out_photons: array<PhotonOut>;
+// Each octree leaf's roughness, per node-pool slot (pc_tree::between::leaf_roughness).
+@group(0) @binding(12) var<storage, read> leaf_rough: array<f32>;
+
+// The nearest hit of a ray from ro along rd leaving splat j (INVALID: none) past j's own zone
+// (twin of the CPU's Between::leaving with Accel::intersect_between).
+fn trace_from(ro: vec3<f32>, rd: vec3<f32>, t_min: f32, j: u32) -> Hit {
+    if j == INVALID {
+        return trace(ro, rd, t_min, F32_MAX, false);
+    }
+    return trace_between(ro, rd, t_min, F32_MAX, false, leaving(splats[j], leaf_rough[splat_leaf[j]], rd));
+}
 
 fn r(id: u32, d: u32) -> f32 {
     return rand4(params.seed, id, 0u, d);
@@ -131,13 +143,13 @@ fn photon(id: u32) -> PhotonOut {
     // Start: the light's position, or a point on an emitter splat drawn by area.
     var origin = aim.origin;
     var t_min = 0.0;
-    var skip = 0.0;
+    var leaving_splat = INVALID;
     var emitter_normal = vec3<f32>(0.0);
     if aim.source_leaf != INVALID {
-        let s = splats[pick(aim.source_leaf, r(id, 0u))];
+        leaving_splat = pick(aim.source_leaf, r(id, 0u));
+        let s = splats[leaving_splat];
         origin = disk_point(s, r(id, 1u), r(id, 2u));
         t_min = LEAVE_EPS * s.radius;
-        skip = params.self_hit * s.radius;
         emitter_normal = s.normal;
     }
     var rd: vec3<f32>;
@@ -173,16 +185,10 @@ fn photon(id: u32) -> PhotonOut {
         first_min = dist - 2.0 * target_splat.radius;
     }
     var ro = origin;
-    var leaving_normal = emitter_normal;
     var bounces = 0u;
     loop {
-        // Leaving a surface (an emitter splat or a specular bounce): the surface-aware Δ rule.
-        var hit: Hit;
-        if skip > 0.0 {
-            hit = trace_leaving(ro, rd, leaving_normal, t_min, skip);
-        } else {
-            hit = trace(ro, rd, t_min, F32_MAX, false);
-        }
+        // Leaving a surface (an emitter splat or a specular bounce): past its own zone.
+        let hit = trace_from(ro, rd, t_min, leaving_splat);
         if !hit.found {
             return fate(FATE_LOST);
         }
@@ -212,8 +218,7 @@ fn photon(id: u32) -> PhotonOut {
             ro = x;
             rd = b.dir;
             t_min = LEAVE_EPS * s.radius;
-            skip = params.self_hit * s.radius;
-            leaving_normal = s.normal;
+            leaving_splat = hit.splat;
             continue;
         }
         if bounces == 0u {

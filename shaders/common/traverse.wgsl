@@ -199,26 +199,3 @@ fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
 fn occluded(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32) -> bool {
     return trace(o, dir, t_min, t_max, true).found;
 }
-
-// The surface-aware self-hit rule (twin of pc_tree::ray::first_hit_leaving): the nearest hit of
-// a ray leaving a surface of normal n that is not that surface. Hits closer than skip are
-// ignored only on splats facing like n (cosine above SAME_SURFACE_COS).
-const SAME_SURFACE_COS: f32 = 0.5;
-const MAX_OWN_HITS: u32 = 4u;
-const F32_MIN_POSITIVE: f32 = 1.17549435e-38;
-
-fn trace_leaving(o: vec3<f32>, dir: vec3<f32>, n: vec3<f32>, t_min: f32, skip: f32) -> Hit {
-    var tm = t_min;
-    for (var i = 0u; i < MAX_OWN_HITS; i = i + 1u) {
-        let hit = trace(o, dir, tm, 3.40282347e38, false);
-        if !hit.found {
-            return hit;
-        }
-        let own = dot(splats[hit.splat].normal, n) > SAME_SURFACE_COS;
-        if hit.t >= skip || !own {
-            return hit;
-        }
-        tm = max(hit.t, tm) * (1.0 + 1e-6) + F32_MIN_POSITIVE;
-    }
-    return trace(o, dir, max(skip, tm), 3.40282347e38, false);
-}

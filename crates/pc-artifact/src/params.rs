@@ -237,11 +237,6 @@ pub struct CausticsParams {
     pub photons: u32,
     /// Most specular bounces a photon makes before it is dropped. 1..=64.
     pub max_bounces: u32,
-    /// Self-hit distance Δ (§8.5.6) in radii of the splat a photon leaves. [0, 100]. It skips
-    /// only splats facing like the one left; other surfaces count from 10⁻³ radii on, so a
-    /// photon leaving a glass ball that rests on the floor still meets the floor
-    /// (`pc_tree::first_hit_leaving`, docs/caustics.md "Tracing").
-    pub self_hit: f32,
     /// Seed of the photons' random numbers.
     pub seed: u32,
     /// Paths traced for the specular links (diffuse light through mirrors and glass onto
@@ -261,7 +256,6 @@ impl Default for CausticsParams {
         CausticsParams {
             photons: 8_000_000,
             max_bounces: 8,
-            self_hit: 0.5,
             seed: 0,
             specular_paths: 4_000_000,
             specular_gather: 400,
@@ -274,7 +268,6 @@ impl CausticsParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         int("caustics.photons", self.photons, 0..=100_000_000)?;
         int("caustics.max_bounces", self.max_bounces, 1..=64)?;
-        real("caustics.self_hit", self.self_hit, Incl(0.0), Incl(100.0))?;
         int(
             "caustics.specular_paths",
             self.specular_paths,

@@ -57,11 +57,10 @@ struct GpuAim {
 struct GpuParams {
     seed: u32,
     max_bounces: u32,
-    self_hit: f32,
     aim_count: u32,
     id_offset: u32,
     count: u32,
-    _pad: [u32; 2],
+    _pad: [u32; 3],
 }
 
 /// WGSL `PhotonOut` fates.
@@ -75,29 +74,29 @@ pub struct GpuTracer {
     octree: GpuOctree,
     /// Materials and leaves, bound after the octree.
     buffers: Vec<pc_gpu::Buffer>,
+    /// Each octree leaf's roughness, bound last.
+    rough: pc_gpu::Buffer,
     max_bounces: u32,
-    self_hit: f32,
     seed: u32,
 }
 
 impl GpuTracer {
-    /// Upload the octree, the materials and the leaves; `max_bounces`, `self_hit` (Δ in radii)
-    /// and `seed` as in [`crate::trace::Tracer`].
+    /// Upload the octree, the materials, the leaves and each octree leaf's roughness `rough`;
+    /// `max_bounces` and `seed` as in [`crate::trace::Tracer`].
     pub fn new(
         ctx: &GpuContext,
-        view: &OctreeView,
+        (view, rough): (&OctreeView, &[f32]),
         materials: &[MaterialRecord],
         leaves: &Leaves,
         max_bounces: u32,
-        self_hit: f32,
         seed: u32,
     ) -> Result<GpuTracer, GpuError> {
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
-        if limit < 10 {
+        if limit < 11 {
             return Err(GpuError::Device {
                 adapter: ctx.describe(),
                 msg: format!(
-                    "the photon tracer needs 10 storage buffers per stage, the adapter allows {limit}"
+                    "the photon tracer needs 11 storage buffers per stage, the adapter allows {limit}"
                 ),
             });
         }
@@ -105,6 +104,7 @@ impl GpuTracer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
+        b.push(Binding::ReadOnly);
         let kernel = ctx.kernel("caustics/photons", &source()?, "main", &b)?;
         let gl: Vec<GpuLeaf> = leaves
             .leaves
@@ -125,8 +125,8 @@ impl GpuTracer {
             kernel,
             octree,
             buffers,
+            rough: ctx.storage("leaf_rough", bytemuck::cast_slice(rough))?,
             max_bounces,
-            self_hit,
             seed,
         })
     }
@@ -232,11 +232,10 @@ impl GpuTracer {
             let params = GpuParams {
                 seed: self.seed,
                 max_bounces: self.max_bounces,
-                self_hit: self.self_hit,
                 aim_count: (hi - lo) as u32,
                 id_offset: done as u32,
                 count,
-                _pad: [0; 2],
+                _pad: [0; 3],
             };
             let pb = ctx.uniform("photon_params", bytemuck::bytes_of(&params));
             let mut bind: Vec<Bind> = self
@@ -249,6 +248,7 @@ impl GpuTracer {
             bind.push(Bind::window(&aims_buf, bytes(lo), bytes(hi - lo)));
             bind.push(Bind::whole(&pb));
             bind.push(Bind::whole(&photons_buf));
+            bind.push(Bind::whole(&self.rough));
             self.kernel.run_binds(ctx, &bind, grid(count, 64))?;
             let bytes = ctx.read(
                 &photons_buf,

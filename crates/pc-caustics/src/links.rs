@@ -39,8 +39,9 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use pc_artifact::octree::class;
 use pc_artifact::specular::{FluxLink, GatherLink, SpecularView};
 use pc_artifact::vmap::VmapView;
+use pc_tree::accel::Accel;
 use pc_tree::rng::rand;
-use pc_tree::{cosine_dir, disk_point, first_hit_leaving, OctreeView, Ray, TraversalStats};
+use pc_tree::{cosine_dir, disk_point, Between, OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
 
 use crate::emit::{self, Aim, Leaves, Sampling, Source};
@@ -132,14 +133,14 @@ const PILOT_RAYS: u32 = 16;
 /// (drawn by area) whose first hit is a specular splat of its target node: an estimate of the
 /// form factor from `X` to `Y`'s specular part, visibility included.
 fn pilot_form_factor(
-    view: &OctreeView,
+    scene: Scene,
     leaves: &Leaves,
     diffuse: &Prefix,
     l: &LinkPlan,
-    self_hit: f32,
     seed: u32,
     link: u32,
 ) -> f64 {
+    let Scene { view, accel, rough } = scene;
     let mut stats = TraversalStats::default();
     let mut hits = 0;
     for k in 0..PILOT_RAYS {
@@ -153,15 +154,24 @@ fn pilot_form_factor(
             t_min: LEAVE_EPS * s.radius,
             t_max: f32::INFINITY,
         };
-        let walk = |r: &Ray| pc_tree::intersect(view, r, &mut stats);
-        let skip = self_hit * s.radius;
-        if let Some(hit) = first_hit_leaving(view.splats, &ray, s.normal.into(), skip, walk) {
+        let seg = Between::leaving(ray, (s, rough[view.splat_leaf[j as usize] as usize]));
+        if let Some(hit) = accel.intersect_between(view, &seg, &mut stats) {
             let within = (l.y_splats[0]..l.y_splats[1]).contains(&hit.splat);
             let specular = class::is_specular(leaves.leaves[leaves.leaf_of(hit.splat)].class);
             hits += (within && specular) as u32;
         }
     }
     hits as f64 / PILOT_RAYS as f64
+}
+
+/// The octree, its packed walk (with its leaves' surfaces,
+/// [`pc_tree::accel::Accel::with_own_surfaces`]) and each leaf's roughness
+/// ([`pc_tree::between::leaf_roughness`]): what a ray leaving a splat past its own zone needs.
+#[derive(Clone, Copy)]
+pub struct Scene<'a> {
+    pub view: &'a OctreeView<'a>,
+    pub accel: &'a Accel<'a>,
+    pub rough: &'a [f32],
 }
 
 /// One diffuse → specular link: its parts' leaves and areas, and its paths by each strategy.
@@ -196,14 +206,7 @@ struct LinkPlan {
 /// [`link_weight`](emit::link_weight)`(cos θ_x, cos θ_y, d, k)` with `k = n_D A_Y / (π n_A)`: unbiased for every
 /// point pair, and bounded by `π A_X / n_D` where the parts touch (a ball on a floor), where the
 /// area strategy alone has no bound.
-pub fn aims(
-    view: &OctreeView,
-    leaves: &Leaves,
-    v: &VmapView,
-    budget: u32,
-    self_hit: f32,
-    seed: u32,
-) -> Vec<Aim> {
+pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32) -> Vec<Aim> {
     let diffuse = Prefix::new(leaves, &|l| !class::is_specular(l.class));
     let specular = Prefix::new(leaves, &|l| class::is_specular(l.class));
     if specular.part(&(0..leaves.leaves.len())).0 <= 0.0 {
@@ -256,7 +259,7 @@ pub fn aims(
     plans.par_iter_mut().enumerate().for_each(|(i, l)| {
         let mut form_factor = l.share / (std::f64::consts::PI * l.ax);
         if l.near {
-            let pilot = pilot_form_factor(view, leaves, &diffuse, l, self_hit, seed, i as u32);
+            let pilot = pilot_form_factor(scene, leaves, &diffuse, l, seed, i as u32);
             form_factor = form_factor.max(pilot);
             l.share = l.share.max(std::f64::consts::PI * l.ax * pilot);
         }

@@ -13,6 +13,7 @@ use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{Backend, LoadedConfig};
 use pc_stage::{Progress, Stage};
 use pc_tree::accel::Accel;
+use pc_tree::between::leaf_roughness;
 use pc_tree::TraversalStats;
 use rayon::prelude::*;
 
@@ -131,18 +132,19 @@ pub fn run(
     timings.push(("emission".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
+    // Rays leaving a splat pass over its own rough surface within its own zone.
+    let rough = leaf_roughness(&view);
+    let accel = Accel::new(&view).with_own_surfaces(&view);
+    let scene = links::Scene {
+        view: &view,
+        accel: &accel,
+        rough: &rough,
+    };
     let spec_key = specular_key(&octree.key(), &vmap.meta().links_key, &p, &materials);
     let reused = reusable(out, &spec_key, view.splats.len());
     let spec_aims = match reused {
         Some(_) => Vec::new(),
-        None => links::aims(
-            &view,
-            &leaves,
-            &vmap.view(),
-            p.specular_paths,
-            p.self_hit,
-            p.seed,
-        ),
+        None => links::aims(scene, &leaves, &vmap.view(), p.specular_paths, p.seed),
     };
     let spec_total: u64 = spec_aims.iter().map(|a| a.photons as u64).sum();
     let start_tracing = || {
@@ -158,11 +160,10 @@ pub fn run(
             start_tracing();
             let g = crate::gpu::GpuTracer::new(
                 &ctx,
-                &view,
+                (&view, &rough),
                 &materials,
                 &leaves,
                 p.max_bounces,
-                p.self_hit,
                 p.seed,
             )?;
             let both = (
@@ -173,14 +174,13 @@ pub fn run(
         },
         || {
             start_tracing();
-            let accel = Accel::new(&view);
             let tracer = Tracer {
                 view: &view,
                 accel: &accel,
                 materials: &materials,
                 leaves: &leaves,
                 max_bounces: p.max_bounces,
-                self_hit: p.self_hit,
+                rough: &rough,
                 seed: p.seed,
             };
             let both = (

@@ -1,6 +1,7 @@
 //! Photon tracing (seed §8.5.4 to §8.5.7) on the CPU: the renderer's traversal
-//! (`pc_tree::accel`), the normal fields and the specular bounce of `pc_tree::optics`, the Δ
-//! self-hit rule, a bounce limit. A photon is stored where it first lands on the front of a
+//! (`pc_tree::accel`), the normal fields and the specular bounce of `pc_tree::optics`, rays that
+//! pass over the rough surface they leave within its own zone (`pc_tree::Between::leaving`, the
+//! V-map's rule, where the seed has its self-hit Δ), a bounce limit. A photon is stored where it first lands on the front of a
 //! non-specular splat after at least one specular bounce (LS⁺D), never on specular splats.
 
 use glam::Vec3;
@@ -9,7 +10,7 @@ use pc_artifact::photons::Photon;
 use pc_tree::accel::Accel;
 use pc_tree::optics::specular_bounce;
 use pc_tree::rng::rand;
-use pc_tree::{cosine_dir, disk_point, first_hit_leaving, OctreeView, Ray, TraversalStats};
+use pc_tree::{cosine_dir, disk_point, Between, OctreeView, Ray, TraversalStats};
 
 use crate::emit::{link_weight, Aim, Leaves, Sampling, Source};
 
@@ -48,36 +49,40 @@ pub struct Tracer<'a> {
     pub materials: &'a [MaterialRecord],
     pub leaves: &'a Leaves,
     pub max_bounces: u32,
-    /// Δ in radii of the splat a photon leaves.
-    pub self_hit: f32,
+    /// Each octree leaf's roughness ([`pc_tree::between::leaf_roughness`]): the own zone of a
+    /// ray leaving a splat.
+    pub rough: &'a [f32],
     pub seed: u32,
 }
 
 /// Where a ray leaving a splat starts, in the splat's radii: past the rounding of its own
-/// plane. Other surfaces count from there; the origin's own from Δ ([`first_hit_leaving`]).
+/// plane. Other surfaces count from there; the origin's own past its own zone
+/// ([`Between::leaving`]).
 pub const LEAVE_EPS: f32 = 1e-3;
 
 /// Random-number dimensions of photon `id`: 0..5 for the emission, then one per bounce.
 const DIM_BOUNCE: u32 = 8;
 
 impl Tracer<'_> {
+    /// The roughness of splat `j`'s octree leaf.
+    fn rough_of(&self, j: u32) -> f32 {
+        self.rough[self.view.splat_leaf[j as usize] as usize]
+    }
+
     /// Trace photon `id`, the `k`-th of `aim`.
     pub fn photon(&self, aim: &Aim, id: u32, stats: &mut TraversalStats) -> Fate {
         let view = self.view;
         let r = |d: u32| rand(self.seed, id, 0, d);
         // Start: the light's position, or a point on an emitter splat drawn by area.
-        let (origin, radius, emitter_normal) = match aim.source {
+        let (origin, radius, emitter) = match aim.source {
             Source::Point(p) => (p, 0.0, None),
             Source::Area(e) => {
                 let j = self.leaves.pick(view, e, r(0));
                 let s = &view.splats[j as usize];
-                (
-                    disk_point(s, r(1), r(2)),
-                    s.radius,
-                    Some(Vec3::from(s.normal)),
-                )
+                (disk_point(s, r(1), r(2)), s.radius, Some(j))
             }
         };
+        let emitter_normal = emitter.map(|j| Vec3::from(view.splats[j as usize].normal));
         let t_min = LEAVE_EPS * radius;
         let (dir, first, power) = match aim.sampling {
             Sampling::Direction { k, lo, hi } => {
@@ -122,17 +127,16 @@ impl Tracer<'_> {
             t_min,
             t_max: f32::INFINITY,
         };
-        let leaving = emitter_normal.map(|n| (n, self.self_hit * radius));
-        self.trace(ray, leaving, power, id, first, stats)
+        self.trace(ray, emitter, power, id, first, stats)
     }
 
-    /// Follow a photon from `ray` with `power`, leaving the surface `leaving` (its normal and
-    /// self-hit distance, [`first_hit_leaving`]) if any; a first hit that breaks `first` drops
+    /// Follow a photon from `ray` with `power`, leaving the splat `leaving` (a data-pool index)
+    /// if any, past its own zone ([`Between::leaving`]); a first hit that breaks `first` drops
     /// it ([`Fate::Occluded`]).
     pub fn trace(
         &self,
         mut ray: Ray,
-        mut leaving: Option<(Vec3, f32)>,
+        mut leaving: Option<u32>,
         mut power: Vec3,
         id: u32,
         first: First,
@@ -141,9 +145,12 @@ impl Tracer<'_> {
         let view = self.view;
         let mut bounces = 0u32;
         loop {
-            let walk = |r: &Ray| self.accel.intersect(view, r, stats);
             let found = match leaving {
-                Some((n, skip)) => first_hit_leaving(view.splats, &ray, n, skip, walk),
+                Some(j) => {
+                    let own = (&view.splats[j as usize], self.rough_of(j));
+                    let seg = Between::leaving(ray, own);
+                    self.accel.intersect_between(view, &seg, stats)
+                }
                 None => self.accel.intersect(view, &ray, stats),
             };
             let Some(hit) = found else {
@@ -180,7 +187,7 @@ impl Tracer<'_> {
                     t_min: LEAVE_EPS * s.radius,
                     t_max: f32::INFINITY,
                 };
-                leaving = Some((Vec3::from(s.normal), self.self_hit * s.radius));
+                leaving = Some(hit.splat);
                 continue;
             }
             if bounces == 0 {

@@ -600,6 +600,28 @@ material = "white"
     }
 
     #[test]
+    fn retired_keys_say_what_took_their_place() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pipeline.toml");
+        std::fs::write(&path, format!("{BASE}\n[caustics]\nself_hit = 0.5\n")).unwrap();
+        let e = load_config(&path, &[]).unwrap_err().to_string();
+        assert!(e.contains("pipeline.toml"), "{e}");
+        assert!(e.contains("[caustics] self_hit is no longer read"), "{e}");
+        assert!(
+            e.contains("own zone") && e.contains("delete the line"),
+            "{e}"
+        );
+        std::fs::write(&path, BASE).unwrap();
+        let e = load_config(&path, &["caustics.self_hit=0.1".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--set caustics.self_hit=0.1: [caustics] self_hit"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn overrides_apply_to_tables_and_arrays() {
         let mut v: toml::Value = toml::from_str(BASE).unwrap();
         apply_override(&mut v, "octree.max_leaf_points=4").unwrap();

@@ -14,6 +14,7 @@ pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, Co
     for o in overrides {
         apply_override(&mut value, o)
             .map_err(|m| ConfigError::invalid(path, format!("--set {o}: {m}")))?;
+        refuse_retired(&value, path, &format!("--set {o}: "))?;
     }
     let text = toml::to_string(&value).map_err(|e| ConfigError::invalid(path, e.to_string()))?;
     let mut config: PipelineConfig = value
@@ -37,6 +38,7 @@ pub fn parse_config(text: &str, base_dir: &Path) -> Result<LoadedConfig, ConfigE
     let pseudo = base_dir.join("<inline>");
     let value: toml::Value =
         toml::from_str(text).map_err(|e| ConfigError::invalid(&pseudo, e.to_string()))?;
+    refuse_retired(&value, &pseudo, "")?;
     let config: PipelineConfig = value
         .try_into()
         .map_err(|e: toml::de::Error| ConfigError::invalid(&pseudo, e.message().to_string()))?;
@@ -47,6 +49,26 @@ pub fn parse_config(text: &str, base_dir: &Path) -> Result<LoadedConfig, ConfigE
         base_dir: base_dir.to_path_buf(),
         text: text.to_string(),
     })
+}
+
+/// Keys pcgi once read and reads no longer, with what took their place: a config that sets one
+/// is refused with that, where serde's "unknown field" would not say why. (table, key, why)
+const RETIRED: &[(&str, &str, &str)] = &[(
+    "caustics",
+    "self_hit",
+    "photons and specular-link paths now pass over the surface they leave within its own zone, \
+     as the V-map's rays do (docs/caustics.md, \"Tracing\"); delete the line",
+)];
+
+/// A [`RETIRED`] key set in `value` (read from `path`; `what` prefixes the message), refused.
+fn refuse_retired(value: &toml::Value, path: &Path, what: &str) -> Result<(), ConfigError> {
+    for (table, key, why) in RETIRED {
+        if value.get(table).and_then(|t| t.get(key)).is_some() {
+            let msg = format!("{what}[{table}] {key} is no longer read: {why}");
+            return Err(ConfigError::invalid(path, msg));
+        }
+    }
+    Ok(())
 }
 
 fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, ConfigError> {
@@ -60,6 +82,7 @@ fn read_tree(path: &Path, stack: &mut Vec<PathBuf>) -> Result<toml::Value, Confi
     })?;
     let mut value: toml::Value =
         toml::from_str(&text).map_err(|e| ConfigError::invalid(path, e.to_string()))?;
+    refuse_retired(&value, path, "")?;
     let dir = path.parent().unwrap_or(Path::new(""));
     // Included files' model paths become absolute (resolved against the included file's
     // folder), so they do not depend on where the top-level file is.

@@ -94,10 +94,9 @@ pub(crate) fn photons(f: &PhotonsFile) -> String {
     );
     let _ = writeln!(
         s,
-        "parameters  budget {}, max bounces {}, self-hit {}, seed {}, specular paths {}, gather {}; {} point lights",
+        "parameters  budget {}, max bounces {}, seed {}, specular paths {}, gather {}; {} point lights",
         meta.params.photons,
         meta.params.max_bounces,
-        meta.params.self_hit,
         meta.params.seed,
         meta.params.specular_paths,
         meta.params.specular_gather,

@@ -21,8 +21,7 @@ pub mod rng;
 pub use between::Between;
 pub use pc_artifact::octree::{locate_normalized, Located, OctreeView};
 pub use ray::{
-    covering, first_hit_leaving, intersect, intersect_splat, occluded, occluded_between, Hit, Ray,
-    TraversalStats,
+    covering, intersect, intersect_splat, occluded, occluded_between, Hit, Ray, TraversalStats,
 };
 
 /// Axis-aligned box of the cell at `depth` with integer coordinates `cell` in the root frame.

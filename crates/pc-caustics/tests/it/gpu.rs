@@ -60,11 +60,10 @@ fn gpu_photons_match_the_cpu_twin() {
         let t = su.tracer;
         let gpu = GpuTracer::new(
             &ctx,
-            su.view,
+            (su.view, t.rough),
             &materials,
             su.leaves,
             t.max_bounces,
-            t.self_hit,
             t.seed,
         )
         .unwrap();

@@ -115,15 +115,21 @@ pub fn with_setup<R>(
     let light = PointLight::new(light.0.into(), light.1.into());
     let plan = emit::plan(&view, materials, &leaves, &[light], &input);
     let aims = emit::aims(&plan, budget, 3);
-    let link_aims = pc_caustics::links::aims(&view, &leaves, &input, budget / 8, 0.5, 3);
-    let accel = Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let accel = Accel::new(&view).with_own_surfaces(&view);
+    let scene = pc_caustics::links::Scene {
+        view: &view,
+        accel: &accel,
+        rough: &rough,
+    };
+    let link_aims = pc_caustics::links::aims(scene, &leaves, &input, budget / 8, 3);
     let tracer = Tracer {
         view: &view,
         accel: &accel,
         materials,
         leaves: &leaves,
         max_bounces: 8,
-        self_hit: 0.5,
+        rough: &rough,
         seed: 3,
     };
     f(&Setup {

@@ -236,9 +236,7 @@ fn a_noisy_floor_gathers_the_room_not_its_own_noise() {
                 t_max: f32::INFINITY,
             };
             let n = Vec3::from(s.normal);
-            let hit = pc_tree::first_hit_leaving(view.splats, &ray, n, 0.5 * s.radius, |r| {
-                accel.intersect(&view, r, &mut st)
-            });
+            let hit = delta_rule(&view, &accel, ray, n, 0.5 * s.radius, &mut st);
             all += 1;
             front += hit.is_some_and(|h| {
                 Vec3::from(view.splats[h.splat as usize].normal).dot(ray.dir) < 0.0
@@ -258,4 +256,24 @@ fn a_noisy_floor_gathers_the_room_not_its_own_noise() {
         mean > 0.97,
         "a noisy floor gathers {mean:.4} of its closed room's light"
     );
+}
+
+/// The nearest hit of `ray` leaving a surface of normal `normal` under the Δ rule: hits within
+/// `skip` on splats facing like the origin (normals within 60°) passed over, any other taken.
+fn delta_rule(
+    view: &pc_tree::OctreeView,
+    accel: &pc_tree::accel::Accel,
+    mut ray: pc_tree::Ray,
+    normal: Vec3,
+    skip: f32,
+    st: &mut pc_tree::TraversalStats,
+) -> Option<pc_tree::Hit> {
+    loop {
+        let hit = accel.intersect(view, &ray, st)?;
+        let own = Vec3::from(view.splats[hit.splat as usize].normal).dot(normal) > 0.5;
+        if hit.t >= skip || !own {
+            return Some(hit);
+        }
+        ray.t_min = hit.t * (1.0 + 1e-6) + f32::MIN_POSITIVE;
+    }
 }

@@ -24,16 +24,21 @@ fn links_of(sc: &Scene, budget: u32, gather: u32) -> Links {
     let view = sc.octree.view();
     let v = sc.vmap();
     let leaves = Leaves::new(&view, &sc.materials);
-    let self_hit = pc_artifact::params::CausticsParams::default().self_hit;
-    let aims = links::aims(&view, &leaves, &v, budget, self_hit, 5);
-    let accel = Accel::new(&view);
+    let rough = pc_tree::between::leaf_roughness(&view);
+    let accel = Accel::new(&view).with_own_surfaces(&view);
+    let scene = links::Scene {
+        view: &view,
+        accel: &accel,
+        rough: &rough,
+    };
+    let aims = links::aims(scene, &leaves, &v, budget, 5);
     let tracer = Tracer {
         view: &view,
         accel: &accel,
         materials: &sc.materials,
         leaves: &leaves,
         max_bounces: 8,
-        self_hit,
+        rough: &rough,
         seed: 5,
     };
     let traced = trace_all(&tracer, &aims, &|_| {});
