@@ -474,9 +474,14 @@ impl Artifact {
                 msg: "the artifact has no metadata".to_owned(),
             });
         }
+        // An intact file whose metadata this build cannot read was written by another build
+        // of its stage (a field added or retired): say which, and what makes it anew.
         rmp_serde::from_slice(bytes).map_err(|e| ArtifactError::Metadata {
             path: self.path.clone(),
-            msg: e.to_string(),
+            msg: format!(
+                "{e} (written by {} {}, whose metadata this build does not read: rerun {})",
+                self.header.stage, self.header.stage_version, self.header.stage
+            ),
         })
     }
 

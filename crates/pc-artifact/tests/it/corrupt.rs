@@ -404,3 +404,28 @@ fn nonzero_padding() {
     assert!(matches!(err, ArtifactError::Layout { .. }), "{err}");
     assert!(err.to_string().contains("nonzero padding"), "{err}");
 }
+
+/// Metadata of another build of its stage (a field this build no longer has): the file is intact,
+/// so the error says who wrote it and what makes it anew.
+#[test]
+fn metadata_of_another_build_names_the_stage_to_rerun() {
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Fewer {
+        scene: String,
+        levels: u32,
+        bounds: [f32; 6],
+    }
+    let (_dir, path) = sample();
+    let artifact = Artifact::open(&path).unwrap();
+    let err = artifact.metadata::<Fewer>().unwrap_err();
+    assert!(matches!(err, ArtifactError::Metadata { .. }), "{err}");
+    let text = err.to_string();
+    assert!(text.contains("sample.octree: bad metadata"), "{text}");
+    assert!(text.contains("key_of_input"), "{text}");
+    assert!(
+        text.contains("written by pc-octree 0.0.0") && text.contains("rerun pc-octree"),
+        "{text}"
+    );
+}
