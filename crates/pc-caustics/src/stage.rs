@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::Vec3;
-use pc_artifact::octree::OctreeFile;
+use pc_artifact::octree::{class, OctreeFile};
 use pc_artifact::params::CausticsParams;
 use pc_artifact::photons::{sections, Photon, PhotonsFile, PhotonsMeta};
 use pc_artifact::specular::{self as spec, SpecularMeta};
@@ -132,9 +132,17 @@ pub fn run(
     timings.push(("emission".to_string(), t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
-    // Rays leaving a splat pass over its own rough surface within its own zone.
-    let rough = leaf_roughness(&view);
-    let accel = Accel::new(&view).with_own_surfaces(&view);
+    // Rays leaving a splat pass over its own rough surface within its own zone. Photons and
+    // paths are traced toward specular surfaces only: a scene without any (a scan) needs
+    // neither the roughness nor the leaves' surfaces, which read every splat.
+    let specular = leaves.leaves.iter().any(|l| class::is_specular(l.class));
+    let (rough, accel) = match specular {
+        true => (
+            leaf_roughness(&view),
+            Accel::new(&view).with_own_surfaces(&view),
+        ),
+        false => (Vec::new(), Accel::new(&view)),
+    };
     let scene = links::Scene {
         view: &view,
         accel: &accel,
