@@ -1,8 +1,9 @@
 //! Photon tracing (seed §8.5.4 to §8.5.7) on the CPU: the renderer's traversal
 //! (`pc_tree::accel`), the normal fields and the specular bounce of `pc_tree::optics`, rays that
 //! pass over the rough surface they leave within its own zone (`pc_tree::Between::leaving`, the
-//! V-map's rule, where the seed has its self-hit Δ), a bounce limit. A photon is stored where it first lands on the front of a
-//! non-specular splat after at least one specular bounce (LS⁺D), never on specular splats.
+//! V-map's rule, where the seed has its self-hit Δ), a bounce limit. A photon is stored where
+//! it first lands on the front of a non-specular splat after at least one specular bounce
+//! (LS⁺D), never on specular splats.
 
 use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
