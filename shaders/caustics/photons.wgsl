@@ -65,8 +65,6 @@ const FATE_OCCLUDED: u32 = 1u;
 const FATE_LOST: u32 = 2u;
 const FATE_ABSORBED: u32 = 3u;
 const F32_MAX: f32 = 3.40282347e38;
-// Where a ray leaving a splat starts, in its radii (twin of trace::LEAVE_EPS).
-const LEAVE_EPS: f32 = 1e-3;
 // Random-number dimensions of a photon: 0..5 for the emission, then one per bounce.
 const DIM_BOUNCE: u32 = 8u;
 

@@ -69,6 +69,9 @@ const OWN_HEIGHT: f32 = 1.0;
 const OWN_SLOPE: f32 = 0.1;
 const OWN_ROUGH: f32 = 5.0;
 const OWN_REACH: f32 = 32.0;
+// Where a first-hit ray leaving a splat starts, in its radii (twin of
+// pc_tree::between::LEAVE_EPS).
+const LEAVE_EPS: f32 = 1e-3;
 
 // How far along a ray leaving a splat the splat's own zone reaches (twin of own_zone).
 fn own_zone(radius: f32, rough: f32, cos_n: f32) -> f32 {

@@ -19,8 +19,6 @@ struct GatherSlot {
     splat: u32,
 }
 
-// Where a gather ray starts, in radii of its splat (twin of gather::LEAVE_EPS).
-const LEAVE_EPS: f32 = 1e-3;
 // Twin of gather::SEED.
 const GATHER_SEED: u32 = 0x67617468u;
 

@@ -56,10 +56,7 @@ pub struct Tracer<'a> {
     pub seed: u32,
 }
 
-/// Where a ray leaving a splat starts, in the splat's radii: past the rounding of its own
-/// plane. Other surfaces count from there; the origin's own past its own zone
-/// ([`Between::leaving`]).
-pub const LEAVE_EPS: f32 = 1e-3;
+pub use pc_tree::between::LEAVE_EPS;
 
 /// Random-number dimensions of photon `id`: 0..5 for the emission, then one per bounce.
 const DIM_BOUNCE: u32 = 8;

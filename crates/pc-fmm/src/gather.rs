@@ -36,8 +36,7 @@ use crate::pool::Footprints;
 /// Standard deviations of the V-map's sampling noise a misstatement must stand out by.
 pub const Z: f32 = 3.0;
 
-/// Where a gather ray starts, in radii of its splat (twin of the photon tracer's `LEAVE_EPS`).
-const LEAVE_EPS: f32 = 1e-3;
+use pc_tree::between::LEAVE_EPS;
 
 /// The seed of the gather's random numbers (fixed: a rerun gives the same light).
 const SEED: u32 = 0x6761_7468;

@@ -64,6 +64,13 @@ pub const OWN_COS: f32 = 0.85;
 /// An own zone reaches at most this many times its height tolerance, however shallow the ray.
 pub const OWN_REACH: f32 = 32.0;
 
+/// Where a first-hit ray leaving a splat starts, in the splat's radii: past the rounding of its
+/// own plane. Other surfaces count from there (the floor under a glass ball resting on it), the
+/// origin's own past its own zone ([`Between::leaving`]). Used by the final gather and the
+/// photon tracer; WGSL twin `LEAVE_EPS` in shaders/common/traverse.wgsl. (The renderer's
+/// bounces off mirrors and glass keep the plain Δ: docs/caustics.md, "Not done yet".)
+pub const LEAVE_EPS: f32 = 1e-3;
+
 /// What a piece of a segment ignores: hits on splats of `material` facing like `normal`
 /// (cosine above [`OWN_COS`]). [`Own::NONE`] ignores nothing.
 #[derive(Clone, Copy, Debug, PartialEq)]
