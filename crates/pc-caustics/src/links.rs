@@ -154,7 +154,7 @@ fn pilot_form_factor(
             t_min: LEAVE_EPS * s.radius,
             t_max: f32::INFINITY,
         };
-        let seg = Between::leaving(ray, (s, rough[view.splat_leaf[j as usize] as usize]));
+        let seg = Between::leaving(ray, pc_tree::between::surface(view, rough, j));
         if let Some(hit) = accel.intersect_between(view, &seg, &mut stats) {
             let within = (l.y_splats[0]..l.y_splats[1]).contains(&hit.splat);
             let specular = class::is_specular(leaves.leaves[leaves.leaf_of(hit.splat)].class);

@@ -9,6 +9,7 @@ use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::photons::Photon;
 use pc_tree::accel::Accel;
+use pc_tree::between::surface;
 use pc_tree::optics::specular_bounce;
 use pc_tree::rng::rand;
 use pc_tree::{cosine_dir, disk_point, Between, OctreeView, Ray, TraversalStats};
@@ -62,11 +63,6 @@ pub use pc_tree::between::LEAVE_EPS;
 const DIM_BOUNCE: u32 = 8;
 
 impl Tracer<'_> {
-    /// The roughness of splat `j`'s octree leaf.
-    fn rough_of(&self, j: u32) -> f32 {
-        self.rough[self.view.splat_leaf[j as usize] as usize]
-    }
-
     /// Trace photon `id`, the `k`-th of `aim`.
     pub fn photon(&self, aim: &Aim, id: u32, stats: &mut TraversalStats) -> Fate {
         let view = self.view;
@@ -145,8 +141,7 @@ impl Tracer<'_> {
         loop {
             let found = match leaving {
                 Some(j) => {
-                    let own = (&view.splats[j as usize], self.rough_of(j));
-                    let seg = Between::leaving(ray, own);
+                    let seg = Between::leaving(ray, surface(view, self.rough, j));
                     self.accel.intersect_between(view, &seg, stats)
                 }
                 None => self.accel.intersect(view, &ray, stats),

@@ -17,8 +17,8 @@
 //! [`pc_tree::Between::leaving`]), and averages the reflected radiance `L − Lₑ` of the splats
 //! they hit from the front ([`gather_splat`]): an unbiased estimate of `(T (L − Lₑ))_i`, the light
 //! the FMM's `T` would bring, with visibility per ray. The gathered splats within a splat's disk
-//! pool their rays for it ([`crate::pool`]), so each casts its share of `gather_rays`. Specular splats (whose light reaches
-//! diffuse ones through `S`), back faces and the sky give nothing. The CPU twin of
+//! pool their rays for it ([`crate::pool`]), so each casts its share of `gather_rays`. Specular
+//! splats (whose light reaches diffuse ones through `S`), back faces and the sky give nothing. The CPU twin of
 //! `shaders/fmm/gather.wgsl` ([`GpuGather`]): the same rays from the same random numbers.
 
 use glam::Vec3;
@@ -26,6 +26,7 @@ use pc_artifact::octree::node;
 use pc_artifact::vmap::VmapView;
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::accel::Accel;
+use pc_tree::between::LEAVE_EPS;
 use pc_tree::gpu::{GpuOctree, OctreeParts};
 use pc_tree::rng::rand;
 use pc_tree::{Between, OctreeView, Ray, TraversalStats};
@@ -35,8 +36,6 @@ use crate::pool::Footprints;
 
 /// Standard deviations of the V-map's sampling noise a misstatement must stand out by.
 pub const Z: f32 = 3.0;
-
-use pc_tree::between::LEAVE_EPS;
 
 /// The seed of the gather's random numbers (fixed: a rerun gives the same light).
 const SEED: u32 = 0x6761_7468;
@@ -426,8 +425,7 @@ pub fn gather_splat(
     i: u32,
     stats: &mut TraversalStats,
 ) -> [f32; 3] {
-    let s = &view.splats[i as usize];
-    let own = (s, rough[view.splat_leaf[i as usize] as usize]);
+    let own = pc_tree::between::surface(view, rough, i);
     let count = rays.strata * rays.strata;
     let mut sum = Vec3::ZERO;
     for k in 0..count {

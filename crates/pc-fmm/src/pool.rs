@@ -55,10 +55,12 @@ impl Footprints {
                         let o = splat(j);
                         let on_surface = n.dot(Vec3::from(o.normal)) >= SAME_SURFACE_COS
                             && n.dot(Vec3::from(o.position) - x).abs() <= PLANE_TOLERANCE * r;
-                        if j == k || on_surface {
+                        if on_surface {
                             row.push(j as u32);
                         }
                     });
+                // Itself (at distance 0, in its own plane) is always in the ball; the guard
+                // keeps it there whatever the kd-tree's rounding of the radius.
                 if !row.contains(&(k as u32)) {
                     row.push(k as u32);
                 }

@@ -119,7 +119,7 @@ pub fn system(
                 // Past the splat's own rough surface, like the V-map's light lists.
                 rays.push(Between::leaving(
                     ray,
-                    (s, rough[view.splat_leaf[i as usize] as usize]),
+                    pc_tree::between::surface(view, rough, i),
                 ));
                 who.push(i);
             }

@@ -279,9 +279,8 @@ impl<'a> RenderScene<'a> {
         own: u32,
         st: &mut pc_tree::TraversalStats,
     ) -> bool {
-        let s = &self.view.splats[own as usize];
-        let rough = self.rough[self.view.splat_leaf[own as usize] as usize];
-        let seg = pc_tree::Between::leaving(ray, (s, rough));
+        let seg =
+            pc_tree::Between::leaving(ray, pc_tree::between::surface(&self.view, &self.rough, own));
         match &self.accel {
             Some(a) => a.occluded_between(&self.view, &seg, st),
             None => pc_tree::occluded_between(&self.view, &seg, st),

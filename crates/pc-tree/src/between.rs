@@ -101,6 +101,14 @@ impl Own {
     }
 }
 
+/// Splat `i` of `view` with its octree leaf's roughness (`rough`, [`leaf_roughness`]): the end
+/// of a segment that leaves it ([`Between::leaving`], [`Between::splats`]).
+#[inline]
+pub fn surface<'v>(view: &OctreeView<'v>, rough: &[f32], i: u32) -> (&'v Splat, f32) {
+    let i = i as usize;
+    (&view.splats[i], rough[view.splat_leaf[i] as usize])
+}
+
 /// How far along a ray leaving a splat of radius `radius`, on a leaf of roughness `rough`
 /// ([`leaf_roughness`]), at cosine `cos` to its normal the splat's own zone reaches.
 pub fn own_zone(radius: f32, rough: f32, cos: f32) -> f32 {
@@ -378,9 +386,8 @@ impl Between {
         }
     }
 
-    /// A ray leaving the splat `a` (from its centre, on a leaf of roughness `rough`), the far
-    /// end no surface (a point light, a
-    /// probe's reach).
+    /// A ray leaving the splat `a` (on a leaf of roughness `rough`: [`surface`]), the far end no
+    /// surface (a point light, a probe's reach, a first hit).
     pub fn leaving(ray: Ray, (a, rough): (&Splat, f32)) -> Between {
         Between {
             ray,
