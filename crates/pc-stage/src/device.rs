@@ -22,8 +22,9 @@ pub enum Work {
 /// 8 and 16 of its host's threads (docs/gpu.md, "Where auto switches"): on the 1M Cornell
 /// chain the GPU was faster in every stage at 2-8 threads (1.2-1.8× the stages together) and
 /// level at 16 (12.5 s against 12.7 s), and on the 1M hall scan's V-map 3.1× faster at 2
-/// threads and 1.26× at 16. More threads were not measured; the CPU's share keeps growing with
-/// them while the GPU's stays.
+/// threads and 1.26× at 16. Again on an H200 (2026-11-28): the 1M Cornell stages 0.88× at 16
+/// threads, the 20M hall scan's stages 1.29× at 16 (38.9 s against 50.1 s). More threads were
+/// not measured; the CPU's share keeps growing with them while the GPU's stays.
 pub const AUTO_GPU_MAX_THREADS: usize = 16;
 
 /// The GPU for `backend` and `work`: `cpu` none; `gpu` a context, or the error that there is
