@@ -22,7 +22,7 @@
 //! `shaders/fmm/gather.wgsl` ([`GpuGather`]): the same rays from the same random numbers.
 
 use glam::Vec3;
-use pc_artifact::octree::node;
+use pc_artifact::octree::{node, Splat};
 use pc_artifact::vmap::VmapView;
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use pc_tree::accel::Accel;
@@ -429,29 +429,95 @@ pub fn gather_splat(
     let count = rays.strata * rays.strata;
     let mut sum = Vec3::ZERO;
     for k in 0..count {
-        let seg = Between::leaving(rays.ray(view, i, k), own);
-        if let Some(h) = accel.intersect_between(view, &seg, stats) {
-            if Vec3::from(view.splats[h.splat as usize].normal).dot(seg.ray.dir) < 0.0 {
-                sum += Vec3::from(reflected[h.splat as usize]);
-            }
-        }
+        sum += gather_ray((view, accel), reflected, rays.ray(view, i, k), own, stats);
     }
     (sum / count.max(1) as f32).into()
 }
 
-/// [`gather_splat`] for each of `splats` (rayon across splats).
+/// What one gather ray brings: the reflected radiance of the splat it hits from the front.
+fn gather_ray(
+    (view, accel): (&OctreeView, &Accel),
+    reflected: &[[f32; 3]],
+    ray: Ray,
+    own: (&Splat, f32),
+    stats: &mut TraversalStats,
+) -> Vec3 {
+    let seg = Between::leaving(ray, own);
+    match accel.intersect_between(view, &seg, stats) {
+        Some(h) if Vec3::from(view.splats[h.splat as usize].normal).dot(seg.ray.dir) < 0.0 => {
+            Vec3::from(reflected[h.splat as usize])
+        }
+        _ => Vec3::ZERO,
+    }
+}
+
+/// Rays cast per sorted batch of the CPU gather ([`gather_cpu`]).
+const SORTED_BATCH: usize = 1 << 21;
+
+/// [`gather_splat`] for each of `splats`, in batches of about [`SORTED_BATCH`] rays cast in the
+/// order of their direction (one of 96 cells of a cube map), then of their splat: rays in one
+/// direction from splats near one another (ascending indices follow the octree's space-filling
+/// curve) walk the cells the rays before them brought into the cache. Each splat's rays are
+/// summed in its own order afterwards: the same light to the bit as one splat at a time.
 pub fn gather_cpu(
-    scene: (&OctreeView, &Accel, &[f32]),
+    (view, accel, rough): (&OctreeView, &Accel, &[f32]),
     reflected: &[[f32; 3]],
     rays: GatherRays,
     splats: &[u32],
 ) -> Vec<[f32; 3]> {
-    splats
-        .par_iter()
-        .map_init(TraversalStats::default, |st, &i| {
-            gather_splat(scene, reflected, rays, i, st)
-        })
-        .collect()
+    let count = (rays.strata * rays.strata) as usize;
+    if count == 0 {
+        return vec![[0.0; 3]; splats.len()];
+    }
+    let per_batch = (SORTED_BATCH / count).max(1);
+    let mut out = Vec::with_capacity(splats.len());
+    for batch in splats.chunks(per_batch) {
+        // (direction cell, ray number) of every ray, the ray number splat-major.
+        let mut order: Vec<(u32, u32)> = (0..batch.len() * count)
+            .into_par_iter()
+            .map(|r| {
+                let ray = rays.ray(view, batch[r / count], (r % count) as u32);
+                (direction_cell(ray.dir), r as u32)
+            })
+            .collect();
+        order.par_sort_unstable();
+        let mut found = vec![Vec3::ZERO; order.len()];
+        let cast: Vec<(u32, Vec3)> = order
+            .par_iter()
+            .map_init(TraversalStats::default, |st, &(_, r)| {
+                let (j, k) = (r as usize / count, (r as usize % count) as u32);
+                let i = batch[j];
+                let own = pc_tree::between::surface(view, rough, i);
+                (
+                    r,
+                    gather_ray((view, accel), reflected, rays.ray(view, i, k), own, st),
+                )
+            })
+            .collect();
+        for (r, l) in cast {
+            found[r as usize] = l;
+        }
+        // Each splat's rays in its own order, as gather_splat sums them.
+        out.par_extend(found.par_chunks(count).map(|rs| {
+            let sum = rs.iter().fold(Vec3::ZERO, |s, &l| s + l);
+            <[f32; 3]>::from(sum / count as f32)
+        }));
+    }
+    out
+}
+
+/// One of 96 cells of a cube map (6 faces of 4 × 4) that a direction falls in.
+fn direction_cell(d: Vec3) -> u32 {
+    let a = d.abs();
+    let (face, u, v, m) = if a.x >= a.y && a.x >= a.z {
+        ((d.x < 0.0) as u32, d.y, d.z, a.x)
+    } else if a.y >= a.z {
+        (2 + (d.y < 0.0) as u32, d.x, d.z, a.y)
+    } else {
+        (4 + (d.z < 0.0) as u32, d.x, d.y, a.z)
+    };
+    let cell = |x: f32| (((x / m.max(1e-30) + 1.0) * 2.0) as u32).min(3);
+    face * 16 + cell(u) * 4 + cell(v)
 }
 
 /// The gather on the device it was made for, of one solution's reflected radiance.
