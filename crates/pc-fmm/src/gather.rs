@@ -477,7 +477,7 @@ pub fn gather_cpu(
             .into_par_iter()
             .map(|r| {
                 let ray = rays.ray(view, batch[r / count], (r % count) as u32);
-                (direction_cell(ray.dir), r as u32)
+                (pc_tree::ray::direction_cell(ray.dir), r as u32)
             })
             .collect();
         order.par_sort_unstable();
@@ -504,20 +504,6 @@ pub fn gather_cpu(
         }));
     }
     out
-}
-
-/// One of 96 cells of a cube map (6 faces of 4 × 4) that a direction falls in.
-fn direction_cell(d: Vec3) -> u32 {
-    let a = d.abs();
-    let (face, u, v, m) = if a.x >= a.y && a.x >= a.z {
-        ((d.x < 0.0) as u32, d.y, d.z, a.x)
-    } else if a.y >= a.z {
-        (2 + (d.y < 0.0) as u32, d.x, d.z, a.y)
-    } else {
-        (4 + (d.z < 0.0) as u32, d.x, d.y, a.z)
-    };
-    let cell = |x: f32| (((x / m.max(1e-30) + 1.0) * 2.0) as u32).min(3);
-    face * 16 + cell(u) * 4 + cell(v)
 }
 
 /// The gather on the device it was made for, of one solution's reflected radiance.

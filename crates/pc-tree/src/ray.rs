@@ -109,6 +109,24 @@ pub struct TraversalStats {
     pub splat_tests: u64,
 }
 
+/// Which of 96 cells of a cube map (6 faces of 4 × 4) a direction falls in. Incoherent rays
+/// cast in the order of this cell, and within it of their origins along the space-filling
+/// curve, walk the cells the rays before them brought into the cache: the CPU's final gather
+/// (pc-fmm) orders its rays so. (Not the V-map's: a node pair's rays, cast one after another,
+/// are more alike than rays of one cell; ordered by cell the 4M scan's V-map took 25-30 % longer.)
+pub fn direction_cell(d: Vec3) -> u32 {
+    let a = d.abs();
+    let (face, u, v, m) = if a.x >= a.y && a.x >= a.z {
+        ((d.x < 0.0) as u32, d.y, d.z, a.x)
+    } else if a.y >= a.z {
+        (2 + (d.y < 0.0) as u32, d.x, d.z, a.y)
+    } else {
+        (4 + (d.z < 0.0) as u32, d.x, d.y, a.z)
+    };
+    let cell = |x: f32| (((x / m.max(1e-30) + 1.0) * 2.0) as u32).min(3);
+    face * 16 + cell(u) * 4 + cell(v)
+}
+
 /// Ray parameter at which the ray crosses the splat's plane inside its disk and on the kept
 /// side of its border clip (`Splat::clip`), if any. Rays parallel to the plane miss.
 #[inline]
