@@ -364,3 +364,46 @@ pub fn covering(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every direction falls in one of the 96 cells, every cell holds some directions, and
+    /// opposite directions never share one.
+    #[test]
+    fn directions_fall_in_96_cube_map_cells() {
+        let mut seen = [0u32; 96];
+        let n = 200;
+        for a in 0..n {
+            for b in 0..n {
+                let (u1, u2) = ((a as f32 + 0.5) / n as f32, (b as f32 + 0.5) / n as f32);
+                let z = 1.0 - 2.0 * u1;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let phi = std::f32::consts::TAU * u2;
+                let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let c = direction_cell(d);
+                assert!(c < 96, "{d:?} in cell {c}");
+                assert_ne!(
+                    c,
+                    direction_cell(-d),
+                    "{d:?} shares a cell with its opposite"
+                );
+                seen[c as usize] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&k| k > 0), "cells never hit: {seen:?}");
+        // The axes and the zero vector land somewhere valid.
+        for d in [
+            Vec3::X,
+            -Vec3::X,
+            Vec3::Y,
+            -Vec3::Y,
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::ZERO,
+        ] {
+            assert!(direction_cell(d) < 96);
+        }
+    }
+}
