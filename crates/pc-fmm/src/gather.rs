@@ -472,29 +472,26 @@ pub fn gather_cpu(
     let per_batch = (SORTED_BATCH / count).max(1);
     let mut out = Vec::with_capacity(splats.len());
     for batch in splats.chunks(per_batch) {
-        // (direction cell, ray number) of every ray, the ray number splat-major.
-        let mut order: Vec<(u32, u32)> = (0..batch.len() * count)
+        // Every ray of the batch, splat-major, made once; then their order by direction cell.
+        let made: Vec<Ray> = (0..batch.len() * count)
             .into_par_iter()
-            .map(|r| {
-                let ray = rays.ray(view, batch[r / count], (r % count) as u32);
-                (pc_tree::ray::direction_cell(ray.dir), r as u32)
-            })
+            .map(|r| rays.ray(view, batch[r / count], (r % count) as u32))
+            .collect();
+        let mut order: Vec<(u32, u32)> = made
+            .par_iter()
+            .enumerate()
+            .map(|(r, ray)| (pc_tree::ray::direction_cell(ray.dir), r as u32))
             .collect();
         order.par_sort_unstable();
-        let mut found = vec![Vec3::ZERO; order.len()];
-        let cast: Vec<(u32, Vec3)> = order
+        let cast: Vec<Vec3> = order
             .par_iter()
             .map_init(TraversalStats::default, |st, &(_, r)| {
-                let (j, k) = (r as usize / count, (r as usize % count) as u32);
-                let i = batch[j];
-                let own = pc_tree::between::surface(view, rough, i);
-                (
-                    r,
-                    gather_ray((view, accel), reflected, rays.ray(view, i, k), own, st),
-                )
+                let own = pc_tree::between::surface(view, rough, batch[r as usize / count]);
+                gather_ray((view, accel), reflected, made[r as usize], own, st)
             })
             .collect();
-        for (r, l) in cast {
+        let mut found = vec![Vec3::ZERO; made.len()];
+        for (&(_, r), l) in order.iter().zip(cast) {
             found[r as usize] = l;
         }
         // Each splat's rays in its own order, as gather_splat sums them.
