@@ -5,8 +5,11 @@
 use glam::Vec3;
 use pc_artifact::octree::{encode_clip, node, tangent_frame, Frame, Splat, MAX_CLIP_TURN};
 
-use crate::refs::{push_children_in_box, CellStack};
+use crate::refs::CellStack;
 use rayon::prelude::*;
+
+mod walk;
+use walk::{LeafCell, QueryBox, Reach};
 
 /// Points on the unit disk for the area estimate: a Fibonacci (golden-angle) spiral, area
 /// uniform, deterministic.
@@ -88,6 +91,7 @@ pub fn splat_areas(
         runs,
         dups: &dups,
         disks: Disks::of_all(splats, &dups),
+        cover_halves: Vec::new(),
         node_extents: Vec::new(),
         pattern: disk_pattern(samples.max(1)).collect(),
         dirs: {
@@ -100,6 +104,7 @@ pub fn splat_areas(
     };
     let slabs = dups.spread(ctx.slabs());
     ctx.disks.set_slabs(&slabs);
+    ctx.cover_halves = cover_halves(splats, &slabs);
     ctx.node_extents = ctx.node_extents();
     let unclipped = dups.spread(ctx.run(None));
     let borders = dups.spread(ctx.borders(&unclipped));
@@ -146,11 +151,13 @@ fn leaf_runs(splat_leaf: &[u32]) -> Vec<std::ops::Range<usize>> {
 #[derive(Default)]
 struct Scratch {
     stack: CellStack,
+    /// The leaves a group's shared walk reached ([`AreaPass::per_leaf`]).
+    reached: Vec<LeafCell>,
     cands: Vec<u32>,
     near: Vec<u32>,
     offsets: Vec<(f32, f32)>,
     heights: Vec<f32>,
-    /// The candidate disks of a leaf's splats ([`AreaPass::candidates`]).
+    /// The candidate disks of a leaf's splats ([`AreaPass::cover_box`]).
     disks: Disks,
     /// One byte a candidate lane: 1 where a filter keeps it ([`for_kept`]).
     keep: Vec<u8>,
@@ -254,9 +261,12 @@ struct AreaPass<'a> {
     /// Every splat's disk ([`Disks::of_all`]), so that a walk copies a leaf's own splats as
     /// one range of each array.
     disks: Disks,
-    /// Per node-pool slot, the largest disk extent below it ([`Self::node_extents`]), once the
-    /// slabs are set.
-    node_extents: Vec<f32>,
+    /// Per splat, once the slabs are set, the half extents of the box around its centre that
+    /// holds every point its disk covers ([`cover_halves`]).
+    cover_halves: Vec<Vec3>,
+    /// Per node-pool slot, the largest of those below it, axis by axis
+    /// ([`Self::node_extents`]).
+    node_extents: Vec<Vec3>,
     pattern: Vec<(f32, f32)>,
     /// The border directions' cosines and sines (apart, so loops over them run in vector
     /// lanes).
@@ -331,81 +341,57 @@ impl AreaPass<'_> {
         });
     }
 
-    /// Every disk that can cover a point of the splats `todo` (one leaf's), in `sc.disks`: the
-    /// representatives among the own splats of every leaf that holds a disk whose centre can
-    /// lie within r_i + √(r_j² + t_j²) of a splat i ([`Self::near`]'s first test), found by a
-    /// walk that prunes a node when its cell, widened by the largest such extent below it
-    /// ([`Self::node_extents`]), misses the box of the splats' centres widened by their
-    /// largest radius. A large disk from afar is found however large; a fixed box (twice a
-    /// splat's own reach) collected three times the candidates on a dense noisy scan.
-    fn candidates(&self, todo: impl Iterator<Item = usize>, sc: &mut Scratch) {
+    /// The box of the splats `todo` (one leaf's) for their cover counts: every disk that can
+    /// cover a point of one of them is a representative among the own splats of a leaf whose
+    /// cover box ([`cover_halves`]) can reach within r_i of a splat i, found by a walk
+    /// ([`Reach::Extents`]) that prunes a node when its cell, widened by the largest such half
+    /// extents below it ([`Self::node_extents`]), misses the box of the splats' centres widened
+    /// by their largest radius. A large disk from afar is found however large; a fixed box
+    /// (twice a splat's own reach) collected three times the candidates on a dense noisy scan.
+    /// None when `todo` is empty.
+    fn cover_box(&self, todo: impl Iterator<Item = usize>) -> Option<QueryBox> {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut radius = 0.0f32;
+        let mut any = false;
         for i in todo {
             let c = Vec3::from(self.splats[i].position);
             (lo, hi) = (lo.min(c), hi.max(c));
             radius = radius.max(self.splats[i].radius);
-        }
-        sc.cands.clear();
-        sc.disks.clear();
-        if radius == 0.0 && lo.x > hi.x {
-            return; // nothing to do
+            any = true;
         }
         let origin = Vec3::from(self.frame.origin);
-        let (lo, hi) = (
-            (lo - origin) * self.frame.inv_size,
-            (hi - origin) * self.frame.inv_size,
-        );
-        let widen = |slot: u32| (radius + self.node_extents[slot as usize]) * self.frame.inv_size;
-        sc.stack.clear();
-        sc.stack.push((0, Vec3::ZERO, 1.0));
-        while let Some((slot, clo, size)) = sc.stack.pop() {
-            let w = self.nodes[slot as usize];
-            if w & node::EMPTY != 0 {
-                continue;
-            }
-            let e = Vec3::splat(widen(slot));
-            if !((clo - e).cmple(hi) & (clo + Vec3::splat(size) + e).cmpge(lo)).all() {
-                continue;
-            }
-            if w & node::LEAF != 0 {
-                let (own, _) = self.leaf_list(w);
-                sc.disks.extend_range(&self.disks, own);
-                continue;
-            }
-            let half = size * 0.5;
-            for child in 0..8u32 {
-                let off = Vec3::new(
-                    (child & 1) as f32,
-                    ((child >> 1) & 1) as f32,
-                    ((child >> 2) & 1) as f32,
-                );
-                sc.stack
-                    .push((node::ptr(w) + child, clo + off * half, half));
-            }
-        }
+        any.then(|| QueryBox {
+            lo: (lo - origin) * self.frame.inv_size,
+            hi: (hi - origin) * self.frame.inv_size,
+            radius,
+            centres: (lo, hi),
+        })
     }
 
-    /// Per node-pool slot, the largest extent √(r² + t²) (radius, slab: [`Disks::extent`]) of
-    /// the splats below it: how far from its centre a disk there can cover a point.
-    fn node_extents(&self) -> Vec<f32> {
-        fn visit(pass: &AreaPass, slot: u32, out: &mut [f32]) -> f32 {
+    /// Per node-pool slot, the largest half extents of the splats' cover boxes below it
+    /// ([`cover_halves`]), axis by axis: how far from its centre, along each axis, a disk there
+    /// can cover a point.
+    fn node_extents(&self) -> Vec<Vec3> {
+        fn visit(pass: &AreaPass, slot: u32, out: &mut [Vec3]) -> Vec3 {
             let w = pass.nodes[slot as usize];
             let e = if w & node::EMPTY != 0 {
-                0.0
+                Vec3::ZERO
             } else if w & node::LEAF != 0 {
                 let (own, _) = pass.leaf_list(w);
                 let own = own.start as usize..own.end as usize;
-                pass.disks.extent[own].iter().copied().fold(0.0, f32::max)
+                pass.cover_halves[own]
+                    .iter()
+                    .copied()
+                    .fold(Vec3::ZERO, Vec3::max)
             } else {
                 (0..8)
                     .map(|k| visit(pass, node::ptr(w) + k, out))
-                    .fold(0.0, f32::max)
+                    .fold(Vec3::ZERO, Vec3::max)
             };
             out[slot as usize] = e;
             e
         }
-        let mut out = vec![0.0; self.nodes.len()];
+        let mut out = vec![Vec3::ZERO; self.nodes.len()];
         if !self.nodes.is_empty() {
             visit(self, 0, &mut out);
         }
@@ -431,45 +417,33 @@ impl AreaPass<'_> {
         (q(c - half), q(c + half))
     }
 
-    /// The representatives among the own splats of every leaf whose cell meets the box
-    /// `[bmin, bmax]` (root coordinates), depth first, in `sc.cands`. A leaf's reference list
-    /// only holds the disks that reach that leaf's cell, which would cut neighbourhoods at cell
-    /// walls.
-    fn own_splats_in_box(&self, bmin: Vec3, bmax: Vec3, sc: &mut Scratch) {
-        sc.cands.clear();
-        sc.disks.clear();
-        sc.stack.clear();
-        sc.stack.push((0, Vec3::ZERO, 1.0));
-        while let Some((slot, lo, size)) = sc.stack.pop() {
-            let w = self.nodes[slot as usize];
-            if w & node::EMPTY != 0 {
-                continue;
-            }
-            if w & node::LEAF != 0 {
-                let (own, _) = self.leaf_list(w);
-                sc.cands.extend(own.clone());
-                sc.disks.extend_range(&self.disks, own);
-                continue;
-            }
-            push_children_in_box(w, lo, size, bmin, bmax, &mut sc.stack);
-        }
+    /// The union of the query boxes of the representatives among `run` (one leaf's splats),
+    /// in root coordinates: the own splats of the leaves it meets ([`Reach::Cells`]) hold
+    /// every splat's neighbourhood. A leaf's reference list only holds the disks that reach
+    /// that leaf's cell, which would cut neighbourhoods at cell walls. None without a
+    /// representative.
+    fn neighbour_box(&self, run: std::ops::Range<usize>) -> Option<QueryBox> {
+        let (lo, hi) = run
+            .filter(|&i| self.dups.is_rep(i as u32))
+            .map(|i| self.query_box(i))
+            .reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))?;
+        Some(QueryBox {
+            lo,
+            hi,
+            radius: 0.0,
+            centres: (lo, hi),
+        })
     }
 
-    /// The own splats of the leaves that the union of the query boxes of the splats of `run`
-    /// (one leaf's) meets, in `sc.cands` and, lane for lane, `sc.disks`.
-    fn neighbours_of_run(&self, run: std::ops::Range<usize>, sc: &mut Scratch) {
-        let reps = run.filter(|&i| self.dups.is_rep(i as u32));
-        let (bmin, bmax) = reps.fold(
-            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |(lo, hi), i| {
-                let (a, b) = self.query_box(i);
-                (lo.min(a), hi.max(b))
-            },
-        );
-        self.own_splats_in_box(bmin, bmax, sc);
+    /// Every leaf's [`Self::neighbour_box`].
+    fn neighbour_boxes(&self) -> Vec<Option<QueryBox>> {
+        self.runs
+            .par_iter()
+            .map(|run| self.neighbour_box(run.clone()))
+            .collect()
     }
 
-    /// Marks in `keep` the lanes of `disks` ([`Self::neighbours_of_run`]) on splat i's surface
+    /// Marks in `keep` the lanes of `disks` ([`Self::neighbour_box`]) on splat i's surface
     /// (its material, normals within 60°) whose centres lie within [`Self::reach`] of its centre
     /// and `rise` of its plane, and sets `heights` to every lane's |height| above that plane.
     /// One pass the compiler can run in vector lanes.
@@ -507,7 +481,7 @@ impl AreaPass<'_> {
     }
 
     /// The same-surface splats whose centres lie within [`Self::reach`] of splat i and half
-    /// that of its plane (i included), from `sc` ([`Self::neighbours_of_run`]), in `sc.near`.
+    /// that of its plane (i included), from `sc` ([`Self::neighbour_box`]), in `sc.near`.
     fn neighbourhood(&self, i: usize, sc: &mut Scratch) {
         self.mark_neighbours(
             i,
@@ -533,22 +507,16 @@ impl AreaPass<'_> {
     /// Every leaf a splat's box meets, the union meets, and the walk visits the leaves in the
     /// same order either way, so each neighbourhood is what a walk of its own would give.
     fn borders(&self, unclipped: &[f32]) -> Vec<Border> {
-        self.runs
-            .par_iter()
-            .cloned()
-            .map_init(Scratch::default, |sc, run| {
-                self.neighbours_of_run(run.clone(), sc);
-                run.map(|i| {
-                    if !self.dups.is_rep(i as u32) {
-                        return Border::Interior; // the representative's, spread afterwards
-                    }
-                    self.neighbourhood(i, sc);
-                    self.border(i, &sc.near, unclipped, &mut sc.offsets)
-                })
-                .collect::<Vec<_>>()
+        self.per_leaf(Reach::Cells, &self.neighbour_boxes(), |sc, run| {
+            run.map(|i| {
+                if !self.dups.is_rep(i as u32) {
+                    return Border::Interior; // the representative's, spread afterwards
+                }
+                self.neighbourhood(i, sc);
+                self.border(i, &sc.near, unclipped, &mut sc.offsets)
             })
-            .flatten_iter()
             .collect()
+        })
     }
 
     /// Splat i's border status from its neighbourhood `near` ([`Self::borders`]).
@@ -614,27 +582,21 @@ impl AreaPass<'_> {
     /// with 2 mm of noise) half a radius misses a third of the neighbours: every sample seems
     /// covered by fewer disks than cover it, and the wall's splats stood for twice its area.
     fn slabs(&self) -> Vec<f32> {
-        self.runs
-            .par_iter()
-            .cloned()
-            .map_init(Scratch::default, |sc, run| {
-                self.neighbours_of_run(run.clone(), sc);
-                run.map(|i| {
-                    if !self.dups.is_rep(i as u32) {
-                        return 0.0; // the representative's, spread afterwards
-                    }
-                    let deviation = self.height_deviation(i, sc);
-                    (0.5 * self.splats[i].radius).max(COVER_DEVIATIONS * deviation)
-                })
-                .collect::<Vec<_>>()
+        self.per_leaf(Reach::Cells, &self.neighbour_boxes(), |sc, run| {
+            run.map(|i| {
+                if !self.dups.is_rep(i as u32) {
+                    return 0.0; // the representative's, spread afterwards
+                }
+                let deviation = self.height_deviation(i, sc);
+                (0.5 * self.splats[i].radius).max(COVER_DEVIATIONS * deviation)
             })
-            .flatten_iter()
             .collect()
+        })
     }
 
     /// The robust deviation (median |h| / 0.6745) of the heights h above splat i's plane of its
     /// same-surface neighbours within [`Self::reach`] (and as high), from `sc`
-    /// ([`Self::neighbours_of_run`]); 0 with fewer than [`MIN_HEIGHTS`] of them.
+    /// ([`Self::neighbour_box`]); 0 with fewer than [`MIN_HEIGHTS`] of them.
     fn height_deviation(&self, i: usize, sc: &mut Scratch) -> f32 {
         let reach = self.reach(i);
         self.mark_neighbours(i, &sc.disks, reach, &mut sc.keep, &mut sc.heights);
@@ -660,27 +622,24 @@ impl AreaPass<'_> {
         let todo = |i: usize| {
             self.dups.is_rep(i as u32) && borders.is_none_or(|(b, _)| b[i] != Border::Interior)
         };
-        self.runs
+        let boxes: Vec<_> = self
+            .runs
             .par_iter()
-            .cloned()
-            .map_init(Scratch::default, |sc, run| {
-                if run.clone().any(todo) {
-                    self.candidates(run.clone().filter(|&i| todo(i)), sc);
+            .map(|run| self.cover_box(run.clone().filter(|&i| todo(i))))
+            .collect();
+        self.per_leaf(Reach::Extents, &boxes, |sc, run| {
+            run.map(|i| {
+                if !todo(i) {
+                    // A member (the representative's, spread afterwards) or an interior
+                    // splat of the clipped pass.
+                    return borders.map_or(0.0, |(_, unclipped)| unclipped[i]);
                 }
-                run.map(|i| {
-                    if !todo(i) {
-                        // A member (the representative's, spread afterwards) or an interior
-                        // splat of the clipped pass.
-                        return borders.map_or(0.0, |(_, unclipped)| unclipped[i]);
-                    }
-                    let border = borders.map_or(Border::Interior, |(b, _)| b[i]);
-                    self.near(i, &sc.disks, &mut sc.keep, &mut sc.lanes);
-                    self.area(i, border, &sc.lanes)
-                })
-                .collect::<Vec<_>>()
+                let border = borders.map_or(Border::Interior, |(b, _)| b[i]);
+                self.near(i, &sc.disks, &mut sc.keep, &mut sc.lanes);
+                self.area(i, border, &sc.lanes)
             })
-            .flatten_iter()
             .collect()
+        })
     }
 
     /// Splat i's share: its disk's samples that its `border` accepts, each weighted by one over
@@ -716,6 +675,23 @@ fn for_kept(keep: &[u8], mut f: impl FnMut(usize)) {
             bits &= bits - 1;
         }
     }
+}
+
+/// Per splat, the half extents along the axes of the box around its centre that holds every
+/// point its disk covers: the points within its radius r in its plane and its slab t off it
+/// ([`Lanes::cover`]), a flat cylinder whose box reaches r √(1 − n_k²) + t |n_k| along axis k.
+/// On a noisy dense scan the slab outgrows the radius (5 mm disks, 9 mm slabs on the hall scan
+/// at 20M points), and a ball of radius √(r² + t²) around each disk would reach twice as far
+/// along an axis-aligned wall as the disk does.
+fn cover_halves(splats: &[Splat], slabs: &[f32]) -> Vec<Vec3> {
+    splats
+        .par_iter()
+        .zip(slabs)
+        .map(|(s, &t)| {
+            let n = Vec3::from(s.normal);
+            crate::refs::disk_half_extent(n, s.radius) + n.abs() * t
+        })
+        .collect()
 }
 
 /// How many deviations of its neighbours' heights a disk's slab reaches off its plane
@@ -915,6 +891,44 @@ impl Disks {
             .par_iter_mut()
             .zip(radius.par_iter().zip(slabs))
             .for_each(|(e, (&r, &t))| *e = (r * r + t * t).sqrt());
+    }
+
+    /// Appends the disks of `range` of `from` that can cover a point within `radius` of the
+    /// box `lo..hi` of centres (world units): those whose cover box ([`cover_halves`],
+    /// `halves`) meets the box widened by `radius`. A disk that fails this covers no sample of
+    /// a splat centred in the box with a radius up to `radius`, so the filter changes no cover
+    /// count (only lanes that count nothing go, the rest keep their order); it spares each
+    /// splat's filter ([`AreaPass::near`]) the far disks of every leaf the walk reaches (on the
+    /// hall scan at 20M points, 137 candidates a splat instead of 404, of which 22 are kept).
+    fn extend_reaching(
+        &mut self,
+        from: &Disks,
+        range: std::ops::Range<u32>,
+        (lo, hi): (Vec3, Vec3),
+        radius: f32,
+        halves: &[Vec3],
+    ) {
+        let range = range.start as usize..range.end as usize;
+        for (j, &half) in range.clone().zip(&halves[range]) {
+            let p = Vec3::new(from.px[j], from.py[j], from.pz[j]);
+            let d = (lo - p).max(p - hi);
+            // A hair wider than the cover test it stands in front of, against their rounding.
+            let reach = (Vec3::splat(radius) + half) * (1.0 + 1e-5);
+            if from.weight[j] == 0 || d.cmpgt(reach).any() {
+                continue;
+            }
+            self.px.push(p.x);
+            self.py.push(p.y);
+            self.pz.push(p.z);
+            self.nx.push(from.nx[j]);
+            self.ny.push(from.ny[j]);
+            self.nz.push(from.nz[j]);
+            self.radius.push(from.radius[j]);
+            self.slab.push(from.slab[j]);
+            self.extent.push(from.extent[j]);
+            self.material.push(from.material[j]);
+            self.weight.push(from.weight[j]);
+        }
     }
 
     /// Appends the disks `range` of `from`.
