@@ -11,9 +11,9 @@ use pc_tree::caster::Caster;
 use pc_tree::{OctreeView, Ray};
 
 use crate::lanes;
-use crate::shaft::{Aabb, DiskBoxes, Shaft, Slab};
 use crate::system::System;
 use crate::tree::Points;
+use pc_tree::shaft::{Aabb, DiskBoxes, Shaft, Slab};
 
 /// A leaf whose shaft to the emitters holds the leaves of at most this many disks tests its
 /// rays against them alone instead of walking the octree; past it the probes decide.

@@ -784,8 +784,8 @@ pub struct LeafLanes {
 
 impl LeafLanes {
     /// Load the leaves `(splat range, disk box, disk slab)`.
-    pub fn load(&mut self, leaves: &[((u32, u32), crate::shaft::Aabb, crate::shaft::Slab)]) {
-        use crate::shaft::Aabb;
+    pub fn load(&mut self, leaves: &[((u32, u32), pc_tree::shaft::Aabb, pc_tree::shaft::Slab)]) {
+        use pc_tree::shaft::Aabb;
         self.ranges.clear();
         self.ranges.extend(leaves.iter().map(|x| x.0));
         for v in self.slabs.iter_mut() {
@@ -838,7 +838,7 @@ impl LeafLanes {
 
 /// Whether any disk of the leaves `c` blocks the ray (a hit in `[t_min, t_max]`): slab tests of
 /// eight boxes at a time down the box tree, at a leaf also whether the ray's stretch in its box
-/// reaches the slab of its disks ([`crate::shaft::Slab`], widened past the rounding: a
+/// reaches the slab of its disks ([`pc_tree::shaft::Slab`], widened past the rounding: a
 /// conservative skip), then the ray-disk test of the octree walk (`pc_tree::accel`), the same
 /// operations in the same order, eight disks at a time.
 #[inline(always)]

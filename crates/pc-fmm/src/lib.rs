@@ -21,7 +21,6 @@ pub mod lanes;
 pub(crate) mod par;
 pub mod plan;
 pub mod pool;
-pub mod shaft;
 pub mod solve;
 pub mod specular;
 pub mod stage;

@@ -18,6 +18,7 @@ pub mod nodes;
 pub mod optics;
 pub mod ray;
 pub mod rng;
+pub mod shaft;
 pub use between::Between;
 pub use pc_artifact::octree::{locate_normalized, Located, OctreeView};
 pub use ray::{

@@ -11,8 +11,10 @@ use pc_artifact::octree::node;
 use pc_artifact::params::VmapParams;
 use pc_artifact::vmap::Link;
 use pc_tree::rng::{pcg, rand};
+use pc_tree::shaft::{Aabb, DiskBoxes, Shaft};
 use pc_tree::{Between, OctreeView, Ray};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 // The casters live in pc-tree, shared with pc-fmm's shadow rays; re-exported here, where the
 // V-map's callers have always found them.
@@ -345,16 +347,17 @@ fn decide(
     vn: &[VNode],
     p: &VmapParams,
     caster: &dyn Caster,
-    close: &[bool],
+    culls: &Culls,
     tested: &[(u32, u32, bool)],
     links: &mut Links,
     segs: &mut Segments,
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
+    let close = &culls.close[..];
     let mut next = Vec::new();
     let mut partial = Vec::new();
-    let per_pair: Vec<(Vec<Sample>, u32, Partly)> = tested
+    let per_pair: Vec<(Vec<Sample>, u32, Partly, bool)> = tested
         .par_iter()
-        .map(|&(a, b, near)| {
+        .map_init(Vec::new, |stack, &(a, b, near)| {
             let mut r = Vec::with_capacity(p.rays as usize);
             let mut drawn = pair_rays(view, vn, (a, b), near, p.rays, p, &mut r);
             // A pair that all of a few rays find unoccluded is linked whole: a partial occluder
@@ -372,16 +375,25 @@ fn decide(
             } else {
                 partly(vn, p, close, (a, b), &r)
             };
-            (r, drawn, fate)
+            let open = !near && culls.try_shafts && shaft_open(view, &culls.shafts, &r, stack);
+            (r, drawn, fate, open)
         })
         .collect();
+    if culls.try_shafts {
+        let far = tested.iter().filter(|x| !x.2).count() as u64;
+        culls.tried.fetch_add(far, Relaxed);
+        culls
+            .settled
+            .fetch_add(per_pair.iter().filter(|x| x.3).count() as u64, Relaxed);
+    }
     // 1. Probes: every ray of a near pair or of one whose partial fate needs its fraction, the
-    //    probe rays of the others.
-    let probing =
-        |(r, _, fate): &(Vec<Sample>, u32, Partly)| *fate != Partly::Keep && r.len() > PROBE_RAYS;
+    //    probe rays of the others. A pair whose shaft is empty casts none.
+    let probing = |(r, _, fate, _): &(Vec<Sample>, u32, Partly, bool)| {
+        *fate != Partly::Keep && r.len() > PROBE_RAYS
+    };
     let first = &mut segs.first;
     first.clear();
-    first.extend(per_pair.iter().flat_map(|x| {
+    first.extend(per_pair.iter().filter(|x| !x.3).flat_map(|x| {
         let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
             true => Box::new(probes(x.0.len())),
             false => Box::new(0..x.0.len()),
@@ -397,6 +409,12 @@ fn decide(
     let mut at = 0;
     for x in &per_pair {
         let r = &x.0;
+        if x.3 {
+            // Every ray open: what casting them would find.
+            visible.push(vec![true; r.len()]);
+            settled.push(false);
+            continue;
+        }
         if !probing(x) {
             visible.push(seen_first[at..at + r.len()].to_vec());
             settled.push(false);
@@ -429,7 +447,7 @@ fn decide(
     let seen_rest = caster.visible_between(rest)?;
     let mut at = 0;
     for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
-        if probing(x) && !done {
+        if probing(x) && !done && !x.3 {
             for i in (0..x.0.len()).filter(|&i| !is_probe(i, x.0.len())) {
                 vis[i] = seen_rest[at];
                 at += 1;
@@ -440,7 +458,8 @@ fn decide(
     links.rays += (first.len() + rest.len()) as u64;
     // 3. Decide.
     let pairs = tested.iter().copied().zip(&per_pair);
-    for (((a, b, near), (r, drawn, fate)), (vis, &done)) in pairs.zip(visible.iter().zip(&settled))
+    for (((a, b, near), (r, drawn, fate, _)), (vis, &done)) in
+        pairs.zip(visible.iter().zip(&settled))
     {
         let total = r.len();
         let (va, vb) = (&vn[a as usize], &vn[b as usize]);
@@ -498,6 +517,74 @@ fn decide(
         }
     }
     Ok((next, partial))
+}
+
+/// What settles a pair without rays, besides its nodes: the nodes with an occluder close by
+/// ([`crate::close`]) and the disks' boxes for shaft culling ([`shaft_open`]).
+pub(crate) struct Culls {
+    pub close: Vec<bool>,
+    pub shafts: DiskBoxes,
+    /// Whether far pairs try their shafts at all: a rough scan's own noise stands inside
+    /// nearly every shaft, and there the descents cost pc-vmap 2-4 % for nothing. The answer
+    /// never depends on it, only the time ([`Culls::worth_trying`]).
+    pub try_shafts: bool,
+    /// Far pairs that tried their shafts so far, and those settled.
+    pub tried: AtomicU64,
+    pub settled: AtomicU64,
+}
+
+impl Culls {
+    /// Shafts are tried until [`SHAFT_TRIAL`] far pairs have, and then while they settle at
+    /// least one in [`SHAFT_WORTH`].
+    fn worth_trying(&self) -> bool {
+        let (tried, settled) = (self.tried.load(Relaxed), self.settled.load(Relaxed));
+        tried < SHAFT_TRIAL || settled * SHAFT_WORTH >= tried
+    }
+}
+
+/// Far pairs that try their shafts before [`Culls::worth_trying`] judges by their record.
+const SHAFT_TRIAL: u64 = 20_000;
+/// The least share (one in this many) of far pairs that shafts must settle to be tried on.
+const SHAFT_WORTH: u64 = 50;
+
+/// Whether shaft culling proves every ray of `r` (one far pair's) open: no disk's box meets the
+/// shaft from the box of their near ends to the box of their far ends, over the part of each
+/// segment where a hit counts (pc_tree::shaft, Haines and Wallace's shaft culling). Casting
+/// them would find each visible, so the pair's decision is the same without a ray (hits an end's
+/// own zone ignores only make a ray more visible). docs/vmap.md, "Empty shafts".
+fn shaft_open(view: &OctreeView, shafts: &DiskBoxes, r: &[Sample], stack: &mut Vec<u32>) -> bool {
+    if r.is_empty() {
+        return false;
+    }
+    let (mut a, mut b) = (Aabb::EMPTY, Aabb::EMPTY);
+    let (mut t_min, mut end) = (f32::INFINITY, f32::INFINITY);
+    for s in r {
+        let (xa, xb) = (
+            Vec3::from(view.splats[s.ends[0] as usize].position),
+            Vec3::from(view.splats[s.ends[1] as usize].position),
+        );
+        a.grow(xa);
+        b.grow(xb);
+        t_min = t_min.min(s.ray.ray.t_min);
+        end = end.min((xb - xa).length() - s.ray.ray.t_max);
+    }
+    Shaft::new(a, b, t_min, end).is_some_and(|shaft| !shafts.any_meets(view, &shaft, stack))
+}
+
+/// A far pair's rays (`p.rays` of them, those that carry light) and whether shaft culling
+/// proves them all open ([`shaft_open`]); what [`build_links`] decides a far pair on before
+/// any ray is cast.
+pub fn far_pair_shaft(
+    view: &OctreeView,
+    vn: &[VNode],
+    shafts: &DiskBoxes,
+    p: &VmapParams,
+    (a, b): (u32, u32),
+) -> (bool, Vec<Between>) {
+    let mut r = Vec::new();
+    pair_rays(view, vn, (a, b), false, p.rays, p, &mut r);
+    let open = shaft_open(view, shafts, &r, &mut Vec::new());
+    (open, r.iter().map(|x| x.ray).collect())
 }
 
 /// The exhaustive pass over partially visible pairs of V-map leaves: their fraction is the only
@@ -679,6 +766,13 @@ pub fn build_links(
     }
     let close = crate::close::close_occluders(view, vn, p, caster)?;
     links.close = close.iter().filter(|&&c| c).count() as u64;
+    let mut culls = Culls {
+        close,
+        shafts: DiskBoxes::new(view),
+        try_shafts: true,
+        tried: AtomicU64::new(0),
+        settled: AtomicU64::new(0),
+    };
     links.contact = crate::close::contact_shares(view, vn, p, caster)?;
     let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
     let mut segs = Segments::default();
@@ -710,12 +804,13 @@ pub fn build_links(
                 budget += ray_count(vn, a, b, near, p) as u64;
                 last += 1;
             }
+            culls.try_shafts = culls.worth_trying();
             let (more, part) = decide(
                 view,
                 vn,
                 p,
                 caster,
-                &close,
+                &culls,
                 &tested[first..last],
                 &mut links,
                 &mut segs,

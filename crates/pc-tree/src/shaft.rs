@@ -1,4 +1,6 @@
-//! Shaft culling for the emitters' shadow rays (docs/fmm.md, "Direct light of the emitters").
+//! Shaft culling: a proof that no disk blocks any of a bundle of segments (pc-fmm's emitters'
+//! shadow rays, docs/fmm.md, "Direct light of the emitters"; the V-map's rays between two
+//! nodes, docs/vmap.md, "Empty shafts").
 //!
 //! Every shadow ray of a group of receivers (one octree leaf's) runs from a receiver's centre,
 //! inside the receivers' box `A`, to an emitter's centre, inside the emitters' box `B`, and
@@ -18,9 +20,9 @@
 //! a leaf's disks only when the ray's stretch in its box reaches the slab of its disks
 //! ([`Slab`]). No leaf: every ray is open without a test.
 
+use crate::OctreeView;
 use glam::Vec3;
 use pc_artifact::octree::node;
-use pc_tree::OctreeView;
 
 /// Axis-aligned box.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -269,6 +271,30 @@ impl DiskBoxes {
         }
         out.sort_unstable();
         out
+    }
+
+    /// Whether some disk's box meets the shaft: the first leaf of [`Self::leaves`] with a
+    /// splat, without collecting the others. `false` proves that no ray of the shaft's
+    /// segments meets a disk.
+    pub fn any_meets(&self, view: &OctreeView, shaft: &Shaft, stack: &mut Vec<u32>) -> bool {
+        stack.clear();
+        stack.push(0);
+        while let Some(slot) = stack.pop() {
+            let bx = &self.boxes[slot as usize];
+            if bx.is_empty() || !shaft.meets(bx) {
+                continue;
+            }
+            let w = view.nodes[slot as usize];
+            if node::is_leaf(w) {
+                if !view.leaf(w).0.is_empty() {
+                    return true;
+                }
+            } else {
+                let c = node::ptr(w);
+                stack.extend(c..c + 8);
+            }
+        }
+        false
     }
 
     /// The octree leaves whose disks' box meets the shaft, as (splat range, box, slab), into
