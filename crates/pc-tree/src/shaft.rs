@@ -277,24 +277,7 @@ impl DiskBoxes {
     /// splat, without collecting the others. `false` proves that no ray of the shaft's
     /// segments meets a disk.
     pub fn any_meets(&self, view: &OctreeView, shaft: &Shaft, stack: &mut Vec<u32>) -> bool {
-        stack.clear();
-        stack.push(0);
-        while let Some(slot) = stack.pop() {
-            let bx = &self.boxes[slot as usize];
-            if bx.is_empty() || !shaft.meets(bx) {
-                continue;
-            }
-            let w = view.nodes[slot as usize];
-            if node::is_leaf(w) {
-                if !view.leaf(w).0.is_empty() {
-                    return true;
-                }
-            } else {
-                let c = node::ptr(w);
-                stack.extend(c..c + 8);
-            }
-        }
-        false
+        !self.each_leaf(view, shaft, stack, |_, r| r.is_empty())
     }
 
     /// The octree leaves whose disks' box meets the shaft, as (splat range, box, slab), into
@@ -308,9 +291,26 @@ impl DiskBoxes {
         out: &mut Vec<((u32, u32), Aabb, Slab)>,
     ) -> bool {
         out.clear();
+        let mut splats = 0usize;
+        self.each_leaf(view, shaft, stack, |slot, r| {
+            splats += r.len();
+            let s = slot as usize;
+            out.push(((r.start, r.end), self.boxes[s], self.slabs[s]));
+            splats <= limit
+        })
+    }
+
+    /// Each leaf whose disks' box meets the shaft, depth first, handed to `visit` with its
+    /// slot and splat range until `visit` says to stop (then `false`).
+    fn each_leaf(
+        &self,
+        view: &OctreeView,
+        shaft: &Shaft,
+        stack: &mut Vec<u32>,
+        mut visit: impl FnMut(u32, std::ops::Range<u32>) -> bool,
+    ) -> bool {
         stack.clear();
         stack.push(0);
-        let mut splats = 0usize;
         while let Some(slot) = stack.pop() {
             let bx = &self.boxes[slot as usize];
             if bx.is_empty() || !shaft.meets(bx) {
@@ -318,12 +318,9 @@ impl DiskBoxes {
             }
             let w = view.nodes[slot as usize];
             if node::is_leaf(w) {
-                let r = view.leaf(w).0;
-                splats += r.len();
-                if splats > limit {
+                if !visit(slot, view.leaf(w).0) {
                     return false;
                 }
-                out.push(((r.start, r.end), *bx, self.slabs[slot as usize]));
             } else {
                 let c = node::ptr(w);
                 stack.extend(c..c + 8);
