@@ -375,11 +375,12 @@ fn decide(
             } else {
                 partly(vn, p, close, (a, b), &r)
             };
-            let open = !near && culls.try_shafts && shaft_open(view, &culls.shafts, &r, stack);
+            let open =
+                !near && (culls.shafts.as_ref()).is_some_and(|d| shaft_open(view, d, &r, stack));
             (r, drawn, fate, open)
         })
         .collect();
-    if culls.try_shafts {
+    if culls.shafts.is_some() {
         let far = tested.iter().filter(|x| !x.2).count() as u64;
         culls.tried.fetch_add(far, Relaxed);
         culls
@@ -523,11 +524,11 @@ fn decide(
 /// ([`crate::close`]) and the disks' boxes for shaft culling ([`shaft_open`]).
 pub(crate) struct Culls {
     pub close: Vec<bool>,
-    pub shafts: DiskBoxes,
-    /// Whether far pairs try their shafts at all: a rough scan's own noise stands inside
-    /// nearly every shaft, and there the descents cost pc-vmap 2-4 % for nothing. The answer
-    /// never depends on it, only the time ([`Culls::worth_trying`]).
-    pub try_shafts: bool,
+    /// The disks' boxes while far pairs try their shafts: a rough scan's own noise stands
+    /// inside nearly every shaft, and there the descents cost pc-vmap 2-4 % for nothing, so
+    /// they are dropped once not worth trying ([`Culls::give_up_unless_worth`]; 52 bytes a
+    /// node, 285 MB on the 20M hall scan). The links never depend on it, only the time.
+    pub shafts: Option<DiskBoxes>,
     /// Far pairs that tried their shafts so far, and those settled.
     pub tried: AtomicU64,
     pub settled: AtomicU64,
@@ -535,14 +536,17 @@ pub(crate) struct Culls {
 
 impl Culls {
     /// Shafts are tried until [`SHAFT_TRIAL`] far pairs have, and then while they settle at
-    /// least one in [`SHAFT_WORTH`].
-    fn worth_trying(&self) -> bool {
+    /// least one in [`SHAFT_WORTH`]; once they do not, the disks' boxes go.
+    fn give_up_unless_worth(&mut self) {
         let (tried, settled) = (self.tried.load(Relaxed), self.settled.load(Relaxed));
-        tried < SHAFT_TRIAL || settled * SHAFT_WORTH >= tried
+        if tried >= SHAFT_TRIAL && settled * SHAFT_WORTH < tried {
+            self.shafts = None;
+        }
     }
 }
 
-/// Far pairs that try their shafts before [`Culls::worth_trying`] judges by their record.
+/// Far pairs that try their shafts before [`Culls::give_up_unless_worth`] judges by their
+/// record.
 const SHAFT_TRIAL: u64 = 20_000;
 /// The least share (one in this many) of far pairs that shafts must settle to be tried on.
 const SHAFT_WORTH: u64 = 50;
@@ -768,8 +772,7 @@ pub fn build_links(
     links.close = close.iter().filter(|&&c| c).count() as u64;
     let mut culls = Culls {
         close,
-        shafts: DiskBoxes::new(view),
-        try_shafts: true,
+        shafts: Some(DiskBoxes::new(view)),
         tried: AtomicU64::new(0),
         settled: AtomicU64::new(0),
     };
@@ -804,7 +807,7 @@ pub fn build_links(
                 budget += ray_count(vn, a, b, near, p) as u64;
                 last += 1;
             }
-            culls.try_shafts = culls.worth_trying();
+            culls.give_up_unless_worth();
             let (more, part) = decide(
                 view,
                 vn,
