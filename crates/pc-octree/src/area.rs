@@ -102,12 +102,14 @@ pub fn splat_areas(
             )
         },
     };
-    let slabs = dups.spread(ctx.slabs());
+    // Both neighbourhood passes look around the same boxes (they depend on the radii only).
+    let near_boxes = ctx.neighbour_boxes();
+    let slabs = dups.spread(ctx.slabs(&near_boxes));
     ctx.disks.set_slabs(&slabs);
     ctx.cover_halves = cover_halves(splats, &slabs);
     ctx.node_extents = ctx.node_extents();
     let unclipped = dups.spread(ctx.run(None));
-    let borders = dups.spread(ctx.borders(&unclipped));
+    let borders = dups.spread(ctx.borders(&unclipped, &near_boxes));
     // An interior splat's clipped pass is its unclipped one, sample for sample (its share
     // accepts every sample, and the cover counts never look at borders): only the border
     // splats run again.
@@ -506,8 +508,8 @@ impl AreaPass<'_> {
     /// the union of their query boxes meets, which every splat's own neighbourhood filters.
     /// Every leaf a splat's box meets, the union meets, and the walk visits the leaves in the
     /// same order either way, so each neighbourhood is what a walk of its own would give.
-    fn borders(&self, unclipped: &[f32]) -> Vec<Border> {
-        self.per_leaf(Reach::Cells, &self.neighbour_boxes(), |sc, run| {
+    fn borders(&self, unclipped: &[f32], near_boxes: &[Option<QueryBox>]) -> Vec<Border> {
+        self.per_leaf(Reach::Cells, near_boxes, |sc, run| {
             run.map(|i| {
                 if !self.dups.is_rep(i as u32) {
                     return Border::Interior; // the representative's, spread afterwards
@@ -581,8 +583,8 @@ impl AreaPass<'_> {
     /// about √2 σ, and once the radius is not several σ (a dense scan: 5 mm disks on a ceiling
     /// with 2 mm of noise) half a radius misses a third of the neighbours: every sample seems
     /// covered by fewer disks than cover it, and the wall's splats stood for twice its area.
-    fn slabs(&self) -> Vec<f32> {
-        self.per_leaf(Reach::Cells, &self.neighbour_boxes(), |sc, run| {
+    fn slabs(&self, near_boxes: &[Option<QueryBox>]) -> Vec<f32> {
+        self.per_leaf(Reach::Cells, near_boxes, |sc, run| {
             run.map(|i| {
                 if !self.dups.is_rep(i as u32) {
                     return 0.0; // the representative's, spread afterwards

@@ -14,7 +14,6 @@ use pc_tree::rng::{pcg, rand};
 use pc_tree::shaft::{Aabb, DiskBoxes, Shaft};
 use pc_tree::{Between, OctreeView, Ray};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 // The casters live in pc-tree, shared with pc-fmm's shadow rays; re-exported here, where the
 // V-map's callers have always found them.
@@ -347,15 +346,15 @@ fn decide(
     vn: &[VNode],
     p: &VmapParams,
     caster: &dyn Caster,
-    culls: &Culls,
+    culls: &mut Culls,
     tested: &[(u32, u32, bool)],
     links: &mut Links,
     segs: &mut Segments,
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
-    let close = &culls.close[..];
+    let (close, shafts) = (&culls.close[..], culls.shafts.as_ref());
     let mut next = Vec::new();
     let mut partial = Vec::new();
-    let per_pair: Vec<(Vec<Sample>, u32, Partly, bool)> = tested
+    let per_pair: Vec<PairRays> = tested
         .par_iter()
         .map_init(Vec::new, |stack, &(a, b, near)| {
             let mut r = Vec::with_capacity(p.rays as usize);
@@ -375,32 +374,28 @@ fn decide(
             } else {
                 partly(vn, p, close, (a, b), &r)
             };
-            let open =
-                !near && (culls.shafts.as_ref()).is_some_and(|d| shaft_open(view, d, &r, stack));
-            (r, drawn, fate, open)
+            let open = !near && shafts.is_some_and(|d| shaft_open(view, d, &r, stack));
+            PairRays {
+                r,
+                drawn,
+                fate,
+                open,
+            }
         })
         .collect();
     if culls.shafts.is_some() {
-        let far = tested.iter().filter(|x| !x.2).count() as u64;
-        culls.tried.fetch_add(far, Relaxed);
-        culls
-            .settled
-            .fetch_add(per_pair.iter().filter(|x| x.3).count() as u64, Relaxed);
+        culls.tried += tested.iter().filter(|x| !x.2).count() as u64;
+        culls.settled += per_pair.iter().filter(|x| x.open).count() as u64;
     }
     // 1. Probes: every ray of a near pair or of one whose partial fate needs its fraction, the
-    //    probe rays of the others. A pair whose shaft is empty casts none.
-    let probing = |(r, _, fate, _): &(Vec<Sample>, u32, Partly, bool)| {
-        *fate != Partly::Keep && r.len() > PROBE_RAYS
-    };
+    //    probe rays of the others; none of a pair whose shaft is empty.
     let first = &mut segs.first;
     first.clear();
-    first.extend(per_pair.iter().filter(|x| !x.3).flat_map(|x| {
-        let all: Box<dyn Iterator<Item = usize>> = match probing(x) {
-            true => Box::new(probes(x.0.len())),
-            false => Box::new(0..x.0.len()),
-        };
-        all.map(|i| x.0[i].ray)
-    }));
+    first.extend(
+        per_pair
+            .iter()
+            .flat_map(|x| x.first_rays().map(|i| x.r[i].ray)),
+    );
     let seen_first = caster.visible_between(first)?;
     // 2. The rest, where the probes do not settle the pair.
     let mut visible: Vec<Vec<bool>> = Vec::with_capacity(per_pair.len());
@@ -409,14 +404,14 @@ fn decide(
     rest.clear();
     let mut at = 0;
     for x in &per_pair {
-        let r = &x.0;
-        if x.3 {
+        let r = &x.r;
+        if x.open {
             // Every ray open: what casting them would find.
             visible.push(vec![true; r.len()]);
             settled.push(false);
             continue;
         }
-        if !probing(x) {
+        if !x.probing() {
             visible.push(seen_first[at..at + r.len()].to_vec());
             settled.push(false);
             at += r.len();
@@ -448,8 +443,8 @@ fn decide(
     let seen_rest = caster.visible_between(rest)?;
     let mut at = 0;
     for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
-        if probing(x) && !done && !x.3 {
-            for i in (0..x.0.len()).filter(|&i| !is_probe(i, x.0.len())) {
+        if x.probing() && !done {
+            for i in (0..x.r.len()).filter(|&i| !is_probe(i, x.r.len())) {
                 vis[i] = seen_rest[at];
                 at += 1;
             }
@@ -459,9 +454,8 @@ fn decide(
     links.rays += (first.len() + rest.len()) as u64;
     // 3. Decide.
     let pairs = tested.iter().copied().zip(&per_pair);
-    for (((a, b, near), (r, drawn, fate, _)), (vis, &done)) in
-        pairs.zip(visible.iter().zip(&settled))
-    {
+    for (((a, b, near), x), (vis, &done)) in pairs.zip(visible.iter().zip(&settled)) {
+        let (r, drawn, fate) = (&x.r, &x.drawn, &x.fate);
         let total = r.len();
         let (va, vb) = (&vn[a as usize], &vn[b as usize]);
         if total == 0 {
@@ -520,6 +514,33 @@ fn decide(
     Ok((next, partial))
 }
 
+/// A tested pair's sample rays, how many sample pairs were drawn ([`pair_rays`]), what it
+/// becomes if partly visible, and whether its shaft is empty ([`shaft_open`]).
+struct PairRays {
+    r: Vec<Sample>,
+    drawn: u32,
+    fate: Partly,
+    open: bool,
+}
+
+impl PairRays {
+    /// Whether the pair casts its probe rays first and the rest only where they do not settle
+    /// it ([`decide`]): a far pair whose partial fate needs no fraction.
+    fn probing(&self) -> bool {
+        !self.open && self.fate != Partly::Keep && self.r.len() > PROBE_RAYS
+    }
+
+    /// The indices of the rays the pair casts first: its probes, or every ray, or none where
+    /// its shaft is empty.
+    fn first_rays(&self) -> Box<dyn Iterator<Item = usize>> {
+        match (self.open, self.probing()) {
+            (true, _) => Box::new(0..0),
+            (false, true) => Box::new(probes(self.r.len())),
+            (false, false) => Box::new(0..self.r.len()),
+        }
+    }
+}
+
 /// What settles a pair without rays, besides its nodes: the nodes with an occluder close by
 /// ([`crate::close`]) and the disks' boxes for shaft culling ([`shaft_open`]).
 pub(crate) struct Culls {
@@ -530,16 +551,15 @@ pub(crate) struct Culls {
     /// node, 285 MB on the 20M hall scan). The links never depend on it, only the time.
     pub shafts: Option<DiskBoxes>,
     /// Far pairs that tried their shafts so far, and those settled.
-    pub tried: AtomicU64,
-    pub settled: AtomicU64,
+    pub tried: u64,
+    pub settled: u64,
 }
 
 impl Culls {
     /// Shafts are tried until [`SHAFT_TRIAL`] far pairs have, and then while they settle at
     /// least one in [`SHAFT_WORTH`]; once they do not, the disks' boxes go.
     fn give_up_unless_worth(&mut self) {
-        let (tried, settled) = (self.tried.load(Relaxed), self.settled.load(Relaxed));
-        if tried >= SHAFT_TRIAL && settled * SHAFT_WORTH < tried {
+        if self.tried >= SHAFT_TRIAL && self.settled * SHAFT_WORTH < self.tried {
             self.shafts = None;
         }
     }
@@ -563,8 +583,9 @@ fn shaft_open(view: &OctreeView, shafts: &DiskBoxes, r: &[Sample], stack: &mut V
     let (mut a, mut b) = (Aabb::EMPTY, Aabb::EMPTY);
     let (mut t_min, mut end) = (f32::INFINITY, f32::INFINITY);
     for s in r {
+        // The ray starts at the near end's centre.
         let (xa, xb) = (
-            Vec3::from(view.splats[s.ends[0] as usize].position),
+            s.ray.ray.origin,
             Vec3::from(view.splats[s.ends[1] as usize].position),
         );
         a.grow(xa);
@@ -773,8 +794,8 @@ pub fn build_links(
     let mut culls = Culls {
         close,
         shafts: Some(DiskBoxes::new(view)),
-        tried: AtomicU64::new(0),
-        settled: AtomicU64::new(0),
+        tried: 0,
+        settled: 0,
     };
     links.contact = crate::close::contact_shares(view, vn, p, caster)?;
     let mut frontier: Vec<(u32, u32)> = vec![(0, 0)];
@@ -813,7 +834,7 @@ pub fn build_links(
                 vn,
                 p,
                 caster,
-                &culls,
+                &mut culls,
                 &tested[first..last],
                 &mut links,
                 &mut segs,
