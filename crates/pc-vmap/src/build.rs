@@ -338,7 +338,10 @@ fn is_probe(i: usize, n: usize) -> bool {
 /// In two casts. A far pair's probe rays go first; where they disagree (some visible with
 /// light-carrying weight, some blocked) and the pair's fate needs no fraction (finer pairs or the
 /// exhaustive pass), its other rays are never cast. Every other ray is cast in the second, so
-/// the links are exactly those of casting every ray at once (docs/vmap.md, "Cost").
+/// the links are exactly those of casting every ray at once (docs/vmap.md, "Cost"). What each
+/// pair's rays say (its probes' verdict, its outcome) is worked out in parallel over the pairs;
+/// the outcomes are applied in the pairs' order (the links, the finer pairs and the smear's
+/// sums come out as from one loop).
 // (The round's inputs, its output and its reused buffers: eight arguments.)
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 fn decide(
@@ -352,8 +355,6 @@ fn decide(
     segs: &mut Segments,
 ) -> Result<(Vec<(u32, u32)>, Vec<(u32, u32)>), GpuError> {
     let (close, shafts) = (&culls.close[..], culls.shafts.as_ref());
-    let mut next = Vec::new();
-    let mut partial = Vec::new();
     let per_pair: Vec<PairRays> = tested
         .par_iter()
         .map_init(Vec::new, |stack, &(a, b, near)| {
@@ -375,11 +376,13 @@ fn decide(
                 partly(vn, p, close, (a, b), &r)
             };
             let open = !near && shafts.is_some_and(|d| shaft_open(view, d, &r, stack));
+            let wsum = r.iter().map(|x| x.weight).sum();
             PairRays {
                 r,
                 drawn,
                 fate,
                 open,
+                wsum,
             }
         })
         .collect();
@@ -397,130 +400,174 @@ fn decide(
             .flat_map(|x| x.first_rays().map(|i| x.r[i].ray)),
     );
     let seen_first = caster.visible_between(first)?;
+    let starts = offsets(per_pair.iter().map(PairRays::first_count));
+    let mut probed: Vec<(Vec<bool>, bool)> = per_pair
+        .par_iter()
+        .zip(&starts)
+        .map(|(x, &at)| x.after_probes(&seen_first[at..]))
+        .collect();
     // 2. The rest, where the probes do not settle the pair.
-    let mut visible: Vec<Vec<bool>> = Vec::with_capacity(per_pair.len());
-    let mut settled: Vec<bool> = Vec::with_capacity(per_pair.len());
+    let unsettled = |x: &PairRays, done: bool| x.probing() && !done;
     let rest = &mut segs.rest;
     rest.clear();
-    let mut at = 0;
-    for x in &per_pair {
-        let r = &x.r;
-        if x.open {
-            // Every ray open: what casting them would find.
-            visible.push(vec![true; r.len()]);
-            settled.push(false);
-            continue;
-        }
-        if !x.probing() {
-            visible.push(seen_first[at..at + r.len()].to_vec());
-            settled.push(false);
-            at += r.len();
-            continue;
-        }
-        let mut vis = vec![false; r.len()];
-        let (mut any_seen, mut any_blocked, mut weight) = (false, false, 0.0f32);
-        for i in probes(r.len()) {
-            vis[i] = seen_first[at];
-            at += 1;
-            any_seen |= vis[i];
-            any_blocked |= !vis[i];
-            weight += if vis[i] { r[i].weight } else { 0.0 };
-        }
-        // Light-carrying visible probes keep the whole pair's fraction above zero (the
-        // weights' sum is finite), as casting every ray would find.
-        let wsum: f32 = r.iter().map(|x| x.weight).sum();
-        let done = any_seen && any_blocked && wsum.is_finite() && weight / wsum > 0.0;
-        if !done {
-            rest.extend(
-                (0..r.len())
-                    .filter(|&i| !is_probe(i, r.len()))
-                    .map(|i| r[i].ray),
-            );
-        }
-        visible.push(vis);
-        settled.push(done);
-    }
+    rest.extend(
+        per_pair
+            .iter()
+            .zip(&probed)
+            .filter(|(x, (_, done))| unsettled(x, *done))
+            .flat_map(|(x, _)| x.rest_rays().map(|i| x.r[i].ray)),
+    );
     let seen_rest = caster.visible_between(rest)?;
-    let mut at = 0;
-    for ((x, vis), &done) in per_pair.iter().zip(&mut visible).zip(&settled) {
-        if x.probing() && !done {
-            for i in (0..x.r.len()).filter(|&i| !is_probe(i, x.r.len())) {
-                vis[i] = seen_rest[at];
-                at += 1;
+    let rest_counts =
+        per_pair
+            .iter()
+            .zip(&probed)
+            .map(|(x, (_, done))| match unsettled(x, *done) {
+                true => x.rest_rays().count(),
+                false => 0,
+            });
+    let starts = offsets(rest_counts);
+    probed
+        .par_iter_mut()
+        .zip(&per_pair)
+        .zip(&starts)
+        .filter(|(((_, done), x), _)| unsettled(x, *done))
+        .for_each(|(((vis, _), x), &at)| {
+            for (k, i) in x.rest_rays().enumerate() {
+                vis[i] = seen_rest[at + k];
             }
-        }
-    }
+        });
     links.pairs_tested += tested.len() as u64;
     links.rays += (first.len() + rest.len()) as u64;
-    // 3. Decide.
-    let pairs = tested.iter().copied().zip(&per_pair);
-    for (((a, b, near), x), (vis, &done)) in pairs.zip(visible.iter().zip(&settled)) {
-        let (r, drawn, fate) = (&x.r, &x.drawn, &x.fate);
-        let total = r.len();
+    // 3. Decide each pair, then apply the outcomes in order.
+    let outcomes: Vec<Outcome> = tested
+        .par_iter()
+        .zip(&per_pair)
+        .zip(&probed)
+        .map(|((&pair, x), (vis, done))| outcome(vn, p, pair, x, vis, *done))
+        .collect();
+    let mut next = Vec::new();
+    let mut partial = Vec::new();
+    let pairs = tested.iter().zip(&per_pair).zip(&probed);
+    for (((&(a, b, _), x), (vis, _)), &outcome) in pairs.zip(&outcomes) {
         let (va, vb) = (&vn[a as usize], &vn[b as usize]);
-        if total == 0 {
-            continue; // no sample pair faces each other
-        }
-        if !done {
-            let seen = vis.iter().filter(|&&v| v).count();
-            if seen == 0 {
-                // All rays blocked. With at least half the samples carrying light, a visible
-                // share above about a tenth would have shown (0.9^16 < 0.2): drop the pair.
-                // With fewer informative samples (nodes whose splats mostly face away), refine
-                // instead, unless both are V-map leaves or the pair's form factor is below the
-                // importance threshold (what a partly visible pair would keep unrefined): two
-                // patches of one rough surface, whose few facing samples graze it.
-                if !near
-                    && total * 2 < p.rays as usize
-                    && !(va.vleaf && vb.vleaf)
-                    && form_factors(va, vb, r) >= p.refine_form_factor
-                {
-                    split(view, vn, a, b, &mut next);
-                }
-                continue;
-            }
-            let (wvis, wsum) = weights(r, vis);
-            let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
-                continue; // the visible samples carry no weight: no light flows
-            };
-            if near {
+        match outcome {
+            Outcome::Nothing => {}
+            Outcome::Near(fraction) => {
                 let l = |x: u32| Link::near(x, fraction);
                 links.pairs.push((a, l(b)));
                 if a != b {
                     links.pairs.push((b, l(a)));
                 }
                 links.near += 1;
-                links.smear.add((va, vb), *drawn, r, vis, fraction);
-                continue;
+                links.smear.add((va, vb), x.drawn, &x.r, vis, fraction);
             }
-            if seen == total || *fate == Partly::Keep {
+            Outcome::Far(fraction) => {
                 links.pairs.push((a, Link::far(b, fraction)));
                 links.pairs.push((b, Link::far(a, fraction)));
                 links.far += 1;
-                links.smear.add((va, vb), *drawn, r, vis, fraction);
-                continue;
+                links.smear.add((va, vb), x.drawn, &x.r, vis, fraction);
             }
-        }
-        // Partly visible, a fate without a fraction (`Keep` is never settled by its probes).
-        match *fate {
-            Partly::Exact => partial.push((a, b)),
-            Partly::Refine(x) => {
-                let other = if x == a { b } else { a };
-                next.extend(children(view, vn, x).map(|c| (c.min(other), c.max(other))));
+            Outcome::Exact => partial.push((a, b)),
+            Outcome::Refine(n) => {
+                let other = if n == a { b } else { a };
+                next.extend(children(view, vn, n).map(|c| (c.min(other), c.max(other))));
             }
-            Partly::Keep | Partly::Split => split(view, vn, a, b, &mut next),
+            Outcome::Split => split(view, vn, a, b, &mut next),
         }
     }
     Ok((next, partial))
 }
 
+/// Where each of consecutive runs of `counts` starts.
+fn offsets(counts: impl Iterator<Item = usize>) -> Vec<usize> {
+    let mut at = 0;
+    counts
+        .map(|n| {
+            at += n;
+            at - n
+        })
+        .collect()
+}
+
+/// What [`decide`] makes of a tested pair.
+#[derive(Clone, Copy)]
+enum Outcome {
+    Nothing,
+    /// A near-field link with this fraction.
+    Near(f32),
+    /// A far-field link with this fraction.
+    Far(f32),
+    /// Partly visible V-map leaves, for the exhaustive pass.
+    Exact,
+    /// Finer pairs of this node (an occluder close to it) with the other.
+    Refine(u32),
+    /// Finer pairs ([`split`]).
+    Split,
+}
+
+/// A tested pair's outcome from its rays' visibility (`done`: its probes settled it partly
+/// visible).
+fn outcome(
+    vn: &[VNode],
+    p: &VmapParams,
+    (a, b, near): (u32, u32, bool),
+    x: &PairRays,
+    vis: &[bool],
+    done: bool,
+) -> Outcome {
+    let (r, fate) = (&x.r, x.fate);
+    let total = r.len();
+    let (va, vb) = (&vn[a as usize], &vn[b as usize]);
+    if total == 0 {
+        return Outcome::Nothing; // no sample pair faces each other
+    }
+    if !done {
+        let seen = vis.iter().filter(|&&v| v).count();
+        if seen == 0 {
+            // All rays blocked. With at least half the samples carrying light, a visible
+            // share above about a tenth would have shown (0.9^16 < 0.2): drop the pair.
+            // With fewer informative samples (nodes whose splats mostly face away), refine
+            // instead, unless both are V-map leaves or the pair's form factor is below the
+            // importance threshold (what a partly visible pair would keep unrefined): two
+            // patches of one rough surface, whose few facing samples graze it.
+            let refine = !near
+                && total * 2 < p.rays as usize
+                && !(va.vleaf && vb.vleaf)
+                && form_factors(va, vb, r) >= p.refine_form_factor;
+            return match refine {
+                true => Outcome::Split,
+                false => Outcome::Nothing,
+            };
+        }
+        let (wvis, wsum) = weights(r, vis);
+        let Some(fraction) = link_fraction(wvis, wsum, seen, total) else {
+            return Outcome::Nothing; // the visible samples carry no weight: no light flows
+        };
+        if near {
+            return Outcome::Near(fraction);
+        }
+        if seen == total || fate == Partly::Keep {
+            return Outcome::Far(fraction);
+        }
+    }
+    // Partly visible, a fate without a fraction (`Keep` is never settled by its probes).
+    match fate {
+        Partly::Exact => Outcome::Exact,
+        Partly::Refine(n) => Outcome::Refine(n),
+        Partly::Keep | Partly::Split => Outcome::Split,
+    }
+}
+
 /// A tested pair's sample rays, how many sample pairs were drawn ([`pair_rays`]), what it
-/// becomes if partly visible, and whether its shaft is empty ([`shaft_open`]).
+/// becomes if partly visible, whether its shaft is empty ([`shaft_open`]), and its samples'
+/// summed weight.
 struct PairRays {
     r: Vec<Sample>,
     drawn: u32,
     fate: Partly,
     open: bool,
+    wsum: f32,
 }
 
 impl PairRays {
@@ -538,6 +585,47 @@ impl PairRays {
             (false, true) => Box::new(probes(self.r.len())),
             (false, false) => Box::new(0..self.r.len()),
         }
+    }
+
+    /// How many rays the pair casts first ([`PairRays::first_rays`]).
+    fn first_count(&self) -> usize {
+        match (self.open, self.probing()) {
+            (true, _) => 0,
+            (false, true) => PROBE_RAYS.min(self.r.len()),
+            (false, false) => self.r.len(),
+        }
+    }
+
+    /// The rays a probing pair casts second, where its probes do not settle it.
+    fn rest_rays(&self) -> impl Iterator<Item = usize> {
+        let n = self.r.len();
+        (0..n).filter(move |&i| !is_probe(i, n))
+    }
+
+    /// The visibility of the pair's rays as far as its first cast tells (`seen` from its first
+    /// ray on), and whether the probes settle it partly visible: some visible with
+    /// light-carrying weight (which keeps the whole pair's fraction above zero, as casting
+    /// every ray would find), some blocked.
+    fn after_probes(&self, seen: &[bool]) -> (Vec<bool>, bool) {
+        let r = &self.r;
+        if self.open {
+            // Every ray open: what casting them would find.
+            return (vec![true; r.len()], false);
+        }
+        if !self.probing() {
+            return (seen[..r.len()].to_vec(), false);
+        }
+        let mut vis = vec![false; r.len()];
+        let (mut any_seen, mut any_blocked, mut weight) = (false, false, 0.0f32);
+        for (k, i) in probes(r.len()).enumerate() {
+            vis[i] = seen[k];
+            any_seen |= vis[i];
+            any_blocked |= !vis[i];
+            weight += if vis[i] { r[i].weight } else { 0.0 };
+        }
+        let wsum = self.wsum;
+        let done = any_seen && any_blocked && wsum.is_finite() && weight / wsum > 0.0;
+        (vis, done)
     }
 }
 
@@ -631,24 +719,39 @@ fn exact_partial(
                 (r, drawn)
             })
             .collect();
-        let rays: Vec<Between> = per_pair.iter().flat_map(|r| &r.0).map(|r| r.ray).collect();
+        let mut rays: Vec<Between> = Vec::new();
+        rays.par_extend(
+            per_pair
+                .par_iter()
+                .flat_map_iter(|r| r.0.iter().map(|r| r.ray)),
+        );
         let visible = caster.visible_between(&rays)?;
         links.rays += rays.len() as u64;
-        let mut at = 0;
-        for (&(a, b), (r, drawn)) in partial.iter().zip(&per_pair) {
-            let vis = &visible[at..at + r.len()];
-            at += r.len();
-            let (wvis, wsum) = weights(r, vis);
-            let seen = vis.iter().filter(|&&v| v).count();
-            let weighed = wvis > 0.0 && wsum > 0.0;
-            if let Some(f) = link_fraction(wvis, wsum, seen, r.len()).filter(|_| weighed) {
+        let starts = offsets(per_pair.iter().map(|r| r.0.len()));
+        let fractions: Vec<Option<f32>> = per_pair
+            .par_iter()
+            .zip(&starts)
+            .map(|((r, _), &at)| {
+                let vis = &visible[at..at + r.len()];
+                let (wvis, wsum) = weights(r, vis);
+                let seen = vis.iter().filter(|&&v| v).count();
+                let weighed = wvis > 0.0 && wsum > 0.0;
+                link_fraction(wvis, wsum, seen, r.len()).filter(|_| weighed)
+            })
+            .collect();
+        let each = partial.iter().zip(&per_pair).zip(&starts).zip(&fractions);
+        for (((&(a, b), (r, drawn)), &at), f) in each {
+            if let &Some(f) = f {
                 links.pairs.push((a, Link::far(b, f)));
                 links.pairs.push((b, Link::far(a, f)));
                 links.far += 1;
                 let (va, vb) = (&vn[a as usize], &vn[b as usize]);
-                links.smear.add((va, vb), *drawn, r, vis, f);
+                links
+                    .smear
+                    .add((va, vb), *drawn, r, &visible[at..at + r.len()], f);
             }
         }
+        per_pair.into_par_iter().for_each(drop);
     }
     Ok(())
 }
