@@ -19,6 +19,7 @@
 
 use std::path::Path;
 
+use crate::reader::first_where;
 use bytemuck::{Pod, Zeroable};
 
 use crate::reader::Checked;
@@ -461,32 +462,37 @@ impl<'a> OctreeView<'a> {
             return Err(format!("max depth {} exceeds 21", f.max_depth));
         }
         let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
-        if let Some(i) = self.splats.iter().position(|s| {
-            !(finite(&s.position)
+        // A clip is zero, or points outward at most MAX_CLIP_TURN from both lines, with a
+        // positive offset (a looser bound for the rounding of the encoded length).
+        let max_len = 1.001 / MAX_CLIP_TURN.cos();
+        let splat_ok = |s: &Splat| {
+            finite(&s.position)
                 && finite(&s.normal)
                 && finite(&s.albedo)
                 && finite(&s.clip)
                 && s.radius.is_finite()
-                && s.radius > 0.0)
-        }) {
-            return Err(format!(
-                "splat {i} has a non-finite value or a radius that is not positive"
-            ));
-        }
-        // A clip is zero, or points outward at most MAX_CLIP_TURN from both lines, with a
-        // positive offset (a looser bound for the rounding of the encoded length).
-        let max_len = 1.001 / MAX_CLIP_TURN.cos();
-        if let Some(i) = self.splats.iter().position(|s| {
+                && s.radius > 0.0
+        };
+        let clip_ok = |s: &Splat| {
             let q2 = s.clip[0] * s.clip[0] + s.clip[1] * s.clip[1] + s.clip[2] * s.clip[2];
-            !(s.clip == [0.0; 4] || (q2 >= 0.998 && q2 <= max_len * max_len && s.clip[3] > 0.0))
-        }) {
-            return Err(format!(
-                "splat {i}'s border clip {:?} is neither zero nor an outward direction of length \
-                 1 to {max_len:.2} with a positive offset",
-                self.splats[i].clip
-            ));
+            s.clip == [0.0; 4] || (q2 >= 0.998 && q2 <= max_len * max_len && s.clip[3] > 0.0)
+        };
+        // (Each check over the records runs in parallel, one pass over the splats for both of
+        // theirs; the first bad record is named.)
+        if let Some(i) = first_where(self.splats, |_, s| !(splat_ok(s) && clip_ok(s))) {
+            let s = &self.splats[i];
+            return Err(match splat_ok(s) {
+                false => {
+                    format!("splat {i} has a non-finite value or a radius that is not positive")
+                }
+                true => format!(
+                    "splat {i}'s border clip {:?} is neither zero nor an outward direction of \
+                     length 1 to {max_len:.2} with a positive offset",
+                    s.clip
+                ),
+            });
         }
-        if let Some(i) = self.node_info.iter().position(|n| {
+        if let Some(i) = first_where(self.node_info, |_, n| {
             !(finite(&n.centroid)
                 && finite(&n.normal)
                 && finite(&n.tilt)
@@ -495,47 +501,41 @@ impl<'a> OctreeView<'a> {
         }) {
             return Err(format!("node {i}'s statistics are not finite"));
         }
-        if let Some(i) = self
-            .splat_area
-            .iter()
-            .position(|a| !(a.is_finite() && *a >= 0.0))
-        {
+        if let Some(i) = first_where(self.splat_area, |_, a| !(a.is_finite() && *a >= 0.0)) {
             return Err(format!("splat {i}'s area is negative or not finite"));
         }
         let starts = self.leaf_table_starts()?;
-        for (i, &w) in self.nodes.iter().enumerate() {
+        let bad_node = |i: usize, &w: &u32| {
             if node::is_empty(w) {
                 // An empty node is exactly the empty word: no pointer, not also a leaf.
-                if w != node::EMPTY_NODE {
-                    return Err(format!("node {i} is not a valid node word ({w:#010x})"));
-                }
-                continue;
+                return w != node::EMPTY_NODE;
             }
             if node::is_leaf(w) {
-                if !starts.get(node::ptr(w) as usize).is_some_and(|&s| s) {
-                    return Err(format!(
-                        "leaf {i} does not point at a leaf of the begin/end table"
-                    ));
-                }
-            } else {
-                let c = node::ptr(w) as usize;
-                if c == 0 || c + 8 > n_nodes || !(c - 1).is_multiple_of(8) || c <= i {
-                    return Err(format!(
-                        "node {i} points at children {c}, outside the pool or not a group"
-                    ));
-                }
+                return !starts.get(node::ptr(w) as usize).is_some_and(|&s| s);
             }
+            let c = node::ptr(w) as usize;
+            c == 0 || c + 8 > n_nodes || !(c - 1).is_multiple_of(8) || c <= i
+        };
+        if let Some(i) = first_where(self.nodes, bad_node) {
+            let w = self.nodes[i];
+            let c = node::ptr(w);
+            return Err(match (node::is_empty(w), node::is_leaf(w)) {
+                (true, _) => format!("node {i} is not a valid node word ({w:#010x})"),
+                (_, true) => format!("leaf {i} does not point at a leaf of the begin/end table"),
+                _ => format!("node {i} points at children {c}, outside the pool or not a group"),
+            });
         }
-        for (s, &l) in self.splat_leaf.iter().enumerate() {
-            let owns = self
+        let stray = |s: usize, &l: &u32| {
+            !self
                 .nodes
                 .get(l as usize)
-                .is_some_and(|&w| node::is_leaf(w) && self.leaf(w).0.contains(&(s as u32)));
-            if !owns {
-                return Err(format!(
-                    "splat_leaf names node {l} for splat {s}, not the leaf that owns it"
-                ));
-            }
+                .is_some_and(|&w| node::is_leaf(w) && self.leaf(w).0.contains(&(s as u32)))
+        };
+        if let Some(s) = first_where(self.splat_leaf, stray) {
+            let l = self.splat_leaf[s];
+            return Err(format!(
+                "splat_leaf names node {l} for splat {s}, not the leaf that owns it"
+            ));
         }
         match &self.walk {
             Some(w) => w.check(self),
@@ -565,14 +565,21 @@ impl<'a> OctreeView<'a> {
             if t[o] > t[next] {
                 return bad(o, "the leaf ends before it begins");
             }
-            if t[o + 2..next].iter().any(|&r| r as u64 >= n_splats) {
-                return bad(o, "a reference names no splat");
-            }
             starts[o] = true;
             o = next;
         }
         if o + 1 != t.len() || t[o] as u64 != n_splats {
             return bad(o, "the table does not close with the splat count");
+        }
+        // Each leaf's references name splats (checked in parallel; the first leaf is named).
+        let foreign = first_where(&starts, |o, &start| {
+            start && {
+                let next = o + 2 + t[o + 1] as usize;
+                t[o + 2..next].iter().any(|&r| r as u64 >= n_splats)
+            }
+        });
+        if let Some(o) = foreign {
+            return bad(o, "a reference names no splat");
         }
         Ok(starts)
     }

@@ -10,6 +10,7 @@
 //! but not the caustic energy's own first diffuse bounce: the renderer adds that from the
 //! photon map (seed §8.1, §8.5.15). Specular splats hold zero.
 
+use rayon::prelude::*;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -105,16 +106,10 @@ impl<'a> RadiosityView<'a> {
                 self.radiance.len()
             ));
         }
-        if let Some(i) = self
-            .radiance
-            .iter()
-            .chain(self.source)
-            .position(|c| c.iter().any(|x| !x.is_finite() || *x < 0.0))
-        {
-            return Err(format!(
-                "splat {}: negative or non-finite radiance",
-                i % self.radiance.len()
-            ));
+        let bad = |c: &[f32; 3]| c.iter().any(|x| !x.is_finite() || *x < 0.0);
+        let first_bad = |v: &[[f32; 3]]| v.par_iter().position_first(bad);
+        if let Some(i) = first_bad(self.radiance).or_else(|| first_bad(self.source)) {
+            return Err(format!("splat {i}: negative or non-finite radiance"));
         }
         if self.residuals != meta.residuals.as_slice() {
             return Err("the residuals section and the metadata disagree".into());

@@ -15,6 +15,7 @@
 //! | `vnode`         | `u32`         | per node-pool slot: 1 when the node is a V-map leaf (no link goes below it) |
 //! | `smear`         | [`Smear`]     | per node-pool slot: what its links' shared fractions misstate of its splats' visible transfer |
 
+use crate::reader::any_where;
 use std::path::Path;
 
 use bytemuck::{Pod, Zeroable};
@@ -198,7 +199,7 @@ impl<'a> VmapView<'a> {
                 self.smear.len()
             ));
         }
-        if self.smear.iter().any(|s| {
+        if any_where(self.smear, |s| {
             let sums = [s.transfer, s.variance];
             !(s.error.is_finite()
                 && sums.iter().all(|x| x.is_finite() && *x >= 0.0)
@@ -206,25 +207,18 @@ impl<'a> VmapView<'a> {
         }) {
             return Err("a node's smear record is not finite or has a negative sum".into());
         }
-        if self
-            .links
-            .iter()
-            .chain(self.light_links)
-            .any(|l| l.slot() as usize >= nodes || !(l.fraction > 0.0 && l.fraction <= 1.0))
-        {
+        let bad_link =
+            |l: &Link| l.slot() as usize >= nodes || !(l.fraction > 0.0 && l.fraction <= 1.0);
+        if any_where(self.links, bad_link) || any_where(self.light_links, bad_link) {
             return Err(
                 "a link names a node outside the octree or has a fraction outside (0, 1]".into(),
             );
         }
         let splats = splats.unwrap_or(u32::MAX as usize);
-        if self
-            .node_range
-            .iter()
-            .any(|r| r[0] > r[1] || r[1] as usize > splats)
-        {
+        if any_where(self.node_range, |r| r[0] > r[1] || r[1] as usize > splats) {
             return Err("a node's splat range lies outside the octree's data pool".into());
         }
-        if self.node_cone.iter().any(|c| !(-1.0..=1.0).contains(c)) {
+        if any_where(self.node_cone, |c| !(-1.0..=1.0).contains(c)) {
             return Err("a node cone's cosine lies outside [-1, 1]".into());
         }
         Ok(())

@@ -10,6 +10,7 @@
 //! index out of bounds whatever the file holds.
 
 use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
 
 use crate::octree::{node, BeginEnd, OctreeView};
 use crate::Artifact;
@@ -158,8 +159,8 @@ impl<'a> WalkView<'a> {
         }
         if let Some(i) = self
             .leaves
-            .iter()
-            .position(|l| l.first > l.end || l.end as usize > self.chunks.len())
+            .par_iter()
+            .position_first(|l| l.first > l.end || l.end as usize > self.chunks.len())
         {
             return Err(format!("walk leaf {i}'s run lies outside walk_chunks"));
         }
@@ -176,7 +177,12 @@ impl<'a> WalkView<'a> {
             // Padding must be a lane no ray hits (a negative squared radius).
             (s as usize) < splats || (s == u32::MAX && r2 < 0.0)
         };
-        if let Some(i) = self.cold.iter().enumerate().position(|x| !lane_ok(x)) {
+        if let Some(i) = self
+            .cold
+            .par_iter()
+            .enumerate()
+            .position_first(|x| !lane_ok(x))
+        {
             return Err(format!(
                 "walk_cold entry {i} names splat {} of {splats}",
                 self.cold[i]
@@ -203,24 +209,28 @@ impl<'a> WalkView<'a> {
                 p + span > words.len() || (self.slabs && !p.is_multiple_of(BLOCK_WORDS as usize))
             }
         };
-        let followed: Box<dyn Iterator<Item = (usize, u32)>> = if self.slabs {
-            // The root word, then each block's eight child words.
-            let children = self
-                .blocks
-                .iter()
-                .enumerate()
-                .skip(1)
-                .flat_map(|(b, blk)| blk.words.iter().map(move |&w| (b, w)));
-            Box::new(std::iter::once((0, words[0])).chain(children))
+        // The root word, then each block's eight child words (or every word, flat), in
+        // parallel: the first bad one is named.
+        let first_bad = if self.slabs {
+            let children = self.blocks.par_iter().enumerate().skip(1);
+            std::iter::once((0, words[0]))
+                .find(|&(_, w)| bad(w))
+                .or_else(|| {
+                    children.find_map_first(|(b, blk)| {
+                        blk.words.iter().find(|&&w| bad(w)).map(|&w| (b, w))
+                    })
+                })
         } else {
-            Box::new(words.iter().copied().enumerate())
+            words
+                .par_iter()
+                .copied()
+                .enumerate()
+                .find_first(|&(_, w)| bad(w))
         };
-        for (at, w) in followed {
-            if bad(w) {
-                return Err(format!(
-                    "walk_blocks word {w:#x} (block {at}) points outside"
-                ));
-            }
+        if let Some((at, w)) = first_bad {
+            return Err(format!(
+                "walk_blocks word {w:#x} (block {at}) points outside"
+            ));
         }
         Ok(())
     }
