@@ -27,11 +27,20 @@ pub fn lit_points(
     radiosity: &[[f32; 3]],
     caustics: Option<&Caustics>,
 ) -> Vec<LitPoint> {
-    let mut order: Vec<u32> = (0..view.splats.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&i| view.splats[i as usize].source);
+    // Each splat's point index and its own, packed into one key: the sort then compares
+    // integers in one array instead of reading two splat records per comparison (at 20M points
+    // those reads, random and out of cache, were 30 % of pc-bake).
+    let mut order: Vec<u64> = view
+        .splats
+        .par_iter()
+        .enumerate()
+        .map(|(i, s)| (s.source as u64) << 32 | i as u64)
+        .collect();
+    order.par_sort_unstable();
     order
         .par_iter()
-        .map(|&i| {
+        .map(|&key| {
+            let i = key as u32;
             let s = &view.splats[i as usize];
             let m = &materials[s.material as usize];
             let x = Vec3::from(s.position);
