@@ -6,6 +6,7 @@ use glam::Vec3;
 use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::PointLight;
 use pc_config::{RaytraceConfig, ShadingMode};
+use rayon::prelude::*;
 
 use crate::camera::Camera;
 use pc_tree::accel::PackedLeaf;
@@ -29,18 +30,22 @@ fn luminance(c: [f32; 3]) -> f32 {
 
 impl EmitterTable {
     pub fn new(view: &OctreeView, materials: &[MaterialRecord]) -> EmitterTable {
-        let mut splats = Vec::new();
-        let mut weights = Vec::new();
-        for (i, s) in view.splats.iter().enumerate() {
-            let m = &materials[s.material as usize];
-            if m.class == class::EMITTER {
-                let w = luminance(m.radiance) * view.splat_area[i];
-                if w > 0.0 {
-                    splats.push(i as u32);
-                    weights.push(w as f64);
-                }
-            }
-        }
+        // In parallel, and not at all without an emitting material (a scan lit by point lights:
+        // at 20M points the pass over the splats was 4 % of pc-raytrace, on one core).
+        let (splats, weights): (Vec<u32>, Vec<f64>) =
+            match materials.iter().any(|m| m.class == class::EMITTER) {
+                false => (Vec::new(), Vec::new()),
+                true => view
+                    .splats
+                    .par_iter()
+                    .enumerate()
+                    .filter_map(|(i, s)| {
+                        let m = &materials[s.material as usize];
+                        let w = luminance(m.radiance) * view.splat_area[i];
+                        (m.class == class::EMITTER && w > 0.0).then_some((i as u32, w as f64))
+                    })
+                    .unzip(),
+            };
         let total: f64 = weights.iter().sum();
         let mut acc = 0.0f64;
         let cdf = weights
