@@ -507,7 +507,8 @@ pub fn gather_cpu(
 pub enum Gatherer<'a> {
     Cpu {
         view: &'a OctreeView<'a>,
-        accel: Accel<'a>,
+        /// The walk, passing over own surfaces ([`Accel::with_own_surfaces`]).
+        accel: &'a Accel<'a>,
         /// Each octree leaf's roughness ([`pc_tree::between::leaf_roughness`]).
         rough: &'a [f32],
         /// `L − Lₑ` of every splat, zero where a splat takes no part ([`reflected`]).
@@ -517,15 +518,17 @@ pub enum Gatherer<'a> {
 }
 
 impl<'a> Gatherer<'a> {
-    /// The CPU gather of `reflected` (per splat, [`reflected`]), each leaf of roughness `rough`.
+    /// The CPU gather of `reflected` (per splat, [`reflected`]) through `accel` (the stage's
+    /// walk, with its own surfaces: [`Accel::with_own_surfaces`]), each leaf of roughness
+    /// `rough`.
     pub fn cpu(
-        view: &'a OctreeView<'a>,
+        (view, accel): (&'a OctreeView<'a>, &'a Accel<'a>),
         rough: &'a [f32],
         reflected: Vec<[f32; 3]>,
     ) -> Gatherer<'a> {
         Gatherer::Cpu {
             view,
-            accel: Accel::new(view).with_own_surfaces(view),
+            accel,
             rough,
             reflected,
         }

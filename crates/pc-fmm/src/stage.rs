@@ -13,8 +13,9 @@ use pc_artifact::vmap::VmapFile;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key, KeyHasher, PointLight};
 use pc_config::{Backend, LoadedConfig};
 use pc_stage::{OptionalInput, Progress, Stage};
+use pc_tree::accel::Accel;
 use pc_tree::between::LazyRoughness;
-use pc_tree::caster::Caster;
+use pc_tree::caster::{Caster, CpuCaster};
 use rayon::prelude::*;
 
 use crate::cluster::Clustering;
@@ -93,19 +94,18 @@ fn source_term(
     pts: &Points,
     vmap: &VmapFile,
     photons: Option<&PhotonsFile>,
-    (cfg, rough): (&LoadedConfig, &LazyRoughness),
+    (cfg, rough, caster): (&LoadedConfig, &LazyRoughness, &CpuCaster),
 ) -> Result<(System, EmitterRays, Vec<[f32; 3]>), FmmError> {
     let p = &cfg.config.fmm.params;
-    let caster = pc_tree::caster::CpuCaster::new(view);
     let lights = (&cfg.config.lights[..], rough);
-    let mut sys = point_light_system(view, materials, pts, vmap, lights, &caster)?;
+    let mut sys = point_light_system(view, materials, pts, vmap, lights, caster)?;
     let sampling = EmitterSampling {
         samples: p.emitter_samples,
         probes: p.emitter_probes,
         self_hit: vmap.meta().params.self_hit,
         shafts: true,
     };
-    let emitter = emitter::emitter_direct(view, pts, &mut sys, sampling, &caster)?;
+    let emitter = emitter::emitter_direct(view, pts, &mut sys, sampling, caster)?;
     let mut caustic = vec![[0.0f32; 3]; view.splats.len()];
     if let Some(photons) = photons {
         for (i, d) in photons.view().deposit.iter().enumerate() {
@@ -190,7 +190,7 @@ fn solve(
 /// through mirrors and glass.
 #[allow(clippy::too_many_arguments)]
 fn final_gather(
-    (view, rough): (&OctreeView, &LazyRoughness),
+    (view, rough, accel): (&OctreeView, &LazyRoughness, &Accel),
     vmap: &VmapFile,
     pts: &Points,
     sys: &System,
@@ -219,7 +219,13 @@ fn final_gather(
             let g = gather::GpuGather::new(ctx, view, rough, &reflected)?;
             Ok::<_, FmmError>(gather::Gatherer::Gpu(Box::new(g)))
         },
-        || Ok(gather::Gatherer::cpu(view, rough, reflected.clone())),
+        || {
+            Ok(gather::Gatherer::cpu(
+                (view, accel),
+                rough,
+                reflected.clone(),
+            ))
+        },
     )?;
     drop(reflected);
     let solved = gather::Solved {
@@ -266,6 +272,9 @@ pub fn run(
     // Each octree leaf's roughness, when the point lights' shadow rays or the final gather first
     // need it.
     let rough = LazyRoughness::new(&view);
+    // The CPU walk with its own surfaces, for the emitters' and point lights' shadow rays and
+    // the final gather's rays (built once: at 20M points a pass over 2 GB of listed disks).
+    let caster = CpuCaster::new(&view);
     let lights = &cfg.config.lights;
     let vmap = VmapFile::open(&inputs.vmap, &octree.id(), lights)?;
     let photons = match inputs.photons.wanted() {
@@ -288,7 +297,7 @@ pub fn run(
         &pts,
         &vmap,
         photons.as_ref(),
-        (cfg, &rough),
+        (cfg, &rough, &caster),
     )?;
     time("source term", t);
 
@@ -365,7 +374,7 @@ pub fn run(
 
     progress.phase("final gather");
     let t = Instant::now();
-    let scene = (&view, &rough);
+    let scene = (&view, &rough, &caster.accel);
     let gathered = final_gather(scene, &vmap, &pts, &sys, &mut solved, specular, &p, backend)?;
     time("final gather", t);
     timings.push((

@@ -147,7 +147,8 @@ fn the_transport_keeps_the_shadow_under_a_resting_ball() {
         active: &pts.active,
     };
     let rough = pc_tree::between::leaf_roughness(&view);
-    let gatherer = gather::Gatherer::cpu(&view, &rough, reflected);
+    let accel = pc_tree::accel::Accel::new(&view).with_own_surfaces(&view);
+    let gatherer = gather::Gatherer::cpu((&view, &accel), &rough, reflected);
     let rays = gather::GatherRays::new(p.gather_rays);
     let how = gather::Selection::of(&p);
     let leaves = gather::candidates(&view, &sc.vmap(), how);
