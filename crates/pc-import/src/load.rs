@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Mat3, Vec3};
+use rayon::prelude::*;
 
 use crate::estimate::{
     try_estimate_normals, try_estimate_normals_and_radii, try_estimate_radii, NormalFit,
@@ -468,34 +469,56 @@ fn add_model(
         (None, None, 0)
     };
     let classes = pts.classes.as_deref();
-    out.positions.reserve(n);
-    let mut beyond = 0usize;
-    for i in 0..n {
-        let x = rot * ((pts.positions[i] + shift) * s) + t;
-        let r = radii[i] * s;
-        if let Some((what, value)) = out_of_range(x, r) {
-            if c.import.drop_invalid {
-                beyond += 1;
-                continue;
-            }
+    // Point by point in parallel, appended in input order (one loop pushing into five growing
+    // arrays took seconds at 20M points, on one core).
+    let place = |i: usize| (rot * ((pts.positions[i] + shift) * s) + t, radii[i] * s);
+    let beyond_extent = |i: usize| {
+        let (x, r) = place(i);
+        out_of_range(x, r)
+    };
+    if !c.import.drop_invalid {
+        let first = (0..n)
+            .into_par_iter()
+            .find_map_first(|i| beyond_extent(i).map(|e| (i, e)));
+        if let Some((index, (what, value))) = first {
             return Err(ImportError::OutOfRange {
                 path: path.to_path_buf(),
-                index: i,
+                index,
                 what,
                 value,
                 limit: pc_config::MAX_COORDINATE,
             });
         }
-        let material = mats.of(classes, i);
-        out.positions.push(x);
-        out.normals.push((rot * normals[i]).normalize());
-        out.radii.push(r);
-        out.albedo.push(match &factors {
-            Some(f) if wants(material) => f[i],
-            _ => Vec3::ONE,
-        });
-        out.material.push(material);
     }
+    // The points kept, where some are dropped (`None`: all). (A scene holds at most 2³¹
+    // splats, `load_scene`; a model beyond that is refused here before its indices would wrap.)
+    if n > u32::MAX as usize / 2 {
+        return Err(ImportError::Scene {
+            path: cfg.path.clone(),
+            msg: format!(
+                "{}: {n} points, more than this build supports",
+                path.display()
+            ),
+        });
+    }
+    let kept: Option<Vec<u32>> = c.import.drop_invalid.then(|| {
+        (0..n as u32)
+            .into_par_iter()
+            .filter(|&i| beyond_extent(i as usize).is_none())
+            .collect()
+    });
+    let kept = kept.as_deref();
+    let beyond = kept.map_or(0, |k| n - k.len());
+    append(&mut out.positions, kept, n, |i| place(i).0);
+    append(&mut out.normals, kept, n, |i| {
+        (rot * normals[i]).normalize()
+    });
+    append(&mut out.radii, kept, n, |i| place(i).1);
+    append(&mut out.material, kept, n, |i| mats.of(classes, i));
+    append(&mut out.albedo, kept, n, |i| match &factors {
+        Some(f) if wants(mats.of(classes, i)) => f[i],
+        _ => Vec3::ONE,
+    });
     let mut drop_reasons = pts.drop_reasons;
     if beyond > 0 {
         drop_reasons.push(("beyond the extent".to_string(), beyond));
@@ -512,6 +535,20 @@ fn add_model(
         albedo_clamped,
         oriented,
     })
+}
+
+/// Appends `f(i)` for the points `kept` (all `n` where `None`) to `out`, in order, computed in
+/// parallel.
+fn append<T: Send>(
+    out: &mut Vec<T>,
+    kept: Option<&[u32]>,
+    n: usize,
+    f: impl Fn(usize) -> T + Sync + Send,
+) {
+    match kept {
+        None => out.par_extend((0..n).into_par_iter().map(f)),
+        Some(k) => out.par_extend(k.par_iter().map(|&i| f(i as usize))),
+    }
 }
 
 #[cfg(test)]
