@@ -399,10 +399,11 @@ pub fn build(
         first.push(total);
         total += a.photons as u64;
     }
-    // Flux rows: (bin, sender splat, weight), merged per pair.
+    // Flux rows: (bin, sender splat, weight), merged per pair (made in parallel, in the paths'
+    // order; two binary searches and a walk over a leaf's splats each).
     let mut rows: Vec<(u32, u32, Vec3)> = traced
         .photons
-        .iter()
+        .par_iter()
         .zip(&traced.id)
         .filter_map(|(p, &id)| {
             let a = first.partition_point(|&f| f <= id as u64) - 1;
