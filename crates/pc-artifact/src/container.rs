@@ -747,26 +747,22 @@ impl Checker<'_> {
             .iter()
             .filter(|s| self.sections.checks(&s.name))
             .collect();
-        // The largest first, so the others fill in beside it.
+        // The largest first, so the others fill in beside it; then back in table order.
         let mut order: Vec<usize> = (0..checked.len()).collect();
         order.sort_by_key(|&k| std::cmp::Reverse(checked[k].len));
-        let mut got = vec![0u64; checked.len()];
-        let hashed: Vec<(usize, u64)> = order
+        let mut hashed: Vec<(usize, u64)> = order
             .par_iter()
             .with_max_len(1)
             .map(|&k| {
                 let s = checked[k];
-                (
-                    k,
-                    xxh3_64(&self.bytes[s.offset as usize..(s.offset + s.len) as usize]),
-                )
+                let data = &self.bytes[s.offset as usize..(s.offset + s.len) as usize];
+                (k, xxh3_64(data))
             })
             .collect();
-        for (k, h) in hashed {
-            got[k] = h;
-        }
-        match checked.iter().zip(&got).find(|(s, &h)| h != s.checksum) {
-            Some((s, &h)) => Err(ArtifactError::Checksum {
+        hashed.sort_unstable();
+        let got = hashed.into_iter().map(|(_, h)| h);
+        match checked.iter().zip(got).find(|(s, h)| *h != s.checksum) {
+            Some((s, h)) => Err(ArtifactError::Checksum {
                 path: self.err_path(),
                 section: s.name.clone(),
                 expected: s.checksum,

@@ -19,10 +19,9 @@
 
 use std::path::Path;
 
-use crate::reader::first_where;
 use bytemuck::{Pod, Zeroable};
 
-use crate::reader::Checked;
+use crate::reader::{first_where, Checked};
 use crate::{Artifact, ArtifactError, ArtifactKind, Key};
 
 /// Section names of an octree artifact.

@@ -10,14 +10,13 @@
 //! but not the caustic energy's own first diffuse bounce: the renderer adds that from the
 //! photon map (seed §8.1, §8.5.15). Specular splats hold zero.
 
-use rayon::prelude::*;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 use crate::octree::OctreeId;
 use crate::params::FmmParams;
-use crate::reader::Checked;
+use crate::reader::{first_where, Checked};
 use crate::{Artifact, ArtifactError, ArtifactKind};
 
 pub mod sections {
@@ -107,7 +106,7 @@ impl<'a> RadiosityView<'a> {
             ));
         }
         let bad = |c: &[f32; 3]| c.iter().any(|x| !x.is_finite() || *x < 0.0);
-        let first_bad = |v: &[[f32; 3]]| v.par_iter().position_first(bad);
+        let first_bad = |v: &[[f32; 3]]| first_where(v, |_, c| bad(c));
         if let Some(i) = first_bad(self.radiance).or_else(|| first_bad(self.source)) {
             return Err(format!("splat {i}: negative or non-finite radiance"));
         }

@@ -15,7 +15,6 @@
 //! | `vnode`         | `u32`         | per node-pool slot: 1 when the node is a V-map leaf (no link goes below it) |
 //! | `smear`         | [`Smear`]     | per node-pool slot: what its links' shared fractions misstate of its splats' visible transfer |
 
-use crate::reader::any_where;
 use std::path::Path;
 
 use bytemuck::{Pod, Zeroable};
@@ -23,7 +22,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::light::PointLight;
 use crate::octree::OctreeId;
 use crate::params::VmapParams;
-use crate::reader::Checked;
+use crate::reader::{any_where, Checked};
 use crate::{Artifact, ArtifactError, ArtifactKind};
 
 /// Section names of a vmap artifact.

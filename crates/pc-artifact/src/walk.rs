@@ -10,9 +10,9 @@
 //! index out of bounds whatever the file holds.
 
 use bytemuck::{Pod, Zeroable};
-use rayon::prelude::*;
 
 use crate::octree::{node, BeginEnd, OctreeView};
+use crate::reader::first_where;
 use crate::Artifact;
 use crate::ArtifactError;
 
@@ -157,11 +157,9 @@ impl<'a> WalkView<'a> {
                 self.leaves.len()
             ));
         }
-        if let Some(i) = self
-            .leaves
-            .par_iter()
-            .position_first(|l| l.first > l.end || l.end as usize > self.chunks.len())
-        {
+        if let Some(i) = first_where(self.leaves, |_, l| {
+            l.first > l.end || l.end as usize > self.chunks.len()
+        }) {
             return Err(format!("walk leaf {i}'s run lies outside walk_chunks"));
         }
         if self.cold.len() != self.chunks.len() * LANES {
@@ -172,17 +170,12 @@ impl<'a> WalkView<'a> {
             ));
         }
         let splats = view.splats.len();
-        let lane_ok = |(i, &s): (usize, &u32)| {
+        let lane_ok = |i: usize, &s: &u32| {
             let r2 = self.chunks[i / LANES].r2[i % LANES];
             // Padding must be a lane no ray hits (a negative squared radius).
             (s as usize) < splats || (s == u32::MAX && r2 < 0.0)
         };
-        if let Some(i) = self
-            .cold
-            .par_iter()
-            .enumerate()
-            .position_first(|x| !lane_ok(x))
-        {
+        if let Some(i) = first_where(self.cold, |i, s| !lane_ok(i, s)) {
             return Err(format!(
                 "walk_cold entry {i} names splat {} of {splats}",
                 self.cold[i]
@@ -209,23 +202,21 @@ impl<'a> WalkView<'a> {
                 p + span > words.len() || (self.slabs && !p.is_multiple_of(BLOCK_WORDS as usize))
             }
         };
-        // The root word, then each block's eight child words (or every word, flat), in
-        // parallel: the first bad one is named.
-        let first_bad = if self.slabs {
-            let children = self.blocks.par_iter().enumerate().skip(1);
-            std::iter::once((0, words[0]))
-                .find(|&(_, w)| bad(w))
-                .or_else(|| {
-                    children.find_map_first(|(b, blk)| {
-                        blk.words.iter().find(|&&w| bad(w)).map(|&w| (b, w))
-                    })
-                })
+        // The root word, then each block's eight child words (or every word, flat).
+        let first_bad = if bad(words[0]) {
+            Some((0, words[0]))
+        } else if self.slabs {
+            first_where(self.blocks, |b, blk| {
+                b > 0 && blk.words.iter().any(|&w| bad(w))
+            })
+            .map(|b| {
+                (
+                    b,
+                    *self.blocks[b].words.iter().find(|&&w| bad(w)).unwrap_or(&0),
+                )
+            })
         } else {
-            words
-                .par_iter()
-                .copied()
-                .enumerate()
-                .find_first(|&(_, w)| bad(w))
+            first_where(words, |_, &w| bad(w)).map(|i| (i, words[i]))
         };
         if let Some((at, w)) = first_bad {
             return Err(format!(

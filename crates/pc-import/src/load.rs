@@ -471,11 +471,9 @@ fn add_model(
     let classes = pts.classes.as_deref();
     // Point by point in parallel, appended in input order (one loop pushing into five growing
     // arrays took seconds at 20M points, on one core).
-    let place = |i: usize| (rot * ((pts.positions[i] + shift) * s) + t, radii[i] * s);
-    let beyond_extent = |i: usize| {
-        let (x, r) = place(i);
-        out_of_range(x, r)
-    };
+    let position = |i: usize| rot * ((pts.positions[i] + shift) * s) + t;
+    let radius = |i: usize| radii[i] * s;
+    let beyond_extent = |i: usize| out_of_range(position(i), radius(i));
     if !c.import.drop_invalid {
         let first = (0..n)
             .into_par_iter()
@@ -509,11 +507,11 @@ fn add_model(
     });
     let kept = kept.as_deref();
     let beyond = kept.map_or(0, |k| n - k.len());
-    append(&mut out.positions, kept, n, |i| place(i).0);
+    append(&mut out.positions, kept, n, position);
     append(&mut out.normals, kept, n, |i| {
         (rot * normals[i]).normalize()
     });
-    append(&mut out.radii, kept, n, |i| place(i).1);
+    append(&mut out.radii, kept, n, radius);
     append(&mut out.material, kept, n, |i| mats.of(classes, i));
     append(&mut out.albedo, kept, n, |i| match &factors {
         Some(f) if wants(mats.of(classes, i)) => f[i],

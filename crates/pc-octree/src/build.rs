@@ -599,17 +599,19 @@ fn begin_end_table(split: &mut Split, refs: &[(u32, u32)], n: usize) -> Result<T
     }
     // Each cell's run of references, from one pass over the sorted pairs (two binary searches
     // per leaf, each a chain of cache misses, took a second at 20M points).
-    let mut runs = vec![(0usize, 0usize); split.nodes.len()];
+    // (The table's length, refs included, fits a node pointer: checked above.)
+    let mut runs = vec![(0u32, 0u32); split.nodes.len()];
     let mut start = 0;
     for k in 1..=refs.len() {
         if k == refs.len() || refs[k].0 != refs[start].0 {
-            runs[refs[start].0 as usize] = (start, k);
+            runs[refs[start].0 as usize] = (start as u32, k as u32);
             start = k;
         }
     }
     let mut begin_end = Vec::with_capacity(table_len as usize);
     for &(lo, _, slot) in &all_leaves {
         let (first, last) = runs[slot as usize];
+        let (first, last) = (first as usize, last as usize);
         split.nodes[slot as usize] = node::leaf(begin_end.len() as u32);
         begin_end.push(lo);
         begin_end.push((last - first) as u32);

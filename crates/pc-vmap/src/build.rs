@@ -589,11 +589,7 @@ impl PairRays {
 
     /// How many rays the pair casts first ([`PairRays::first_rays`]).
     fn first_count(&self) -> usize {
-        match (self.open, self.probing()) {
-            (true, _) => 0,
-            (false, true) => PROBE_RAYS.min(self.r.len()),
-            (false, false) => self.r.len(),
-        }
+        self.first_rays().count()
     }
 
     /// The rays a probing pair casts second, where its probes do not settle it.
