@@ -25,6 +25,7 @@ use pc_artifact::vmap::VmapView;
 use pc_artifact::PointLight;
 use pc_tree::rng::rand;
 use pc_tree::OctreeView;
+use rayon::prelude::*;
 
 /// Where photons of one aim start.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -313,6 +314,39 @@ pub fn leaf_pairs(
 }
 
 /// Share the budget out: `n_e |P| / |Φ|` photons per pair, rounded stochastically.
+/// Each aim's first photon id (its photons' ids run on from it), and last the total: the
+/// prefix sums of the aims' photon counts, in parallel (the specular links plan millions of
+/// aims).
+pub fn first_ids(aims: &[Aim]) -> Vec<u64> {
+    const BLOCK: usize = 1 << 14;
+    let sums: Vec<u64> = aims
+        .par_chunks(BLOCK)
+        .map(|c| c.iter().map(|a| a.photons as u64).sum())
+        .collect();
+    let mut total = 0;
+    let starts: Vec<u64> = sums
+        .iter()
+        .map(|&s| {
+            total += s;
+            total - s
+        })
+        .collect();
+    let mut first = vec![0u64; aims.len() + 1];
+    first[..aims.len()]
+        .par_chunks_mut(BLOCK)
+        .zip(aims.par_chunks(BLOCK))
+        .zip(&starts)
+        .for_each(|((f, c), &start)| {
+            let mut at = start;
+            for (f, a) in f.iter_mut().zip(c) {
+                *f = at;
+                at += a.photons as u64;
+            }
+        });
+    first[aims.len()] = total;
+    first
+}
+
 pub fn aims(plan: &Plan, budget: u32, seed: u32) -> Vec<Aim> {
     let total = level(plan.emitted);
     if total <= 0.0 || budget == 0 {

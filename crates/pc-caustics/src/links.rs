@@ -269,19 +269,6 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
     if total <= 0.0 || budget == 0 {
         return Vec::new();
     }
-    let mut out: Vec<Aim> = Vec::new();
-    let mut id = 0u32;
-    let mut push = |aim: Aim| match out.last_mut() {
-        Some(a)
-            if Aim {
-                photons: a.photons,
-                ..aim
-            } == *a =>
-        {
-            a.photons += 1
-        }
-        _ => out.push(aim),
-    };
     // Expected paths by area and by direction. A near link draws at least enough paths by
     // direction that none of its paths weighs more than MAX_WEIGHT times the mean; the counts
     // are then scaled back to the budget.
@@ -301,42 +288,113 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
     for c in &mut counts {
         *c = (c.0 * budget as f64 / drawn, c.1 * budget as f64 / drawn);
     }
-    for (i, (l, &(n_area, n_dir))) in plans.iter().zip(&counts).enumerate() {
-        let round = |m: f64, d: u32| {
-            let u = rand(seed, 0x5bec_0001, i as u32, d) as f64;
-            (m.floor() + (u < m.fract()) as u32 as f64) as u32
-        };
-        let power = [(l.ax * l.ay / n_area) as f32; 3];
-        let k = (n_dir * l.ay / (std::f64::consts::PI * n_area)) as f32;
-        for _ in 0..round(n_area, 0) {
-            let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
-            let target = specular.pick(&l.y, rand(seed, 0x5bec_0002, id, 1) as f64);
-            id = id.wrapping_add(1);
-            push(Aim {
-                source: Source::Area(source),
-                target,
-                photons: 1,
-                power,
-                sampling: Sampling::Area { k },
-            });
+    // Each link's paths by area and by direction (the expectations rounded stochastically), and
+    // the id of its first path: ids run over the links in order, as one loop would number them.
+    let rounded: Vec<[u32; 2]> = counts
+        .par_iter()
+        .enumerate()
+        .map(|(i, &(n_area, n_dir))| {
+            let round = |m: f64, d: u32| {
+                let u = rand(seed, 0x5bec_0001, i as u32, d) as f64;
+                (m.floor() + (u < m.fract()) as u32 as f64) as u32
+            };
+            [round(n_area, 0), round(n_dir, 1)]
+        })
+        .collect();
+    let mut id = 0u32;
+    let first_ids: Vec<u32> = rounded
+        .iter()
+        .map(|&[a, d]| {
+            let first = id;
+            id = id.wrapping_add(a).wrapping_add(d);
+            first
+        })
+        .collect();
+    // The links' aims, made in parallel over blocks of links (the paths of one link that draw
+    // the same source and target leaves are one aim).
+    let blocks: Vec<Vec<Aim>> = (0..plans.len())
+        .into_par_iter()
+        .step_by(AIM_BLOCK)
+        .map(|lo| {
+            let mut out = Vec::new();
+            for i in lo..(lo + AIM_BLOCK).min(plans.len()) {
+                let (l, [n_area, n_dir]) = (&plans[i], rounded[i]);
+                let (area, dir) = counts[i];
+                link_aims(
+                    l,
+                    (n_area, n_dir),
+                    (area, dir),
+                    first_ids[i],
+                    seed,
+                    &diffuse,
+                    &specular,
+                    &mut out,
+                );
+            }
+            out
+        })
+        .collect();
+    crate::stage::concat(&blocks)
+}
+
+/// Links whose aims [`aims`] makes in one task.
+const AIM_BLOCK: usize = 256;
+
+/// The aims of one link's `n_area` paths by area and `n_dir` by direction (of expected counts
+/// `expected`), the first numbered `id`, appended to `out`; consecutive paths that draw the
+/// same leaves are one aim.
+#[allow(clippy::too_many_arguments)] // (one link's plan, counts, ids and the two prefixes)
+fn link_aims(
+    l: &LinkPlan,
+    (n_area, n_dir): (u32, u32),
+    (area, dir): (f64, f64),
+    mut id: u32,
+    seed: u32,
+    diffuse: &Prefix,
+    specular: &Prefix,
+    out: &mut Vec<Aim>,
+) {
+    let start = out.len();
+    let mut push = |aim: Aim| match out[start..].last_mut() {
+        Some(a)
+            if Aim {
+                photons: a.photons,
+                ..aim
+            } == *a =>
+        {
+            a.photons += 1
         }
-        for _ in 0..round(n_dir, 1) {
-            let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
-            id = id.wrapping_add(1);
-            push(Aim {
-                source: Source::Area(source),
-                target: l.y.start as u32,
-                photons: 1,
-                power,
-                sampling: Sampling::Direction {
-                    k,
-                    lo: l.y_splats[0],
-                    hi: l.y_splats[1],
-                },
-            });
-        }
+        _ => out.push(aim),
+    };
+    let power = [(l.ax * l.ay / area) as f32; 3];
+    let k = (dir * l.ay / (std::f64::consts::PI * area)) as f32;
+    for _ in 0..n_area {
+        let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
+        let target = specular.pick(&l.y, rand(seed, 0x5bec_0002, id, 1) as f64);
+        id = id.wrapping_add(1);
+        push(Aim {
+            source: Source::Area(source),
+            target,
+            photons: 1,
+            power,
+            sampling: Sampling::Area { k },
+        });
     }
-    out
+    for _ in 0..n_dir {
+        let source = diffuse.pick(&l.x, rand(seed, 0x5bec_0002, id, 0) as f64);
+        id = id.wrapping_add(1);
+        push(Aim {
+            source: Source::Area(source),
+            target: l.y.start as u32,
+            photons: 1,
+            power,
+            sampling: Sampling::Direction {
+                k,
+                lo: l.y_splats[0],
+                hi: l.y_splats[1],
+            },
+        });
+    }
 }
 
 /// The links' tables, as the artifact stores them ([`pc_artifact::specular`]).
@@ -393,12 +451,7 @@ pub fn build(
     // The splat each kept path left: the tracer's own draw (`Tracer::photon`, random number 0 of
     // its id), so that the sender's radiance is the splat's, not its leaf's mean (a ball lens
     // images a bright spot on the floor; a leaf's mean would spread it first).
-    let mut first = Vec::with_capacity(aims.len() + 1);
-    let mut total = 0u64;
-    for a in aims {
-        first.push(total);
-        total += a.photons as u64;
-    }
+    let first = emit::first_ids(aims);
     // Flux rows: (bin, sender splat, weight), merged per pair (made in parallel, in the paths'
     // order; two binary searches and a walk over a leaf's splats each).
     let mut rows: Vec<(u32, u32, Vec3)> = traced
@@ -448,10 +501,10 @@ pub fn build(
 }
 
 /// Every octree leaf's diffuse splats as a bin.
-fn bins(view: &OctreeView, leaves: &Leaves, diffuse: &dyn Fn(usize) -> bool) -> Vec<Bin> {
+fn bins(view: &OctreeView, leaves: &Leaves, diffuse: &(dyn Fn(usize) -> bool + Sync)) -> Vec<Bin> {
     leaves
         .leaves
-        .iter()
+        .par_iter()
         .map(|l| {
             let mut b = Bin::default();
             for j in l.lo as usize..l.hi as usize {

@@ -46,17 +46,16 @@ pub struct Traced {
 /// Trace every photon of `aims` (rayon across photons); photon `id`s run over the aims in
 /// order, so the result does not depend on the thread count. `progress` gets the photons done.
 pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync)) -> Traced {
-    let mut first = Vec::with_capacity(aims.len() + 1);
-    let mut total = 0u64;
-    for a in aims {
-        first.push(total);
-        total += a.photons as u64;
-    }
-    first.push(total);
+    let first = emit::first_ids(aims);
+    let total = first[aims.len()];
     const CHUNK: u64 = 1 << 14;
-    let chunks: Vec<Traced> = (0..total.div_ceil(CHUNK))
+    // One chunk a task (rayon's default split leaves a quarter of the chunks to a task that
+    // cannot be shared, and chunks of glass paths cost far more than others).
+    let chunks: Vec<Traced> = (0..total.div_ceil(CHUNK) as usize)
         .into_par_iter()
+        .with_max_len(1)
         .map(|c| {
+            let c = c as u64;
             let mut out = Traced::default();
             let mut st = TraversalStats::default();
             let (lo, hi) = (c * CHUNK, ((c + 1) * CHUNK).min(total));
@@ -79,14 +78,36 @@ pub fn trace_all(tracer: &Tracer, aims: &[Aim], progress: &(dyn Fn(u64) + Sync))
             out
         })
         .collect();
-    let mut out = Traced::default();
-    for c in chunks {
-        out.photons.extend(c.photons);
-        out.id.extend(c.id);
-        out.traced += c.traced;
-        out.occluded += c.occluded;
-        out.lost += c.lost;
+    let (photons, id): (Vec<_>, Vec<_>) =
+        chunks.iter().map(|c| (&c.photons[..], &c.id[..])).unzip();
+    Traced {
+        photons: concat(&photons),
+        id: concat(&id),
+        traced: chunks.iter().map(|c| c.traced).sum(),
+        occluded: chunks.iter().map(|c| c.occluded).sum(),
+        lost: chunks.iter().map(|c| c.lost).sum(),
     }
+}
+
+/// The parts one after another in one vector, copied in parallel (a part a task): appended on
+/// one thread, the millions of paths' records held the other core idle.
+pub(crate) fn concat<T: Copy + Send + Sync>(parts: &[impl AsRef<[T]> + Sync]) -> Vec<T> {
+    let total = parts.iter().map(|p| p.as_ref().len()).sum();
+    let Some(fill) = parts.iter().find_map(|p| p.as_ref().first().copied()) else {
+        return Vec::new();
+    };
+    let mut out = Vec::with_capacity(total);
+    out.par_extend(rayon::iter::repeat_n(fill, total));
+    let mut rest = &mut out[..];
+    let mut pieces = Vec::with_capacity(parts.len());
+    for p in parts {
+        let (here, after) = rest.split_at_mut(p.as_ref().len());
+        pieces.push((here, p.as_ref()));
+        rest = after;
+    }
+    pieces
+        .into_par_iter()
+        .for_each(|(to, from)| to.copy_from_slice(from));
     out
 }
 
@@ -110,6 +131,7 @@ pub fn run(
     backend: Backend,
     progress: &dyn Progress,
 ) -> Result<Summary, CausticsError> {
+    pc_stage::look_early(backend, pc_stage::Work::Precompute);
     let started = Instant::now();
     let mut timings = Vec::new();
     let octree = OctreeFile::open(octree_path)?;
@@ -451,4 +473,40 @@ fn trace_seconds(m: &PhotonsMeta) -> f64 {
         .iter()
         .find(|t| t.0 == "trace")
         .map_or(0.0, |t| t.1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_concatenated_in_parallel_are_the_parts_in_order() {
+        let parts: Vec<Vec<u32>> = (0..300u32)
+            .map(|k| (0..k % 7).map(|i| k * 10 + i).collect())
+            .collect();
+        let want: Vec<u32> = parts.iter().flatten().copied().collect();
+        assert_eq!(concat(&parts), want);
+        assert!(concat::<u32>(&[Vec::new(), Vec::new()]).is_empty());
+    }
+
+    #[test]
+    fn first_ids_are_the_running_photon_counts() {
+        // Over more aims than one block of the parallel sum holds.
+        let aim = |photons| Aim {
+            source: emit::Source::Area(0),
+            target: 0,
+            photons,
+            power: [1.0; 3],
+            sampling: emit::Sampling::Whole,
+        };
+        let aims: Vec<Aim> = (0..40_000u32).map(|k| aim(k % 5)).collect();
+        let first = emit::first_ids(&aims);
+        let mut at = 0u64;
+        for (a, &f) in aims.iter().zip(&first) {
+            assert_eq!(f, at);
+            at += a.photons as u64;
+        }
+        assert_eq!(first[aims.len()], at);
+        assert_eq!(emit::first_ids(&[]), vec![0]);
+    }
 }

@@ -263,6 +263,7 @@ pub fn run(
     backend: Backend,
     progress: &dyn Progress,
 ) -> Result<Summary, FmmError> {
+    pc_stage::look_early(backend, pc_stage::Work::Precompute);
     let started = Instant::now();
     let mut timings = Vec::new();
     let mut time =

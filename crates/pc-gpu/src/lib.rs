@@ -56,11 +56,20 @@ impl GpuContext {
     /// (its device is not opened: on a host without a GPU, opening llvmpipe's device was most
     /// of the 0.1 s that `auto` spent before each stage's CPU work), or there is no adapter.
     pub fn hardware() -> Option<GpuContext> {
-        let adapter = GpuContext::adapter().ok()?;
-        if software(&adapter.get_info()) {
-            return None;
+        GpuContext::open(hardware_adapter()?.clone()).ok()
+    }
+
+    /// Start looking for a hardware adapter on a thread of its own, so that a later
+    /// [`GpuContext::hardware`] finds the answer ready (or waits for the rest of it). The look
+    /// is the Vulkan loader opening every installed driver: 0.3 s of one core on a host with
+    /// Mesa's drivers and no GPU, which the stage's own start (mapping and checking artifacts)
+    /// then overlaps.
+    pub fn look_for_hardware() {
+        if HARDWARE.get().is_none() {
+            std::thread::spawn(|| {
+                hardware_adapter();
+            });
         }
-        GpuContext::open(adapter).ok()
     }
 
     /// The adapter: hardware first, then any software one.
@@ -348,6 +357,20 @@ impl GpuContext {
 }
 
 /// Whether an adapter is a software rasterizer such as llvmpipe.
+/// The hardware adapter of this process, looked for once ([`GpuContext::hardware`]).
+static HARDWARE: std::sync::OnceLock<Option<wgpu::Adapter>> = std::sync::OnceLock::new();
+
+/// The hardware adapter, if the first adapter found is one; looked for on the first call (a
+/// concurrent caller waits for it) and kept.
+fn hardware_adapter() -> Option<&'static wgpu::Adapter> {
+    HARDWARE
+        .get_or_init(|| {
+            let adapter = GpuContext::adapter().ok()?;
+            (!software(&adapter.get_info())).then_some(adapter)
+        })
+        .as_ref()
+}
+
 fn software(info: &wgpu::AdapterInfo) -> bool {
     info.device_type == wgpu::DeviceType::Cpu
 }

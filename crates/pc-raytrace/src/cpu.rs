@@ -312,6 +312,7 @@ pub fn render(
     ];
     let results: Vec<Vec<(u32, SampleResult)>> = tiles
         .par_iter()
+        .with_max_len(1)
         .map(|&(tx, ty)| {
             let mut counts = RayCounts::default();
             let mut blend = Vec::new();

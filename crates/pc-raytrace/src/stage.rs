@@ -208,6 +208,7 @@ pub fn run(
     backend: Backend,
     progress: &dyn Progress,
 ) -> Result<Summary, RenderError> {
+    pc_stage::look_early(backend, pc_stage::Work::Render);
     let c = &cfg.config;
     with_scene(cfg, inputs, backend, |sc, mode, key| {
         let t = std::time::Instant::now();

@@ -78,6 +78,7 @@ pub fn walkthrough(
     if orbit.frames == 0 {
         return Err(RenderError::NoFrames);
     }
+    pc_stage::look_early(backend, pc_stage::Work::Render);
     let c = &cfg.config;
     let started = Instant::now();
     with_scene(cfg, inputs, backend, |sc, _, _| {

@@ -39,6 +39,15 @@ pub fn gpu_for(backend: Backend, work: Work) -> Result<Option<GpuContext>, GpuEr
     }
 }
 
+/// Start looking for the GPU that [`gpu_for`] will ask for, where that look is the slow one
+/// (`auto`'s search for a hardware adapter, [`GpuContext::look_for_hardware`]): a stage calls
+/// this first, and its own start overlaps the search.
+pub fn look_early(backend: Backend, work: Work) {
+    if backend == Backend::Auto && auto_takes_gpu(work, rayon::current_num_threads()) {
+        GpuContext::look_for_hardware();
+    }
+}
+
 /// Whether `auto` looks for a GPU for `work` on a host with `threads` worker threads.
 pub fn auto_takes_gpu(work: Work, threads: usize) -> bool {
     match work {

@@ -16,7 +16,7 @@ pub mod stage;
 pub mod threads;
 
 pub use args::StageArgs;
-pub use device::{gpu_for, gpu_or_cpu, Work};
+pub use device::{gpu_for, gpu_or_cpu, look_early, Work};
 pub use input::OptionalInput;
 pub use progress::{Progress, Silent};
 pub use stage::{artifact_key, exit, main, peak_rss_bytes, say, with_gpu_times, Stage};

@@ -105,6 +105,7 @@ pub fn run(
     backend: Backend,
     progress: &dyn Progress,
 ) -> Result<Summary, VmapError> {
+    pc_stage::look_early(backend, pc_stage::Work::Precompute);
     let started = Instant::now();
     let octree = OctreeFile::open(octree_path)?;
     let view = octree.view();
