@@ -143,12 +143,7 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
     // Per node: its subtree's own splats' count, Σ p, Σ p pᵀ (upper triangle) and Σ n, about
     // the root cube's centre (f64: the variance is millimetres² under metres²).
     let c = (Vec3::from(view.frame.origin) + 0.5 * view.frame.size).as_dvec3();
-    let mut m = vec![Moments::default(); n];
-    for (s, &l) in view.splats.iter().zip(view.splat_leaf) {
-        m[l as usize].add(Vec3::from(s.position).as_dvec3() - c, Vec3::from(s.normal));
-    }
-    // Children follow their parent in the pool: bottom-up in reverse, and each node's parent
-    // and depth top-down.
+    // Each node's parent and depth, top-down (children follow their parent in the pool).
     let mut parent = vec![u32::MAX; n];
     let mut depth = vec![0u8; n];
     for slot in 0..n {
@@ -161,13 +156,7 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
             }
         }
     }
-    for slot in (0..n).rev() {
-        let p = parent[slot];
-        if p != u32::MAX {
-            let child = m[slot];
-            m[p as usize].merge(&child);
-        }
-    }
+    let m = moments(view, c, &parent, &depth);
     // Per node: whether its normals agree (an edge's do not).
     let flat: Vec<bool> = m
         .par_iter()
@@ -217,6 +206,60 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
             read
         })
         .collect()
+}
+
+/// Per node: its subtree's splats' [`Moments`] about `c`, given each node's `parent` and
+/// `depth`. Each leaf's own splats (a run of the data pool) are summed in pool order, and each
+/// node's children into it from the last to the first, level by level from the deepest, in
+/// parallel: the same sums, to the bit, as one loop over the pool and one over the nodes in
+/// reverse, each merged into its parent (children follow their parent in the pool).
+fn moments(view: &OctreeView, c: glam::DVec3, parent: &[u32], depth: &[u8]) -> Vec<Moments> {
+    let n = view.nodes.len();
+    let mut m = vec![Moments::default(); n];
+    let runs: Vec<(u32, Moments)> = view
+        .splat_leaf
+        .par_chunk_by(|a, b| a == b)
+        .map(|run| {
+            let lo = (run.as_ptr() as usize - view.splat_leaf.as_ptr() as usize)
+                / std::mem::size_of::<u32>();
+            let mut sum = Moments::default();
+            for s in &view.splats[lo..lo + run.len()] {
+                sum.add(Vec3::from(s.position).as_dvec3() - c, Vec3::from(s.normal));
+            }
+            (run[0], sum)
+        })
+        .collect();
+    for (leaf, sum) in runs {
+        match m[leaf as usize].count {
+            0 => m[leaf as usize] = sum,
+            // A leaf's splats in two runs (the reader's checks rule it out): merged.
+            _ => m[leaf as usize].merge(&sum),
+        }
+    }
+    let mut by_depth: Vec<Vec<u32>> = vec![Vec::new(); 256];
+    for slot in 0..n {
+        let w = view.nodes[slot];
+        if !node::is_leaf(w) && !node::is_empty(w) {
+            by_depth[depth[slot] as usize].push(slot as u32);
+        }
+    }
+    for level in by_depth.iter().rev().filter(|l| !l.is_empty()) {
+        let sums: Vec<Moments> = level
+            .par_iter()
+            .map(|&p| {
+                let first = node::ptr(view.nodes[p as usize]) as usize;
+                let mut sum = m[p as usize];
+                for ch in (first..first + 8).rev().filter(|&ch| parent[ch] == p) {
+                    sum.merge(&m[ch]);
+                }
+                sum
+            })
+            .collect();
+        for (&p, sum) in level.iter().zip(sums) {
+            m[p as usize] = sum;
+        }
+    }
+    m
 }
 
 /// The node of depth `target` that holds the normalised point `q`, `None` where the descent
