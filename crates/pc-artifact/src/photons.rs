@@ -22,7 +22,7 @@ use std::path::Path;
 use crate::light::PointLight;
 use crate::octree::OctreeId;
 use crate::params::CausticsParams;
-use crate::reader::Checked;
+use crate::reader::{first_where, Checked};
 use crate::specular::{SpecularMeta, SpecularView};
 use crate::{Artifact, ArtifactError, ArtifactKind};
 
@@ -138,24 +138,28 @@ impl<'a> PhotonMapView<'a> {
         if u32::try_from(self.photons.len()).is_err() {
             return Err(format!("{} photons, more than 2³² − 1", self.photons.len()));
         }
-        let mut sum = vec![[0f64; 3]; splats];
-        for (i, p) in self.photons.iter().enumerate() {
+        let bad_photon = |_: usize, p: &Photon| {
             let finite = p.position.iter().chain(&p.dir).chain(&p.power);
-            if p.splat as usize >= splats || !finite.clone().all(|x| x.is_finite()) {
-                return Err(format!(
-                    "photon {i}: splat out of range or values not finite"
-                ));
-            }
+            p.splat as usize >= splats || !finite.clone().all(|x| x.is_finite())
+        };
+        if let Some(i) = first_where(self.photons, bad_photon) {
+            return Err(format!(
+                "photon {i}: splat out of range or values not finite"
+            ));
+        }
+        let mut sum = vec![[0f64; 3]; splats];
+        for p in self.photons {
             for (s, &w) in sum[p.splat as usize].iter_mut().zip(&p.power) {
                 *s += w as f64;
             }
         }
-        if let Some(j) = (0..splats).find(|&j| {
+        let bad_deposit = |j: usize, d: &[f32; 3]| {
             (0..3).any(|k| {
-                let d = self.deposit[j][k] as f64;
+                let d = d[k] as f64;
                 !d.is_finite() || (d - sum[j][k]).abs() > 1e-3 * sum[j][k].abs().max(1e-12)
             })
-        }) {
+        };
+        if let Some(j) = first_where(self.deposit, bad_deposit) {
             return Err(format!(
                 "splat {j}: deposit {:?} is not the power of its photons {:?}",
                 self.deposit[j], sum[j]

@@ -78,7 +78,7 @@ pub(crate) fn any_where<T: Sync>(v: &[T], bad: impl Fn(&T) -> bool + Sync) -> bo
 pub(crate) fn is_csr(offsets: &[u32], rows: usize, len: usize) -> bool {
     offsets.len() == rows + 1
         && offsets.first() == Some(&0)
-        && offsets.windows(2).all(|w| w[0] <= w[1])
+        && first_where(offsets, |i, &x| i > 0 && offsets[i - 1] > x).is_none()
         && offsets.last().map(|&x| x as usize) == Some(len)
 }
 

@@ -24,6 +24,7 @@
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 
+use crate::reader::any_where;
 use crate::{Artifact, ArtifactError};
 
 pub mod sections {
@@ -152,21 +153,15 @@ impl<'a> SpecularView<'a> {
             ));
         }
         let weight_ok = |w: f32| w.is_finite() && w >= 0.0;
-        if self
-            .flux
-            .iter()
-            .any(|l| l.sender as usize >= splats || !l.weight.iter().all(|&w| weight_ok(w)))
-        {
+        if any_where(self.flux, |l| {
+            l.sender as usize >= splats || !l.weight.iter().all(|&w| weight_ok(w))
+        }) {
             return Err(
                 "a specular flux link names a sender that does not exist or has a weight that is not finite and non-negative".into(),
             );
         }
-        if self
-            .gather
-            .iter()
-            .chain(self.smooth)
-            .any(|g| g.bin as usize >= bins || !weight_ok(g.weight))
-        {
+        let bad_gather = |g: &GatherLink| g.bin as usize >= bins || !weight_ok(g.weight);
+        if any_where(self.gather, bad_gather) || any_where(self.smooth, bad_gather) {
             return Err(
                 "a specular gather link names a bin that does not exist or has a weight that is not finite and non-negative".into(),
             );

@@ -71,6 +71,7 @@ impl Clustering {
             return None;
         }
         let in_vleaf = within_vleaf(tree, vleaf);
+        let sizes = CutSizes::new(view, tree, &in_vleaf);
         // A small m whose cut makes at most max_elements elements, by bisection (elements fall
         // as m grows, not strictly: a merged node's mean seed may split a face its children
         // kept whole). A cut node holds at least one element: first the smallest m with few
@@ -88,14 +89,12 @@ impl Clustering {
             }
             lo
         };
-        let nodes = smallest(1, &|m| {
-            cut_nodes(view, tree, &in_vleaf, m).0 <= max_elements
-        });
+        let nodes = smallest(1, &|m| cut_nodes(tree, &sizes, m).0 <= max_elements);
         let m = smallest(nodes, &|m| {
-            let (_, cut) = cut_nodes(view, tree, &in_vleaf, m);
+            let (_, cut) = cut_nodes(tree, &sizes, m);
             element_count(tree, pts, &cut) <= max_elements
         });
-        let (_, cut) = cut_nodes(view, tree, &in_vleaf, m);
+        let (_, cut) = cut_nodes(tree, &sizes, m);
         let (of, mut points, ranges) = elements(tree, pts, &cut);
         let tree = element_tree(tree, &cut, &ranges, &mut points, &in_vleaf);
         Some(Clustering {
@@ -178,29 +177,64 @@ fn within_vleaf(tree: &Tree, vleaf: &[u32]) -> Vec<bool> {
     within
 }
 
-/// The cut for node size `m`: how many cut nodes own active splats, and each slot's place.
-fn cut_nodes(view: &OctreeView, tree: &Tree, in_vleaf: &[bool], m: u32) -> (u64, Vec<Cut>) {
-    let mut cut = vec![Cut::Above; tree.slots];
-    let mut count = 0u64;
-    // Parents come before their children in the pool.
-    for slot in 0..tree.slots {
-        let parent = tree.parent[slot];
-        if parent != NONE && cut[parent as usize] != Cut::Above {
-            cut[slot] = Cut::Below;
-            continue;
+/// For each slot, the node sizes `m` whose cut lies on it ([`cut_nodes`]): from `own`, the
+/// least `m` at which it may be cut (a leaf always; a node inside a V-map leaf whose splats
+/// are of one class, from its splat count on; any other node never), up to, not including,
+/// `above`, the least `own` of its ancestors (from there on an ancestor is cut instead).
+struct CutSizes {
+    own: Vec<u64>,
+    above: Vec<u64>,
+}
+
+impl CutSizes {
+    const NEVER: u64 = u64::MAX;
+
+    fn new(view: &OctreeView, tree: &Tree, in_vleaf: &[bool]) -> CutSizes {
+        let own: Vec<u64> = (0..tree.slots)
+            .into_par_iter()
+            .map(|slot| {
+                let n = tree.count(slot as u32);
+                let pure = view.node_info[slot].class != class::MIXED;
+                match tree.first_child[slot] == NONE {
+                    true => 0,
+                    false if n > 0 && in_vleaf[slot] && pure => n as u64,
+                    false => Self::NEVER,
+                }
+            })
+            .collect();
+        // Parents come before their children in the pool.
+        let mut above = vec![Self::NEVER; tree.slots];
+        for slot in 0..tree.slots {
+            let p = tree.parent[slot];
+            if p != NONE {
+                above[slot] = above[p as usize].min(own[p as usize]);
+            }
         }
-        let n = tree.count(slot as u32);
-        let leaf = tree.first_child[slot] == NONE;
-        let pure = view.node_info[slot].class != class::MIXED;
-        if n > 0 && in_vleaf[slot] && (leaf || (n <= m && pure)) {
-            cut[slot] = Cut::On;
-            count += (tree.active[slot] > 0) as u64;
-        } else if leaf {
-            // An empty slot, or a leaf outside every V-map leaf (no splat there is linked).
-            cut[slot] = Cut::On;
-            count += (n > 0 && tree.active[slot] > 0) as u64;
-        }
+        CutSizes { own, above }
     }
+}
+
+/// The cut for node size `m`: how many cut nodes own active splats, and each slot's place.
+/// (Top-down: a slot is cut where it may be and no ancestor was, and lies below a cut one;
+/// [`CutSizes`] holds the bounds of `m` for each, so every `m` the bisection tries is one
+/// parallel pass.)
+fn cut_nodes(tree: &Tree, sizes: &CutSizes, m: u32) -> (u64, Vec<Cut>) {
+    let m = m as u64;
+    let cut: Vec<Cut> = sizes
+        .own
+        .par_iter()
+        .zip(&sizes.above)
+        .map(|(&own, &above)| match (above <= m, own <= m) {
+            (true, _) => Cut::Below,
+            (false, true) => Cut::On,
+            (false, false) => Cut::Above,
+        })
+        .collect();
+    let count = cut
+        .par_iter()
+        .enumerate()
+        .filter(|&(s, &c)| c == Cut::On && tree.count(s as u32) > 0 && tree.active[s] > 0)
+        .count() as u64;
     (count, cut)
 }
 

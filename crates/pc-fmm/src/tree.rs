@@ -111,22 +111,17 @@ fn points(view: &OctreeView, materials: &[MaterialRecord]) -> Points {
     let f = &view.frame;
     let origin = Vec3::from(f.origin);
     let inv = f.inv_size;
-    let n = view.splats.len();
-    let mut pts = Points {
-        pos: Vec::with_capacity(n),
-        normal: Vec::with_capacity(n),
-        area: Vec::with_capacity(n),
-        active: Vec::with_capacity(n),
-        leaf: view.splat_leaf.to_vec(),
-    };
-    for (s, &a) in view.splats.iter().zip(view.splat_area) {
-        pts.pos
-            .push(((Vec3::from(s.position) - origin) * inv).into());
-        pts.normal.push(s.normal);
-        pts.area.push(a * inv * inv);
-        pts.active.push(is_active(materials, s.material));
+    let splats = view.splats.par_iter();
+    Points {
+        pos: splats
+            .clone()
+            .map(|s| ((Vec3::from(s.position) - origin) * inv).into())
+            .collect(),
+        normal: splats.clone().map(|s| s.normal).collect(),
+        area: view.splat_area.par_iter().map(|&a| a * inv * inv).collect(),
+        active: splats.map(|s| is_active(materials, s.material)).collect(),
+        leaf: view.splat_leaf.par_iter().copied().collect(),
     }
-    pts
 }
 
 impl Tree {
@@ -178,22 +173,33 @@ impl Tree {
         self.index(depth);
     }
 
-    /// Active area and count, bottom-up (children always follow their parent in the pool).
+    /// Active area and count: each leaf's from its splats (in parallel), then the internal
+    /// nodes' bottom-up (children always follow their parent in the pool).
     fn sum_active(&mut self, pts: &Points) {
+        let leaf_sums: Vec<(f32, u32)> = (0..self.slots)
+            .into_par_iter()
+            .map(|slot| {
+                let (lo, hi) = (self.lo[slot], self.hi[slot]);
+                let mut sum = (0.0f32, 0u32);
+                if lo < hi && self.first_child[slot] == NONE {
+                    for i in lo as usize..hi as usize {
+                        if pts.active[i] {
+                            sum.0 += pts.area[i];
+                            sum.1 += 1;
+                        }
+                    }
+                }
+                sum
+            })
+            .collect();
         for slot in (0..self.slots).rev() {
             let (lo, hi) = (self.lo[slot], self.hi[slot]);
-            self.area[slot] = 0.0;
-            self.active[slot] = 0;
+            (self.area[slot], self.active[slot]) = (0.0, 0);
             if lo >= hi {
                 continue;
             }
             if self.first_child[slot] == NONE {
-                for i in lo..hi {
-                    if pts.active[i as usize] {
-                        self.area[slot] += pts.area[i as usize];
-                        self.active[slot] += 1;
-                    }
-                }
+                (self.area[slot], self.active[slot]) = leaf_sums[slot];
             } else {
                 let c = self.first_child[slot] as usize;
                 for k in c..c + 8 {
@@ -229,17 +235,24 @@ impl Tree {
     }
 
     /// Bounds, bottom-up: boxes exact; radii about the centres exact at leaves and bounded
-    /// through the children above; the largest active disk radius.
+    /// through the children above; the largest active disk radius. The leaves from their
+    /// splats in parallel, then the internal nodes from their children.
     fn bound(&mut self, pts: &Points) {
-        for slot in (0..self.slots).rev() {
-            let (lo, hi) = (self.lo[slot] as usize, self.hi[slot] as usize);
-            if lo >= hi {
-                continue;
-            }
-            let (mut bmin, mut bmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-            let mut disk = 0.0f32;
-            let children: Vec<usize> = self.children(slot as u32).map(|k| k as usize).collect();
-            if self.first_child[slot] == NONE {
+        let (los, his, first_child, center) = (&self.lo, &self.hi, &self.first_child, &self.center);
+        self.bmin
+            .par_iter_mut()
+            .zip(self.bmax.par_iter_mut())
+            .zip(self.disk.par_iter_mut())
+            .zip(self.radius.par_iter_mut())
+            .enumerate()
+            .for_each(|(slot, (((bmin_of, bmax_of), disk_of), radius_of))| {
+                let (lo, hi) = (los[slot] as usize, his[slot] as usize);
+                if lo >= hi || first_child[slot] != NONE {
+                    return;
+                }
+                let (mut bmin, mut bmax) =
+                    (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+                let mut disk = 0.0f32;
                 for i in lo..hi {
                     bmin = bmin.min(Vec3::from(pts.pos[i]));
                     bmax = bmax.max(Vec3::from(pts.pos[i]));
@@ -247,28 +260,32 @@ impl Tree {
                         disk = disk.max((pts.area[i] * std::f32::consts::FRAC_1_PI).sqrt());
                     }
                 }
-            } else {
-                for &k in &children {
-                    bmin = bmin.min(Vec3::from(self.bmin[k]));
-                    bmax = bmax.max(Vec3::from(self.bmax[k]));
-                    disk = disk.max(self.disk[k]);
-                }
+                let c = Vec3::from(center[slot]);
+                (*bmin_of, *bmax_of, *disk_of) = (bmin.into(), bmax.into(), disk);
+                *radius_of = pts.pos[lo..hi]
+                    .iter()
+                    .map(|&p| (Vec3::from(p) - c).length())
+                    .fold(0.0f32, f32::max);
+            });
+        for slot in (0..self.slots).rev() {
+            let (lo, hi) = (self.lo[slot], self.hi[slot]);
+            if lo >= hi || self.first_child[slot] == NONE {
+                continue;
+            }
+            let (mut bmin, mut bmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+            let mut disk = 0.0f32;
+            let c = Vec3::from(self.center[slot]);
+            let mut radius = 0.0f32;
+            for k in self.children(slot as u32).map(|k| k as usize) {
+                bmin = bmin.min(Vec3::from(self.bmin[k]));
+                bmax = bmax.max(Vec3::from(self.bmax[k]));
+                disk = disk.max(self.disk[k]);
+                radius = radius.max((Vec3::from(self.center[k]) - c).length() + self.radius[k]);
             }
             self.disk[slot] = disk;
             self.bmin[slot] = bmin.into();
             self.bmax[slot] = bmax.into();
-            let c = Vec3::from(self.center[slot]);
-            self.radius[slot] = if self.first_child[slot] == NONE {
-                pts.pos[lo..hi]
-                    .iter()
-                    .map(|&p| (Vec3::from(p) - c).length())
-                    .fold(0.0f32, f32::max)
-            } else {
-                children
-                    .iter()
-                    .map(|&k| (Vec3::from(self.center[k]) - c).length() + self.radius[k])
-                    .fold(0.0f32, f32::max)
-            };
+            self.radius[slot] = radius;
         }
     }
 

@@ -23,6 +23,7 @@
 use crate::OctreeView;
 use glam::Vec3;
 use pc_artifact::octree::node;
+use rayon::prelude::*;
 
 /// Axis-aligned box.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -202,42 +203,53 @@ impl DiskBoxes {
         let mut ranges = vec![(u32::MAX, 0u32); slots];
         // Rounding of a ray's points along a slab's normal: a few units in the last place of the
         // scene's largest coordinate (rays run inside the scene, a few of its sizes long).
+        // (A maximum, in any order the same.)
         let scale = view
             .splats
-            .iter()
+            .par_iter()
             .map(|s| Vec3::from(s.position).abs().max_element() + s.radius)
-            .fold(0.0f32, f32::max);
+            .reduce(|| 0.0f32, f32::max);
         let margin = 64.0 * f32::EPSILON * scale;
-        // Children follow their parent in the pool: bottom-up is reverse slot order.
-        for slot in (0..slots).rev() {
-            let w = view.nodes[slot];
-            if node::is_empty(w) {
-                continue;
-            }
-            let mut bx = Aabb::EMPTY;
-            if node::is_leaf(w) {
+        // The leaves, each from its own disks, in parallel.
+        boxes
+            .par_iter_mut()
+            .zip(slabs.par_iter_mut())
+            .zip(ranges.par_iter_mut())
+            .enumerate()
+            .for_each(|(slot, ((bx, slab), range_of))| {
+                let w = view.nodes[slot];
+                if !node::is_leaf(w) || node::is_empty(w) {
+                    return;
+                }
                 let range = view.leaf(w).0;
                 let disks = range.clone().map(|i| {
                     let s = &view.splats[i as usize];
                     (Vec3::from(s.position), Vec3::from(s.normal), s.radius)
                 });
                 for (c, n, r) in disks.clone() {
-                    bx = bx.union(Aabb::of_disk(c, n, r));
+                    *bx = bx.union(Aabb::of_disk(c, n, r));
                 }
-                slabs[slot] = Slab::of_disks(disks, margin);
+                *slab = Slab::of_disks(disks, margin);
                 if !range.is_empty() {
-                    ranges[slot] = (range.start, range.end);
+                    *range_of = (range.start, range.end);
                 }
-            } else {
-                let c = node::ptr(w) as usize;
-                for b in &boxes[c..c + 8] {
-                    bx = bx.union(*b);
-                }
-                let r = ranges[c..c + 8]
-                    .iter()
-                    .fold((u32::MAX, 0), |a, r| (a.0.min(r.0), a.1.max(r.1)));
-                ranges[slot] = r;
+            });
+        // The internal nodes from their children's: bottom-up is reverse slot order (children
+        // follow their parent in the pool).
+        for slot in (0..slots).rev() {
+            let w = view.nodes[slot];
+            if node::is_empty(w) || node::is_leaf(w) {
+                continue;
             }
+            let c = node::ptr(w) as usize;
+            let mut bx = Aabb::EMPTY;
+            for b in &boxes[c..c + 8] {
+                bx = bx.union(*b);
+            }
+            let r = ranges[c..c + 8]
+                .iter()
+                .fold((u32::MAX, 0), |a, r| (a.0.min(r.0), a.1.max(r.1)));
+            ranges[slot] = r;
             boxes[slot] = bx;
         }
         DiskBoxes {
