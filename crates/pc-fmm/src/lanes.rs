@@ -741,30 +741,45 @@ pub struct DiskLanes {
 
 impl DiskLanes {
     pub fn new(splats: &[pc_artifact::octree::Splat]) -> DiskLanes {
-        let mut v: [Vec<f32>; 11] = Default::default();
-        for s in splats {
-            let vals = [
-                s.position[0],
-                s.position[1],
-                s.position[2],
-                s.normal[0],
-                s.normal[1],
-                s.normal[2],
-                s.radius * s.radius,
-                s.clip[0],
-                s.clip[1],
-                s.clip[2],
-                s.clip[3],
-            ];
-            for (c, x) in v.iter_mut().zip(vals) {
-                c.push(x);
+        use rayon::prelude::*;
+        let n = splats.len();
+        // Padding (and the start of every lane): a zero normal fails the parallel test, and a
+        // negative squared radius the disk test.
+        let mut v: [Vec<f32>; 11] =
+            std::array::from_fn(|k| vec![if k == 6 { -1.0 } else { 0.0 }; n + W]);
+        // Blocks of splats in parallel, each writing its stretch of the eleven lanes.
+        const BLOCK: usize = 1 << 14;
+        let mut blocks: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(BLOCK))
+            .map(|_| Vec::with_capacity(11))
+            .collect();
+        for lane in v.iter_mut() {
+            for (b, part) in lane[..n].chunks_mut(BLOCK).enumerate() {
+                blocks[b].push(part);
             }
         }
-        // Padding: a zero normal fails the parallel test, and a negative squared radius the
-        // disk test.
-        for (k, c) in v.iter_mut().enumerate() {
-            c.extend(std::iter::repeat_n(if k == 6 { -1.0 } else { 0.0 }, W));
-        }
+        blocks
+            .into_par_iter()
+            .zip(splats.par_chunks(BLOCK))
+            .for_each(|(mut lanes, block)| {
+                for (i, s) in block.iter().enumerate() {
+                    let vals = [
+                        s.position[0],
+                        s.position[1],
+                        s.position[2],
+                        s.normal[0],
+                        s.normal[1],
+                        s.normal[2],
+                        s.radius * s.radius,
+                        s.clip[0],
+                        s.clip[1],
+                        s.clip[2],
+                        s.clip[3],
+                    ];
+                    for (lane, x) in lanes.iter_mut().zip(vals) {
+                        lane[i] = x;
+                    }
+                }
+            });
         DiskLanes { v }
     }
 }

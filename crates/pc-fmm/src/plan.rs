@@ -635,26 +635,40 @@ pub fn build(
     };
     // Each receiver's run into its place in one allocation per kind, then a node's tasks M2L
     // before P2L and a leaf's sorted by source (M2P batches that share moments).
-    let mut counts = TaskCounts::default();
-    for o in &parts {
-        counts.dropped_facing_away += o.dropped;
-        for task in &o.node {
-            if task.src & POINT != 0 {
-                counts.p2l += 1;
-            } else {
-                counts.m2l += 1;
+    // (Counted part by part in parallel: integer sums, the same in any order.)
+    let counts = parts
+        .par_iter()
+        .map(|o| {
+            let mut counts = TaskCounts {
+                dropped_facing_away: o.dropped,
+                ..Default::default()
+            };
+            for task in &o.node {
+                if task.src & POINT != 0 {
+                    counts.p2l += 1;
+                } else {
+                    counts.m2l += 1;
+                }
             }
-        }
-        for task in &o.leaf {
-            if task.is_m2p() {
-                counts.m2p += 1;
-            } else {
-                counts.p2p += 1;
-                counts.p2p_pairs +=
-                    (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
+            for task in &o.leaf {
+                if task.is_m2p() {
+                    counts.m2p += 1;
+                } else {
+                    counts.p2p += 1;
+                    counts.p2p_pairs +=
+                        (task.recv_hi - task.recv_lo) as u64 * (task.src_hi - task.src_lo) as u64;
+                }
             }
-        }
-    }
+            counts
+        })
+        .reduce(TaskCounts::default, |a, b| TaskCounts {
+            m2l: a.m2l + b.m2l,
+            p2l: a.p2l + b.p2l,
+            m2p: a.m2p + b.m2p,
+            p2p: a.p2p + b.p2p,
+            p2p_pairs: a.p2p_pairs + b.p2p_pairs,
+            dropped_facing_away: a.dropped_facing_away + b.dropped_facing_away,
+        });
     // The workers' lists grew by doubling: give the slack back before the copy (on a large
     // scan the leaf tasks are most of the stage's memory, and the copy holds both).
     let mut parts = parts;

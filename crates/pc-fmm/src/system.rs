@@ -10,6 +10,7 @@ use pc_artifact::PointLight;
 use pc_gpu::GpuError;
 use pc_tree::caster::Caster;
 use pc_tree::{Between, OctreeView, Ray};
+use rayon::prelude::*;
 
 use crate::tree::Points;
 
@@ -72,18 +73,21 @@ pub fn system(
 ) -> Result<System, GpuError> {
     let n = view.splats.len();
     let mut sys = System::zeros(n);
-    for (i, s) in view.splats.iter().enumerate() {
-        if !pts.active[i] {
-            continue;
-        }
-        let m = &materials[s.material as usize];
-        let rho = Vec3::from(m.color) * Vec3::from(s.albedo);
-        sys.albedo[i] = rho.into();
-        if m.class == class::EMITTER {
-            sys.source[i] = m.radiance;
-            sys.emission[i] = m.radiance;
-        }
-    }
+    sys.albedo
+        .par_iter_mut()
+        .zip(sys.source.par_iter_mut())
+        .zip(sys.emission.par_iter_mut())
+        .zip(view.splats.par_iter().zip(&pts.active))
+        .for_each(|(((albedo, source), emission), (s, &active))| {
+            if !active {
+                return;
+            }
+            let m = &materials[s.material as usize];
+            *albedo = (Vec3::from(m.color) * Vec3::from(s.albedo)).into();
+            if m.class == class::EMITTER {
+                (*source, *emission) = (m.radiance, m.radiance);
+            }
+        });
     for (l, light) in lights.iter().enumerate() {
         let rough = seen.rough.get();
         let light_position = Vec3::from(light.position);
