@@ -104,47 +104,53 @@ pub fn system(
         }
         // In batches: a 20M-splat scan's rays for one light took 0.7 GB at once.
         for batch in partial.chunks(SHADOW_BATCH) {
-            let mut rays = Vec::with_capacity(batch.len());
-            let mut who = Vec::with_capacity(batch.len());
-            for &i in batch {
-                let s = &view.splats[i as usize];
-                let x = Vec3::from(s.position);
-                let d = light_position - x;
-                let len = d.length();
-                if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
-                    continue;
-                }
-                let ray = Ray {
-                    origin: x,
-                    dir: d / len,
-                    t_min: seen.self_hit * s.radius,
-                    t_max: len * (1.0 - 1e-4),
-                };
-                // Past the splat's own rough surface, like the V-map's light lists.
-                rays.push(Between::leaving(
-                    ray,
-                    pc_tree::between::surface(view, rough, i),
-                ));
-                who.push(i);
-            }
+            // The shadow rays made in parallel, in the batch's order.
+            let (rays, who): (Vec<Between>, Vec<u32>) = batch
+                .par_iter()
+                .filter_map(|&i| {
+                    let s = &view.splats[i as usize];
+                    let x = Vec3::from(s.position);
+                    let d = light_position - x;
+                    let len = d.length();
+                    if len <= 0.0 || !pts.active[i as usize] || Vec3::from(s.normal).dot(d) <= 0.0 {
+                        return None;
+                    }
+                    let ray = Ray {
+                        origin: x,
+                        dir: d / len,
+                        t_min: seen.self_hit * s.radius,
+                        t_max: len * (1.0 - 1e-4),
+                    };
+                    // Past the splat's own rough surface, like the V-map's light lists.
+                    let seg = Between::leaving(ray, pc_tree::between::surface(view, rough, i));
+                    Some((seg, i))
+                })
+                .unzip();
             let vis = tester.visible_between(&rays)?;
             lit.extend(who.iter().zip(&vis).filter(|(_, &v)| v).map(|(&i, _)| i));
         }
-        for i in lit {
+        // Each lit splat's share worked out in parallel, then added in the same order.
+        let adds: Vec<(u32, Vec3)> = lit
+            .par_iter()
+            .filter_map(|&i| {
+                let iu = i as usize;
+                if !pts.active[iu] {
+                    return None;
+                }
+                let s = &view.splats[iu];
+                let d = light_position - Vec3::from(s.position);
+                let r2 = d.length_squared();
+                let cos = Vec3::from(s.normal).dot(d) / r2.sqrt();
+                if cos <= 0.0 || r2 <= 0.0 {
+                    return None;
+                }
+                // Reflected radiance ρ E / π with irradiance E = I cos / r².
+                let e = Vec3::from(light.intensity) * (cos / r2) * std::f32::consts::FRAC_1_PI;
+                Some((i, Vec3::from(sys.albedo[iu]) * e))
+            })
+            .collect();
+        for (i, add) in adds {
             let iu = i as usize;
-            if !pts.active[iu] {
-                continue;
-            }
-            let s = &view.splats[iu];
-            let d = light_position - Vec3::from(s.position);
-            let r2 = d.length_squared();
-            let cos = Vec3::from(s.normal).dot(d) / r2.sqrt();
-            if cos <= 0.0 || r2 <= 0.0 {
-                continue;
-            }
-            // Reflected radiance ρ E / π with irradiance E = I cos / r².
-            let e = Vec3::from(light.intensity) * (cos / r2) * std::f32::consts::FRAC_1_PI;
-            let add = Vec3::from(sys.albedo[iu]) * e;
             sys.source[iu] = (Vec3::from(sys.source[iu]) + add).into();
         }
     }

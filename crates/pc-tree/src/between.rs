@@ -215,27 +215,24 @@ pub fn leaf_roughness(view: &OctreeView) -> Vec<f32> {
 /// reverse, each merged into its parent (children follow their parent in the pool).
 fn moments(view: &OctreeView, c: glam::DVec3, parent: &[u32], depth: &[u8]) -> Vec<Moments> {
     let n = view.nodes.len();
-    let mut m = vec![Moments::default(); n];
-    let runs: Vec<(u32, Moments)> = view
-        .splat_leaf
-        .par_chunk_by(|a, b| a == b)
-        .map(|run| {
-            let lo = (run.as_ptr() as usize - view.splat_leaf.as_ptr() as usize)
-                / std::mem::size_of::<u32>();
+    // Each leaf's own splats, in pool order: those of its range that name it their owner (the
+    // reader checks that every splat lies in its owner's range).
+    let mut m: Vec<Moments> = (0..n)
+        .into_par_iter()
+        .map(|slot| {
+            let w = view.nodes[slot];
             let mut sum = Moments::default();
-            for s in &view.splats[lo..lo + run.len()] {
-                sum.add(Vec3::from(s.position).as_dvec3() - c, Vec3::from(s.normal));
+            if node::is_leaf(w) && !node::is_empty(w) {
+                for i in view.leaf(w).0 {
+                    if view.splat_leaf[i as usize] == slot as u32 {
+                        let s = &view.splats[i as usize];
+                        sum.add(Vec3::from(s.position).as_dvec3() - c, Vec3::from(s.normal));
+                    }
+                }
             }
-            (run[0], sum)
+            sum
         })
         .collect();
-    for (leaf, sum) in runs {
-        match m[leaf as usize].count {
-            0 => m[leaf as usize] = sum,
-            // A leaf's splats in two runs (the reader's checks rule it out): merged.
-            _ => m[leaf as usize].merge(&sum),
-        }
-    }
     let mut by_depth: Vec<Vec<u32>> = vec![Vec::new(); 256];
     for slot in 0..n {
         let w = view.nodes[slot];
