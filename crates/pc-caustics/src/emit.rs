@@ -254,7 +254,7 @@ pub fn plan(
 pub fn leaf_pairs(
     leaves: &Leaves,
     v: &VmapView,
-    is_source: &dyn Fn(&Leaf) -> bool,
+    is_source: &(dyn Fn(&Leaf) -> bool + Sync),
 ) -> Vec<(u32, u32, f32)> {
     let count_of = |want: &dyn Fn(&Leaf) -> bool| {
         let mut pre = vec![0u32; leaves.leaves.len() + 1];
@@ -265,16 +265,18 @@ pub fn leaf_pairs(
     };
     let source_pre = count_of(is_source);
     let spec_pre = count_of(&|l| class::is_specular(l.class));
-    let mut pairs: Vec<(u32, u32, f32)> = Vec::new();
-    for x in 0..v.node_range.len() {
+    // Node by node in parallel, collected in node order; sorted stably (in parallel: a stable
+    // sort's order is the serial one's) and the first of each pair kept.
+    let node_pairs = |x: usize| {
+        let mut pairs: Vec<(u32, u32, f32)> = Vec::new();
         let row = &v.links[v.link_offsets[x] as usize..v.link_offsets[x + 1] as usize];
         if row.is_empty() {
-            continue;
+            return pairs;
         }
         let [xlo, xhi] = v.node_range[x];
         let xr = leaves.within(xlo, xhi);
         if source_pre[xr.end] == source_pre[xr.start] {
-            continue;
+            return pairs;
         }
         for link in row.iter().filter(|k| k.fraction > 0.0) {
             let [ylo, yhi] = v.node_range[link.slot() as usize];
@@ -307,13 +309,17 @@ pub fn leaf_pairs(
                 }
             }
         }
-    }
-    pairs.sort_by_key(|x| (x.0, x.1));
+        pairs
+    };
+    let mut pairs: Vec<(u32, u32, f32)> = (0..v.node_range.len())
+        .into_par_iter()
+        .flat_map_iter(node_pairs)
+        .collect();
+    pairs.par_sort_by_key(|x| (x.0, x.1));
     pairs.dedup_by_key(|x| (x.0, x.1));
     pairs
 }
 
-/// Share the budget out: `n_e |P| / |Φ|` photons per pair, rounded stochastically.
 /// Each aim's first photon id (its photons' ids run on from it), and last the total: the
 /// prefix sums of the aims' photon counts, in parallel (the specular links plan millions of
 /// aims).
@@ -347,6 +353,7 @@ pub fn first_ids(aims: &[Aim]) -> Vec<u64> {
     first
 }
 
+/// Share the budget out: `n_e |P| / |Φ|` photons per pair, rounded stochastically.
 pub fn aims(plan: &Plan, budget: u32, seed: u32) -> Vec<Aim> {
     let total = level(plan.emitted);
     if total <= 0.0 || budget == 0 {
