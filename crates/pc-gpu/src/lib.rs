@@ -65,10 +65,26 @@ impl GpuContext {
     /// Mesa's drivers and no GPU, which the stage's own start (mapping and checking artifacts)
     /// then overlaps.
     pub fn look_for_hardware() {
-        if HARDWARE.get().is_none() {
-            std::thread::spawn(|| {
+        if HARDWARE.get().is_some() {
+            return;
+        }
+        let mut looking = LOOKING.lock().unwrap_or_else(|e| e.into_inner());
+        if looking.is_none() {
+            *looking = Some(std::thread::spawn(|| {
                 hardware_adapter();
-            });
+            }));
+        }
+    }
+
+    /// Wait for a look that [`GpuContext::look_for_hardware`] started to end. A process must
+    /// not exit while the Vulkan loader opens drivers on another thread (their finalizers would
+    /// run under it): every stage's exit calls this, also after an early error.
+    pub fn done_looking() {
+        let thread = LOOKING.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(thread) = thread {
+            // A panic in the driver is reported by the thread and found again by the next
+            // look (the answer is not kept).
+            let _ = thread.join();
         }
     }
 
@@ -356,9 +372,11 @@ impl GpuContext {
     }
 }
 
-/// Whether an adapter is a software rasterizer such as llvmpipe.
 /// The hardware adapter of this process, looked for once ([`GpuContext::hardware`]).
 static HARDWARE: std::sync::OnceLock<Option<wgpu::Adapter>> = std::sync::OnceLock::new();
+
+/// The thread of a look started early ([`GpuContext::look_for_hardware`]), until joined.
+static LOOKING: std::sync::Mutex<Option<std::thread::JoinHandle<()>>> = std::sync::Mutex::new(None);
 
 /// The hardware adapter, if the first adapter found is one; looked for on the first call (a
 /// concurrent caller waits for it) and kept.
@@ -371,6 +389,7 @@ fn hardware_adapter() -> Option<&'static wgpu::Adapter> {
         .as_ref()
 }
 
+/// Whether an adapter is a software rasterizer such as llvmpipe.
 fn software(info: &wgpu::AdapterInfo) -> bool {
     info.device_type == wgpu::DeviceType::Cpu
 }

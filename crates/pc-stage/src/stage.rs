@@ -86,7 +86,9 @@ pub fn main<S: Stage>(
 }
 
 /// `result` as an exit code: on error print `name: error: <chain>` on stderr and return 2.
+/// First waits for a look for a GPU still running on its own thread ([`crate::look_early`]).
 pub fn exit(name: &str, result: anyhow::Result<()>) -> ExitCode {
+    pc_gpu::GpuContext::done_looking();
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
