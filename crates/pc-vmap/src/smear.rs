@@ -14,6 +14,7 @@
 //! light of the nodes where it does, splat by splat (docs/fmm.md, "Final gather").
 
 use pc_artifact::vmap::Smear as NodeSmear;
+use rayon::prelude::*;
 
 use crate::build::{Sample, VNode};
 
@@ -69,7 +70,8 @@ impl Smear {
         for (i, s) in self.per_splat.iter().enumerate() {
             prefix[i + 1] = std::array::from_fn(|k| prefix[i][k] + s[k] as f64);
         }
-        vn.iter()
+        // (Each slot from the prefix sums alone: in parallel.)
+        vn.par_iter()
             .enumerate()
             .map(|(slot, v)| {
                 let (lo, hi) = (v.lo as usize, v.hi as usize);
