@@ -302,7 +302,7 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
         })
         .collect();
     let mut id = 0u32;
-    let first_ids: Vec<u32> = rounded
+    let first_path: Vec<u32> = rounded
         .iter()
         .map(|&[a, d]| {
             let first = id;
@@ -324,7 +324,7 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
                     l,
                     (n_area, n_dir),
                     (area, dir),
-                    first_ids[i],
+                    first_path[i],
                     seed,
                     &diffuse,
                     &specular,
@@ -340,9 +340,9 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
 /// Links whose aims [`aims`] makes in one task.
 const AIM_BLOCK: usize = 256;
 
-/// The aims of one link's `n_area` paths by area and `n_dir` by direction (of expected counts
-/// `expected`), the first numbered `id`, appended to `out`; consecutive paths that draw the
-/// same leaves are one aim.
+/// The aims of one link's `n_area` paths by area and `n_dir` by direction (their expected
+/// counts `area` and `dir` set the power and the strategies' mix), the first numbered `id`,
+/// appended to `out`; consecutive paths that draw the same leaves are one aim.
 #[allow(clippy::too_many_arguments)] // (one link's plan, counts, ids and the two prefixes)
 fn link_aims(
     l: &LinkPlan,
