@@ -94,11 +94,19 @@ impl Slab {
     /// Whether the ray's stretch `[ray.t_min, limit]` stays outside the slab.
     #[inline(always)]
     pub fn misses(&self, ray: &Ray, limit: f32) -> bool {
+        self.entry(ray, limit).is_none()
+    }
+
+    /// Where the ray's stretch `[ray.t_min, limit]` enters the slab (`ray.t_min` where it
+    /// starts inside); `None` where it [misses](Slab::misses) it.
+    #[inline(always)]
+    pub fn entry(&self, ray: &Ray, limit: f32) -> Option<f32> {
         let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
         let [ax, ay, az] = self.axis;
         let (s0, ds) = (ax * ox + ay * oy + az * oz, ax * dx + ay * dy + az * dz);
         let (ta, tb) = ((self.lo - s0) / ds, (self.hi - s0) / ds);
-        ta.min(tb).max(ray.t_min) > ta.max(tb).min(limit)
+        let (enter, leave) = (ta.min(tb).max(ray.t_min), ta.max(tb).min(limit));
+        (enter <= leave || enter.is_nan() || leave.is_nan()).then_some(enter)
     }
 }
 
@@ -274,14 +282,29 @@ pub(crate) fn walk_with(
     let mut path = [0u32; MAX_LEVELS + 1];
     path[0] = nodes[0];
     let mut depth = 0usize; // the deepest valid entry of `path` for qi
+    // The ray's parameter at qi: where it entered qi's cell, or the slab it jumped to.
+    let mut t_at = t;
     loop {
         stats.cells += 1;
         // Descend from the deepest ancestor that still contains qi (§8.5.11, resumed).
         let mut w = path[depth];
         while w & (node::LEAF | node::EMPTY) == 0 && depth < MAX_LEVELS {
             if let Some(s) = slab(w) {
-                if s.misses(ray, exit(qi, depth).2.min_element().min(t_end)) {
+                let (lo_i, size_i, ta) = exit(qi, depth);
+                let Some(t_in) = s.entry(ray, ta.min_element().min(t_end)) else {
                     break;
+                };
+                // No disk listed below the node lies before its slab, so none of the cells the
+                // ray crosses in the node before it enters the slab could accept a hit: go
+                // straight to the cell where it enters (the slab's padding is far above the
+                // rounding of that point, and qi stays in the node's cell).
+                if t_in > t_at {
+                    let q = qo + qd * t_in;
+                    qi = std::array::from_fn(|a| {
+                        let c = (q[a].max(0.0) * ROOT as f32) as u32;
+                        c.clamp(lo_i[a], lo_i[a] + size_i - 1)
+                    });
+                    t_at = t_in;
                 }
             }
             let shift = (MAX_LEVELS - 1 - depth) as u32;
@@ -330,6 +353,9 @@ pub(crate) fn walk_with(
         let common = (diff.leading_zeros() as usize).saturating_sub(32 - MAX_LEVELS);
         depth = depth.min(common);
         qi = ni;
+        // Not below a jump's parameter: a jump can land one cell short of its point (rounding),
+        // and must not be taken again from there.
+        t_at = t_at.max(t_exit);
     }
 }
 
