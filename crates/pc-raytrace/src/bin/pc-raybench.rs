@@ -167,14 +167,15 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let threads = rayon::current_num_threads();
     let (pc, pt) = work(&view, None, &primary);
     let (ic, it) = work(&view, None, &incoherent);
-    let (_, apt) = work(&view, Some(&accel), &primary);
-    let (_, ait) = work(&view, Some(&accel), &incoherent);
+    let (apc, apt) = work(&view, Some(&accel), &primary);
+    let (aic, ait) = work(&view, Some(&accel), &incoherent);
     let (sc, st) = work(&view, None, &shadow);
-    let (_, ast) = work(&view, Some(&accel), &shadow);
+    let (asc, ast) = work(&view, Some(&accel), &shadow);
     eprintln!(
-        "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apt:.1} disk lanes tested \
-         by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed disks ({ait:.1}); \
-         per shadow ray {sc:.1} cells, {st:.1} listed disks ({ast:.1}, to the nearest hit)"
+        "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apc:.1} cells, {apt:.1} \
+         disk lanes tested by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed \
+         disks ({aic:.1}, {ait:.1}); per shadow ray {sc:.1} cells, {st:.1} listed disks ({asc:.1}, \
+         {ast:.1}, to the nearest hit)"
     );
     if let Some(dir) = &args.dump {
         dump(dir, &view, &accel, [&primary, &incoherent, &shadow])?;
