@@ -281,7 +281,8 @@ pub(crate) fn walk_with(
     let mut qi = quantize(q);
     let mut path = [0u32; MAX_LEVELS + 1];
     path[0] = nodes[0];
-    let mut depth = 0usize; // the deepest valid entry of `path` for qi
+    // The deepest valid entry of `path` for qi.
+    let mut depth = 0usize;
     // The ray's parameter at qi: where it entered qi's cell, or the slab it jumped to.
     let mut t_at = t;
     loop {
