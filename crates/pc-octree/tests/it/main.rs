@@ -44,6 +44,18 @@ pub fn mixed_scene(h: f32) -> (Soa, Vec<u32>) {
     (s, vec![class::DIFFUSE, class::MIRROR, class::DIELECTRIC])
 }
 
+/// The octree of `s` with leaves of at most 8 splats (deep trees from small scenes).
+pub fn fine_octree(s: &Soa, classes: &[u32]) -> Octree {
+    s.build(
+        classes,
+        OctreeParams {
+            max_leaf_points: 8,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
 /// Every leaf and empty node with its integer cell, by an independent depth-first walk.
 pub fn cells(o: &Octree) -> Vec<(u32, u32, [u32; 3])> {
     let mut out = Vec::new();
@@ -306,15 +318,7 @@ fn every_leaf_a_disk_overlaps_references_it() {
 #[test]
 fn point_location_agrees_with_brute_force() {
     let (s, classes) = mixed_scene(0.05);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let all = cells(&o);
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(3);
@@ -340,15 +344,7 @@ fn gpu_point_location_matches_cpu() {
         return;
     };
     let (s, classes) = mixed_scene(0.05);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(11);
     let lo = Vec3::from(o.frame.origin);

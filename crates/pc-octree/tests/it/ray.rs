@@ -7,7 +7,7 @@ use pc_tree::{intersect_splat, Ray, TraversalStats};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use crate::{mixed_scene, BuildSoa, Soa};
+use crate::{fine_octree, mixed_scene, BuildSoa, Soa};
 
 fn brute(o: &pc_octree::Octree, ray: &Ray) -> Option<(f32, u32)> {
     let mut best: Option<(f32, u32)> = None;
@@ -149,15 +149,7 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
         return;
     };
     let (s, classes) = mixed_scene(0.06);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let view = o.view();
     let mut rng = Pcg64::seed_from_u64(21);
     let mut rays = Vec::new();
@@ -211,15 +203,7 @@ fn gpu_ray_casting_matches_the_cpu_walk() {
 #[test]
 fn packed_leaf_lists_give_identical_hits() {
     let (s, classes) = mixed_scene(0.06);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let view = o.view();
     let accel = pc_tree::accel::Accel::new(&view);
     let mut rng = Pcg64::seed_from_u64(33);
@@ -278,15 +262,7 @@ fn node_slabs_skip_cells_without_changing_a_hit() {
     // Walls and a densely sampled ball: curved nodes get slabs too, thicker ones.
     let (mut s, classes) = mixed_scene(0.025);
     s.sphere(Vec3::new(0.3, 0.2, -0.4), 0.35, 12000, 0);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let view = o.view();
     let accel = pc_tree::accel::Accel::new(&view);
     assert!(
@@ -346,15 +322,7 @@ fn node_slabs_skip_cells_without_changing_a_hit() {
 #[test]
 fn slab_entries_take_camera_rays_to_their_surfaces_without_changing_a_hit() {
     let (s, classes) = mixed_scene(0.02);
-    let o = s
-        .build(
-            &classes,
-            OctreeParams {
-                max_leaf_points: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = fine_octree(&s, &classes);
     let view = o.view();
     let accel = pc_tree::accel::Accel::new(&view);
     let mut rng = Pcg64::seed_from_u64(35);
