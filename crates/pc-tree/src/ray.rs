@@ -242,7 +242,9 @@ fn walk(
 /// so the packed layout shares the same traversal. `slab(internal word)` may give a slab that
 /// holds every disk listed below the node: where the ray's stretch `[ray.t_min, limit]` (the
 /// limit being where it leaves the node's cell) misses it, the node is skipped whole, as if it
-/// were empty, since none of its leaves could accept a hit. The artifact's walk has no slabs.
+/// were empty, since none of its leaves could accept a hit; where it meets it, the walk jumps
+/// to the cell where the ray enters the slab, for the same reason (docs/raytrace.md, "A jump
+/// to the slab's entry"). The artifact's walk has no slabs.
 #[inline(always)]
 pub(crate) fn walk_with(
     view: &OctreeView,
