@@ -173,6 +173,15 @@ fn quantize(q: Vec3) -> [u32; 3] {
     [q.x, q.y, q.z].map(|c| ((c * ROOT as f32) as u32).min(ROOT - 1))
 }
 
+/// The integer coordinate (deepest cells) of the normalised coordinate `x`, clamped into the
+/// cell `lo .. lo + size` along its axis (a point the rounding put just outside it).
+#[inline(always)]
+fn coord_in(x: f32, lo: u32, size: u32) -> u32 {
+    ((x.max(0.0) * ROOT as f32) as u32)
+        .min(ROOT - 1)
+        .clamp(lo, lo + size - 1)
+}
+
 /// The float just below `x` (x > 0).
 #[inline]
 fn below(x: f32) -> f32 {
@@ -303,10 +312,7 @@ pub(crate) fn walk_with(
                 // rounding of that point, and qi stays in the node's cell).
                 if t_in > t_at {
                     let q = qo + qd * t_in;
-                    qi = std::array::from_fn(|a| {
-                        let c = (q[a].max(0.0) * ROOT as f32) as u32;
-                        c.clamp(lo_i[a], lo_i[a] + size_i - 1)
-                    });
+                    qi = std::array::from_fn(|a| coord_in(q[a], lo_i[a], size_i));
                     t_at = t_in;
                 }
             }
@@ -347,8 +353,7 @@ pub(crate) fn walk_with(
                     ni[axis] = lo_i[axis] - 1;
                 }
             } else {
-                let c = ((next[axis].max(0.0) * ROOT as f32) as u32).min(ROOT - 1);
-                ni[axis] = c.clamp(lo_i[axis], lo_i[axis] + size_i - 1);
+                ni[axis] = coord_in(next[axis], lo_i[axis], size_i);
             }
         }
         // The deepest common ancestor of the old and new points: their top equal bits.
