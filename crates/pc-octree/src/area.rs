@@ -110,6 +110,7 @@ pub fn splat_areas(
     ctx.node_extents = ctx.node_extents();
     let unclipped = dups.spread(ctx.run(None));
     let borders = dups.spread(ctx.borders(&unclipped, &near_boxes));
+    let borders = dups.spread(ctx.align_borders(&borders, &unclipped, &near_boxes));
     // An interior splat's clipped pass is its unclipped one, sample for sample (its share
     // accepts every sample, and the cover counts never look at borders): only the border
     // splats run again.
@@ -557,6 +558,97 @@ impl AreaPass<'_> {
         border_from_mask(mask, g, offsets)
     }
 
+    /// The border rows' splats clipped along one line: each border splat's gap moved to where
+    /// the splats of its row put the border on average. A straight border splat's row is the
+    /// straight border splats around it whose outward directions lie within 30° of its own
+    /// (itself included); the line is their centres' mean offset along its outward direction
+    /// plus half the spacing of the interior around it (½√ of the mean unclipped area of its
+    /// interior neighbours: the least area [`Self::border`] takes is an interior splat's, but
+    /// the smallest of several, and the one line now stands for the whole row). A corner splat
+    /// keeps its two lines but one gap (the clip's encoding has one), the mean of its two
+    /// rows' lines, each row taken with the corner in it.
+    ///
+    /// Why: a ray sees the union of the clipped disks, and a point just past a border is
+    /// covered by two or three of the row's disks, so the visible edge ran along the outermost
+    /// of their lines, which the row's jitter sets (up to half a spacing either way): the
+    /// reference Cornell light's rim wobbled by a fifth of a pixel, and being 70 times
+    /// brighter than the ceiling beside it, its rim pixels held a third of the image's squared
+    /// per-pixel error. A jittered grid's border row lies on average half a spacing inside
+    /// its edge, so the mean of its lines is the edge (docs/octree.md, "Borders").
+    fn align_borders(
+        &self,
+        borders: &[Border],
+        unclipped: &[f32],
+        near_boxes: &[Option<QueryBox>],
+    ) -> Vec<Border> {
+        let is_edge = |i: usize| matches!(borders[i], Border::Edge { .. });
+        let boxes: Vec<Option<QueryBox>> = self
+            .runs
+            .par_iter()
+            .zip(near_boxes)
+            .map(|(run, b)| run.clone().any(is_edge).then_some(*b).flatten())
+            .collect();
+        self.per_leaf(Reach::Cells, &boxes, |sc, run| {
+            run.map(|i| match borders[i] {
+                Border::Edge { o1, o2, gap } if self.dups.is_rep(i as u32) => {
+                    self.neighbourhood(i, sc);
+                    let half = self.interior_half_spacing(&sc.near, borders, unclipped);
+                    let row = |o| self.row_offset(i, self.outward(i, o), &sc.near, borders);
+                    let line = match o1 == o2 {
+                        true => row(o1),
+                        false => 0.5 * (row(o1) + row(o2)),
+                    };
+                    let gap = (line + half.unwrap_or(gap)).clamp(0.25 * gap, 2.5 * gap);
+                    Border::Edge { o1, o2, gap }
+                }
+                b => b,
+            })
+            .collect()
+        })
+    }
+
+    /// The mean offset along `o` (world space, from splat i's centre) of the centres of splat
+    /// i's row facing `o`: the straight border splats among `near` whose outward directions
+    /// lie within 30° of `o`, and splat i ([`Self::align_borders`]).
+    fn row_offset(&self, i: usize, o: Vec3, near: &[u32], borders: &[Border]) -> f32 {
+        let c = Vec3::from(self.splats[i].position);
+        let (mut sum, mut n) = (0.0f32, 1u32);
+        for &j in near.iter().filter(|&&j| j as usize != i) {
+            let j = j as usize;
+            let Border::Edge { o1, o2, .. } = borders[j] else {
+                continue;
+            };
+            if o1 == o2 && self.outward(j, o1).dot(o) >= ROW_FACING {
+                sum += (Vec3::from(self.splats[j].position) - c).dot(o);
+                n += 1;
+            }
+        }
+        sum / n as f32
+    }
+
+    /// Half the spacing of the interior splats among `near`: ½√ of their mean unclipped area;
+    /// None without any.
+    fn interior_half_spacing(
+        &self,
+        near: &[u32],
+        borders: &[Border],
+        unclipped: &[f32],
+    ) -> Option<f32> {
+        let (sum, n) = near
+            .iter()
+            .filter(|&&j| borders[j as usize] == Border::Interior)
+            .fold((0.0f32, 0u32), |(s, n), &j| {
+                (s + unclipped[j as usize], n + 1)
+            });
+        (n > 0).then(|| 0.5 * (sum / n as f32).max(0.0).sqrt())
+    }
+
+    /// Splat i's outward direction `o` (in its tangent frame) in world space.
+    fn outward(&self, i: usize, o: (f32, f32)) -> Vec3 {
+        let (u, v) = tangent_frame(self.splats[i].normal);
+        Vec3::from(u) * o.0 + Vec3::from(v) * o.1
+    }
+
     /// Whether a splat's share reaches the point at (p, q) in its own tangent frame.
     #[inline]
     fn accepts(&self, border: Border, p: f32, q: f32) -> bool {
@@ -816,6 +908,11 @@ fn border_from_mask(mask: u32, gap: f32, offsets: &[(f32, f32)]) -> Border {
 /// makes a splat a corner with two clip lines: 40°, well above the jitter of a straight
 /// border row and well below a box's right angle.
 const CORNER_TURN: f32 = 40.0 * std::f32::consts::PI / 180.0;
+
+/// The least cosine between two border splats' outward directions for one to count in the
+/// other's row ([`AreaPass::align_borders`]): 30°, past a straight row's jitter, short of a
+/// corner's turn.
+const ROW_FACING: f32 = 0.866;
 
 /// Disks field by field (one array each): the whole pool ([`Disks::of_all`]), or a walk's
 /// candidates copied from it a leaf's range at a time, which a splat's filter reads in vector

@@ -617,6 +617,83 @@ fn corner_splats_keep_two_clip_lines() {
 }
 
 #[test]
+fn a_jittered_border_row_is_clipped_along_the_border() {
+    // A square sampled on a fully jittered grid (one sample uniform in each h × h cell, radius
+    // h), as the reference sets are: the border row's centres lie anywhere from 0 to h inside
+    // the edge. A ray sees the union of the clipped disks, which reaches as far as the
+    // outermost line among the two or three disks covering a point, so lines half a spacing
+    // beyond each splat's own centre made the edge as ragged as the row's jitter (up to half a
+    // spacing out). Clipped along their row's mean line, the border splats' lines lie on the
+    // edge, and the union overhangs it less.
+    let (h, n) = (0.02f32, 40);
+    let half = 0.5 * h * n as f32;
+    let mut rng = Pcg64::seed_from_u64(5);
+    let mut soa = Soa::default();
+    for i in 0..n {
+        for j in 0..n {
+            let mut at = |k: i32| -half + (k as f32 + rng.random_range(0.0..1.0)) * h;
+            let (x, y) = (at(i), at(j));
+            soa.push(Vec3::new(x, y, 0.0), Vec3::Z, h, 0);
+        }
+    }
+    let o = soa
+        .build(&[class::DIFFUSE], OctreeParams::default())
+        .unwrap();
+    // Each straight border splat's line (away from the corners): how far past the edge.
+    let mut lines = Vec::new();
+    for s in &o.splats {
+        let [o1, o2] = clip_lines(s.normal, s.clip);
+        let (o1, c) = (Vec3::from(o1), Vec3::from(s.position));
+        if s.clip[3] == 0.0 || o1 != Vec3::from(o2) || c.x.abs().min(c.y.abs()) > half - 3.0 * h {
+            continue;
+        }
+        let edge = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y]
+            .into_iter()
+            .find(|e| e.dot(o1) > 0.9)
+            .expect("a border splat of the square faces one of its edges");
+        lines.push(c.dot(edge) + s.clip[3] * edge.dot(o1) - half);
+    }
+    let stats = |x: &[f32]| {
+        let mean = x.iter().sum::<f32>() / x.len() as f32;
+        let rms = (x.iter().map(|d| d * d).sum::<f32>() / x.len() as f32).sqrt();
+        (mean / h, rms / h)
+    };
+    let (mean, rms) = stats(&lines);
+    assert!(lines.len() > 80, "{} border splats", lines.len());
+    assert!(
+        mean.abs() < 0.05 && rms < 0.24,
+        "the border splats' lines lie {mean:.3} h past the edge on average, {rms:.3} h rms"
+    );
+    // How far past the edge the union reaches, at 400 points along each edge.
+    let mut reach = Vec::new();
+    for (out, along) in [
+        (Vec3::X, Vec3::Y),
+        (-Vec3::X, Vec3::Y),
+        (Vec3::Y, Vec3::X),
+        (-Vec3::Y, Vec3::X),
+    ] {
+        for k in 0..400 {
+            let t = (k as f32 / 399.0 - 0.5) * (2.0 * half - 6.0 * h);
+            let covered = |d: f32| {
+                let x = out * (half + d) + along * t;
+                o.splats.iter().any(|s| {
+                    (x - Vec3::from(s.position)).length() <= s.radius && s.within_clip(x.into())
+                })
+            };
+            let steps = (0..=200).map(|q| (q as f32 / 100.0 - 1.0) * h);
+            reach.push(steps.filter(|&d| covered(d)).fold(-h, f32::max));
+        }
+    }
+    reach.sort_by(f32::total_cmp);
+    let (mean, _) = stats(&reach);
+    let q95 = reach[reach.len() * 19 / 20] / h;
+    assert!(
+        mean.abs() < 0.1 && q95 < 0.4,
+        "the clipped disks' union ends {mean:.3} h past the edge on average, {q95:.3} h at the 95th percentile"
+    );
+}
+
+#[test]
 fn normal_fields_follow_the_curvature() {
     let mut s = Soa::default();
     s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
