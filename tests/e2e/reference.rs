@@ -142,11 +142,11 @@ fn reference_cornell_render_matches_mitsuba_within_3_percent() {
 
 /// cornell-mirror-glass: a mirror box and a glass sphere, light through both onto diffuse
 /// surfaces (the specular links and the caustic photons). Issue 21: every region within 3 %.
-/// With the default seeds the worst is 1.70 % (mirror-sees-red-wall). Over `caustics.seed` 0-3
-/// the worst regions are 1.70, 1.87, 3.20 (the ceiling, whose light is 44 % specular links) and
-/// 2.04 %; the glass sphere's caustic, which moved by ±2 % with the seed on 1M photons, stays
-/// within 1.37-1.74 % on 8M. The seed's split lost 40 % of the ceiling and 39 % of the mirror's
-/// view of the red wall.
+/// With the default seeds the worst is 2.62 % (floor-front-of-mirror, since each border row is
+/// clipped along one line: 1.53 % before, docs/octree.md "Borders"). Over `caustics.seed` 0-3 the
+/// worst regions are 2.55-2.71 % (the same), the ceiling (whose light is 44 % specular links)
+/// 0.2-2.3 % (0.7-2.4 % before; an earlier solve reached 3.20 % on one seed). The seed's split lost
+/// 40 % of the ceiling and 39 % of the mirror's view of the red wall.
 #[test]
 fn reference_mirror_glass_render_is_within_3_percent() {
     let dir = reference_dir()
