@@ -43,8 +43,13 @@ struct Params {
     // 1: out_pixels holds three words of four per pixel (colour and depth, normal and splat,
     // albedo: PixelOut's layout), 0: one (colour and depth), a third of the bytes to read back.
     aovs: u32,
-    _pad: u32,
+    // 1: the second pass of refined pixels (crate::refine): only the pixels whose word's fourth
+    // lane the host set to REFINE_MARK are rendered, the others left as they are.
+    refine: u32,
 }
+
+// Twin of pc_raytrace::refine::MARK.
+const REFINE_MARK: u32 = 0xffffffffu;
 
 // A stored photon (twin of pc_artifact::photons::Photon).
 struct Photon {
@@ -403,6 +408,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let py = params.row_offset + row;
+    if params.refine == 1u && out_pixels[row * params.width + px].w != REFINE_MARK {
+        return;
+    }
     var acc = vec3<f32>(0.0);
     var first = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0xffffffffu, vec3<f32>(0.0), 0u);
     for (var k = 0u; k < params.spp; k = k + 1u) {

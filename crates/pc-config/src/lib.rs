@@ -466,6 +466,14 @@ pub enum Backend {
 pub struct RaytraceConfig {
     /// Samples per pixel (stratified on a √n × √n grid when n is a square).
     pub spp: u32,
+    /// Pixels that differ from a neighbour by more than `refine_contrast` after the first pass
+    /// are rendered again with `refine` times `spp` samples (their own stratified pattern); 0 or
+    /// 1: no second pass. docs/raytrace.md, "Refined pixels".
+    pub refine: u32,
+    /// The relative difference from a neighbour that marks a pixel for `refine`:
+    /// |a − b| / (½(a + b) + 0.01 · the image's mean), the largest over the three channels
+    /// (below 2, which no two pixels exceed).
+    pub refine_contrast: f32,
     /// Specular bounces after the camera ray (§8.5.8's b).
     pub max_bounces: u32,
     pub mode: ShadingMode,
@@ -499,6 +507,8 @@ impl Default for RaytraceConfig {
     fn default() -> Self {
         RaytraceConfig {
             spp: 16,
+            refine: 4,
+            refine_contrast: 1.0,
             max_bounces: 8,
             mode: ShadingMode::Auto,
             backend: Backend::Auto,

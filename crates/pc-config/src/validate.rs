@@ -249,6 +249,18 @@ fn camera(cam: &crate::CameraConfig) -> Result<(), ParamError> {
 fn raytrace(c: &PipelineConfig) -> Result<(), ParamError> {
     let r = &c.raytrace;
     int("raytrace.spp", r.spp, 1..=65536)?;
+    int("raytrace.refine", r.refine, 0..=4096)?;
+    int(
+        "raytrace.spp × raytrace.refine",
+        r.spp as u64 * r.refine as u64,
+        0..=1 << 20,
+    )?;
+    real(
+        "raytrace.refine_contrast",
+        r.refine_contrast,
+        Excl(0.0),
+        Excl(2.0),
+    )?;
     int("raytrace.max_bounces", r.max_bounces, 0..=64)?;
     real("raytrace.self_hit", r.self_hit, Incl(0.0), Incl(100.0))?;
     real(

@@ -303,13 +303,7 @@ pub fn render(
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx, ty)))
         .collect();
-    let totals = [
-        AtomicU64::new(0),
-        AtomicU64::new(0),
-        AtomicU64::new(0),
-        AtomicU64::new(0),
-        AtomicU64::new(0),
-    ];
+    let totals = Totals::default();
     let results: Vec<Vec<(u32, SampleResult)>> = tiles
         .par_iter()
         .with_max_len(1)
@@ -319,28 +313,10 @@ pub fn render(
             let mut px = Vec::with_capacity((TILE * TILE) as usize);
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
                 for x in tx * TILE..((tx + 1) * TILE).min(w) {
-                    let mut acc = Vec3::ZERO;
-                    let mut first = SampleResult::default();
-                    for k in 0..sc.params.spp {
-                        let r = trace_sample(sc, (x, y, k), &mut counts, &mut blend);
-                        acc += r.rgb;
-                        if k == 0 {
-                            first = r;
-                        }
-                    }
-                    first.rgb = acc / sc.params.spp as f32;
-                    px.push((y * w + x, first));
+                    px.push((y * w + x, pixel(sc, (x, y), &mut counts, &mut blend)));
                 }
             }
-            for (t, v) in totals.iter().zip([
-                counts.camera,
-                counts.bounce,
-                counts.shadow,
-                counts.traversal.cells,
-                counts.traversal.splat_tests,
-            ]) {
-                t.fetch_add(v, Ordering::Relaxed);
-            }
+            add_counts(&totals, &counts);
             tile_done();
             px
         })
@@ -364,7 +340,70 @@ pub fn render(
         }
     }
     img.aovs = aovs;
-    let counts = RayCounts {
+    (img, total_counts(&totals))
+}
+
+/// Pixel (x, y): the mean of its `sc.params.spp` samples, with the first sample's AOVs.
+fn pixel(
+    sc: &RenderScene,
+    (x, y): (u32, u32),
+    counts: &mut RayCounts,
+    blend: &mut Vec<(u32, f32)>,
+) -> SampleResult {
+    let mut acc = Vec3::ZERO;
+    let mut first = SampleResult::default();
+    for k in 0..sc.params.spp {
+        let r = trace_sample(sc, (x, y, k), counts, blend);
+        acc += r.rgb;
+        if k == 0 {
+            first = r;
+        }
+    }
+    first.rgb = acc / sc.params.spp as f32;
+    first
+}
+
+/// The colours of `pixels` (row-major indices) at `sc.params.spp` samples each: the second
+/// pass of [`crate::refine`], in parallel over runs of pixels.
+pub fn render_pixels(sc: &RenderScene, pixels: &[u32]) -> (Vec<[f32; 3]>, RayCounts) {
+    let totals = Totals::default();
+    let w = sc.params.width;
+    let rgb = pixels
+        .par_chunks(64)
+        .flat_map_iter(|run| {
+            let (mut counts, mut blend) = (RayCounts::default(), Vec::new());
+            let out: Vec<[f32; 3]> = run
+                .iter()
+                .map(|&i| {
+                    pixel(sc, (i % w, i / w), &mut counts, &mut blend)
+                        .rgb
+                        .into()
+                })
+                .collect();
+            add_counts(&totals, &counts);
+            out
+        })
+        .collect();
+    (rgb, total_counts(&totals))
+}
+
+/// Ray counts summed over threads.
+type Totals = [AtomicU64; 5];
+
+fn add_counts(totals: &Totals, counts: &RayCounts) {
+    for (t, v) in totals.iter().zip([
+        counts.camera,
+        counts.bounce,
+        counts.shadow,
+        counts.traversal.cells,
+        counts.traversal.splat_tests,
+    ]) {
+        t.fetch_add(v, Ordering::Relaxed);
+    }
+}
+
+fn total_counts(totals: &Totals) -> RayCounts {
+    RayCounts {
         camera: totals[0].load(Ordering::Relaxed),
         bounce: totals[1].load(Ordering::Relaxed),
         shadow: totals[2].load(Ordering::Relaxed),
@@ -372,6 +411,20 @@ pub fn render(
             cells: totals[3].load(Ordering::Relaxed),
             splat_tests: totals[4].load(Ordering::Relaxed),
         },
-    };
-    (img, counts)
+    }
+}
+
+impl RayCounts {
+    /// Both passes' counts.
+    pub fn plus(self, o: RayCounts) -> RayCounts {
+        RayCounts {
+            camera: self.camera + o.camera,
+            bounce: self.bounce + o.bounce,
+            shadow: self.shadow + o.shadow,
+            traversal: TraversalStats {
+                cells: self.traversal.cells + o.traversal.cells,
+                splat_tests: self.traversal.splat_tests + o.traversal.splat_tests,
+            },
+        }
+    }
 }

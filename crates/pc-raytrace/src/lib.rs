@@ -12,6 +12,7 @@ pub mod gpu;
 pub mod image;
 pub mod per_pixel;
 pub mod reference;
+pub mod refine;
 pub mod renderer;
 pub mod sample;
 pub mod scene;

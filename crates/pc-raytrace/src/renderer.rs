@@ -8,6 +8,7 @@ use crate::cpu::RayCounts;
 use crate::error::RenderError;
 use crate::gpu::render::GpuRenderer;
 use crate::image::Image;
+use crate::refine;
 use crate::scene::RenderScene;
 
 /// Which backend renders, after `auto` is resolved.
@@ -67,10 +68,19 @@ impl Renderer {
         sc: &mut RenderScene,
         aovs: bool,
         tile_done: &(dyn Fn() + Sync),
-    ) -> Result<(Image, Option<RayCounts>), RenderError> {
+    ) -> Result<Frame, RenderError> {
         if let Some((ctx, r)) = &self.gpu {
-            match r.render(ctx, sc, aovs) {
-                Ok(img) => return Ok((img, None)),
+            match r
+                .render(ctx, sc, aovs)
+                .and_then(|img| refine_gpu(ctx, r, sc, img))
+            {
+                Ok((image, refined)) => {
+                    return Ok(Frame {
+                        image,
+                        counts: None,
+                        refined,
+                    })
+                }
                 Err(e) if self.fallback => {
                     pc_stage::device::warn_fallback(crate::stage::STAGE, &ctx.describe(), &e);
                     self.gpu = None;
@@ -79,7 +89,59 @@ impl Renderer {
                 Err(e) => return Err(e.into()),
             }
         }
-        let (img, counts) = crate::cpu::render(sc, aovs, tile_done);
-        Ok((img, Some(counts)))
+        let (mut img, counts) = crate::cpu::render(sc, aovs, tile_done);
+        let (pixels, more) = with_refine_spp(sc, &img, crate::cpu::render_pixels);
+        let (values, more) = more.unzip();
+        refine::merge(&mut img, &pixels, values.as_deref().unwrap_or(&[]));
+        Ok(Frame {
+            image: img,
+            counts: Some(counts.plus(more.unwrap_or_default())),
+            refined: pixels.len(),
+        })
     }
+}
+
+/// A rendered frame.
+pub struct Frame {
+    pub image: Image,
+    /// Ray counts (the CPU's alone).
+    pub counts: Option<RayCounts>,
+    /// Pixels the second pass rendered again ([`crate::refine`]).
+    pub refined: usize,
+}
+
+/// The second pass on the GPU ([`crate::refine`]).
+fn refine_gpu(
+    ctx: &pc_gpu::GpuContext,
+    r: &GpuRenderer,
+    sc: &mut RenderScene,
+    mut img: Image,
+) -> Result<(Image, usize), pc_gpu::GpuError> {
+    let (pixels, values) = with_refine_spp(sc, &img, |sc, pixels| r.render_marked(ctx, sc, pixels));
+    if let Some(values) = values {
+        refine::merge(&mut img, &pixels, &values?);
+    }
+    Ok((img, pixels.len()))
+}
+
+/// The pixels of `img` the second pass refines, and `second(sc, pixels)` run with the scene's
+/// samples per pixel set to `refine.spp` for its duration (None where there is no second pass
+/// or nothing to refine).
+fn with_refine_spp<T>(
+    sc: &mut RenderScene,
+    img: &Image,
+    second: impl FnOnce(&RenderScene, &[u32]) -> T,
+) -> (Vec<u32>, Option<T>) {
+    if !sc.refine.after(sc.params.spp) {
+        return (Vec::new(), None);
+    }
+    let pixels = refine::marked(img, sc.refine.contrast);
+    if pixels.is_empty() {
+        return (pixels, None);
+    }
+    let spp = sc.params.spp;
+    sc.params.spp = sc.refine.spp;
+    let out = second(sc, &pixels);
+    sc.params.spp = spp;
+    (pixels, Some(out))
 }

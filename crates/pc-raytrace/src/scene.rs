@@ -116,7 +116,9 @@ pub struct Params {
     pub grid_cell: f32,
     /// 1: the GPU kernel writes each pixel's AOVs too (48 bytes), 0: its colour alone (16).
     pub aovs: u32,
-    pub _pad: u32,
+    /// 1: the second pass of refined pixels ([`crate::refine`]): the kernel renders only the
+    /// pixels whose output word's fourth lane the host set to [`crate::refine::MARK`].
+    pub refine: u32,
 }
 
 /// Everything a render reads.
@@ -136,6 +138,8 @@ pub struct RenderScene<'a> {
     /// Each octree leaf's roughness (`pc_tree::between::leaf_roughness`, per node-pool slot)
     /// in `direct` mode, for the shadow rays' own zones; empty otherwise.
     pub rough: Vec<f32>,
+    /// The second pass over high-contrast pixels ([`crate::refine`]).
+    pub refine: crate::refine::Refine,
 }
 
 impl<'a> RenderScene<'a> {
@@ -191,6 +195,10 @@ impl<'a> RenderScene<'a> {
             params,
             radiance: None,
             caustics: None,
+            refine: crate::refine::Refine {
+                spp: cfg.spp.saturating_mul(cfg.refine),
+                contrast: cfg.refine_contrast,
+            },
         }
     }
 

@@ -68,6 +68,8 @@ pub struct Summary {
     pub device_name: String,
     pub seconds: f64,
     pub counts: Option<RayCounts>,
+    /// Pixels the second pass rendered again (`raytrace.refine`; crate::refine).
+    pub refined: usize,
     /// Whether a photon map was shown.
     pub caustics: bool,
     pub exr: PathBuf,
@@ -218,7 +220,8 @@ pub fn run(
             progress
                 .total(sc.params.width.div_ceil(16) as u64 * sc.params.height.div_ceil(16) as u64);
         }
-        let (image, counts) = renderer.render(sc, c.raytrace.aovs, &|| progress.advance(1))?;
+        let frame = renderer.render(sc, c.raytrace.aovs, &|| progress.advance(1))?;
+        let (image, counts, refined) = (frame.image, frame.counts, frame.refined);
         let seconds = t.elapsed().as_secs_f64();
         // The PNG first: the EXR is the keyed file the next run checks first, so it lands last.
         let png = png_path(exr);
@@ -231,6 +234,7 @@ pub fn run(
             device_name: renderer.device_name(),
             seconds,
             counts,
+            refined,
             caustics: sc.caustics.is_some(),
             exr: exr.to_path_buf(),
             png,
@@ -282,8 +286,12 @@ impl Stage for RaytraceStage {
                 format!(", {:.2} M rays/s", rays as f64 / s.seconds / 1e6)
             })
             .unwrap_or_default();
+        let refined = match s.refined {
+            0 => String::new(),
+            n => format!(", {n} pixels refined at {}", p.spp.saturating_mul(p.refine)),
+        };
         format!(
-            "pc-raytrace: wrote {} and {} ({}x{}, {} spp, {} shading{}) in {:.2} s on {}{rate}",
+            "pc-raytrace: wrote {} and {} ({}x{}, {} spp{refined}, {} shading{}) in {:.2} s on {}{rate}",
             s.exr.display(),
             s.png.display(),
             s.image.width,

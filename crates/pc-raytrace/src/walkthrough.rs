@@ -107,7 +107,7 @@ pub fn walkthrough(
                 sc.set_camera(&Camera::new(&cam));
                 let t = Instant::now();
                 let image = match renderer.render(sc, false, &|| {}) {
-                    Ok((image, _)) => image,
+                    Ok(frame) => frame.image,
                     Err(e) => {
                         rendered = Err(e);
                         break;

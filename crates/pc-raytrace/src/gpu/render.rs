@@ -156,30 +156,7 @@ impl GpuRenderer {
         let mut row = 0;
         while row < h {
             let rows = band.min(h - row);
-            let g = &self.grid;
-            let params = Params {
-                row_offset: row,
-                rows,
-                caustic_radius: g.caustic_radius,
-                grid_origin: g.grid_origin,
-                grid_mask: g.grid_mask,
-                photon_count: g.photon_count,
-                grid_cell: g.grid_cell,
-                aovs: with_aovs as u32,
-                ..sc.params
-            };
-            let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
-            let mut bind: Vec<&pc_gpu::Buffer> =
-                self.octree.buffers().chain(&self.buffers).collect();
-            bind.push(&uniform);
-            bind.push(&out);
-            bind.push(&self.radiance);
-            bind.push(&self.photons);
-            bind.push(&self.grid_offsets);
-            bind.push(&self.leaf_rough);
-            self.kernel
-                .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
-            let bytes = ctx.read(&out, (w * rows) as u64 * pixel_bytes)?;
+            let bytes = self.band(ctx, sc, (row, rows), with_aovs, false, &out)?;
             let at = (row * w) as usize;
             match aovs.as_mut() {
                 Some(a) => {
@@ -203,5 +180,87 @@ impl GpuRenderer {
         }
         img.aovs = aovs;
         Ok(img)
+    }
+
+    /// The colours of `pixels` (row-major indices, ascending) at `sc.params.spp` samples each:
+    /// the second pass of [`crate::refine`]. Band by band, the host marks the band's pixels in
+    /// the output buffer and the kernel renders those alone.
+    pub fn render_marked(
+        &self,
+        ctx: &GpuContext,
+        sc: &RenderScene,
+        pixels: &[u32],
+    ) -> Result<Vec<[f32; 3]>, GpuError> {
+        let (w, h) = (sc.params.width, sc.params.height);
+        let per_row = w as u64 * sc.params.spp as u64;
+        let band = (SAMPLES_PER_DISPATCH / per_row.max(1)).clamp(1, h as u64) as u32;
+        let out = ctx.output("pixels", w as u64 * band as u64 * 16)?;
+        let mut rgb = Vec::with_capacity(pixels.len());
+        let mut next = 0;
+        let mut row = 0;
+        while row < h && next < pixels.len() {
+            let rows = band.min(h - row);
+            let (at, end) = (row * w, (row + rows) * w);
+            let count = pixels[next..].iter().take_while(|&&i| i < end).count();
+            let here = &pixels[next..next + count];
+            if !here.is_empty() {
+                let mut words = vec![[0u32; 4]; (w * rows) as usize];
+                for &i in here {
+                    words[(i - at) as usize][3] = crate::refine::MARK;
+                }
+                ctx.write(&out, bytemuck::cast_slice(&words));
+                let bytes = self.band(ctx, sc, (row, rows), false, true, &out)?;
+                let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
+                rgb.extend(here.iter().map(|&i| {
+                    let p = px[(i - at) as usize];
+                    [p[0], p[1], p[2]]
+                }));
+            }
+            next += count;
+            row += rows;
+        }
+        Ok(rgb)
+    }
+
+    /// One dispatch over the image rows `row..row + rows` into `out`, read back (`marked`:
+    /// only the pixels the host marked in `out`).
+    fn band(
+        &self,
+        ctx: &GpuContext,
+        sc: &RenderScene,
+        (row, rows): (u32, u32),
+        with_aovs: bool,
+        marked: bool,
+        out: &pc_gpu::Buffer,
+    ) -> Result<Vec<u8>, GpuError> {
+        let g = &self.grid;
+        let params = Params {
+            row_offset: row,
+            rows,
+            caustic_radius: g.caustic_radius,
+            grid_origin: g.grid_origin,
+            grid_mask: g.grid_mask,
+            photon_count: g.photon_count,
+            grid_cell: g.grid_cell,
+            aovs: with_aovs as u32,
+            refine: marked as u32,
+            ..sc.params
+        };
+        let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
+        let mut bind: Vec<&pc_gpu::Buffer> = self.octree.buffers().chain(&self.buffers).collect();
+        bind.push(&uniform);
+        bind.push(out);
+        bind.push(&self.radiance);
+        bind.push(&self.photons);
+        bind.push(&self.grid_offsets);
+        bind.push(&self.leaf_rough);
+        let w = sc.params.width;
+        self.kernel
+            .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
+        let pixel_bytes = match with_aovs {
+            true => std::mem::size_of::<PixelOut>(),
+            false => std::mem::size_of::<[u32; 4]>(),
+        } as u64;
+        ctx.read(out, (w * rows) as u64 * pixel_bytes)
     }
 }

@@ -365,6 +365,84 @@ fn cpu_and_gpu_render_the_same_image() {
     assert!(cpu.mean()[0] > 0.01);
 }
 
+/// The mixed room's scene for the refined-pixel tests: `spp` samples, refined at `refine`
+/// times as many.
+fn refine_scene(o: &Octree, mats: Vec<MaterialRecord>, spp: u32, refine: u32) -> RenderScene<'_> {
+    let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
+    let light = PointLight::new([0.2, 0.7, 0.3], [0.6; 3]);
+    let mut p = params(spp, ShadingMode::Direct);
+    p.max_bounces = 6;
+    p.refine = refine;
+    p.refine_contrast = 0.5;
+    RenderScene::new(o.view(), mats, &[light], &cam, &p)
+}
+
+#[test]
+fn refined_pixels_are_those_of_a_whole_render_at_the_refined_count() {
+    // A 4-sample render whose high-contrast pixels are rendered again at 16: each refined pixel
+    // is exactly what a 16-sample render gives it, every other pixel the 4-sample render's.
+    let (o, mats) = mixed_room();
+    let mut sc = refine_scene(&o, mats.clone(), 4, 4);
+    let mut renderer =
+        pc_raytrace::renderer::Renderer::new(&mut sc, pc_config::Backend::Cpu).unwrap();
+    let frame = renderer.render(&mut sc, false, &|| {}).unwrap();
+    let mut plain = refine_scene(&o, mats.clone(), 4, 0);
+    plain.prepare_cpu();
+    let (four, _) = pc_raytrace::cpu::render(&plain, false, &|| {});
+    let mut fine = refine_scene(&o, mats, 16, 0);
+    fine.prepare_cpu();
+    let (sixteen, _) = pc_raytrace::cpu::render(&fine, false, &|| {});
+    let marked = pc_raytrace::refine::marked(&four, 0.5);
+    let n = four.rgb.len();
+    assert_eq!(frame.refined, marked.len());
+    assert!(
+        marked.len() > n / 20 && marked.len() < n / 2,
+        "{} of {n} pixels refined",
+        marked.len()
+    );
+    let mut is_marked = vec![false; n];
+    for &i in &marked {
+        is_marked[i as usize] = true;
+    }
+    for (i, &refined) in is_marked.iter().enumerate() {
+        let want = if refined { sixteen.rgb[i] } else { four.rgb[i] };
+        assert_eq!(frame.image.rgb[i], want, "pixel {i} (refined: {refined})");
+    }
+    // The second pass's rays are counted: 4 camera rays a pixel and 16 more a refined one.
+    let counts = frame.counts.unwrap();
+    assert_eq!(counts.camera, 4 * n as u64 + 16 * marked.len() as u64);
+}
+
+#[test]
+fn the_gpu_refines_the_pixels_the_cpu_does() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let (o, mats) = mixed_room();
+    let mut sc = refine_scene(&o, mats, 16, 0);
+    sc.prepare_cpu();
+    let (first, _) = pc_raytrace::cpu::render(&sc, false, &|| {});
+    let marked = pc_raytrace::refine::marked(&first, 0.5);
+    assert!(!marked.is_empty());
+    let (cpu, _) = pc_raytrace::cpu::render_pixels(&sc, &marked);
+    let renderer = pc_raytrace::gpu::render::GpuRenderer::new(&ctx, &sc).unwrap();
+    let gpu = renderer.render_marked(&ctx, &sc, &marked).unwrap();
+    assert_eq!(gpu.len(), marked.len());
+    let (mut diff, mut sum) = (0.0f64, 0.0f64);
+    for (a, b) in cpu.iter().zip(&gpu) {
+        for c in 0..3 {
+            diff += (a[c] - b[c]).abs() as f64;
+            sum += a[c].abs() as f64;
+        }
+    }
+    assert!(
+        diff / sum < 1e-3,
+        "refined pixels differ by {:.2e} of their sum on {}",
+        diff / sum,
+        ctx.describe()
+    );
+}
+
 #[test]
 fn wgsl_records_match_rust_layouts() {
     let module = pc_gpu::validate_wgsl(&pc_raytrace::gpu::render::source().unwrap()).unwrap();
