@@ -253,7 +253,7 @@ fn raytrace(c: &PipelineConfig) -> Result<(), ParamError> {
     int(
         "raytrace.spp × raytrace.refine",
         r.spp as u64 * r.refine as u64,
-        0..=1 << 20,
+        0..=65536,
     )?;
     real(
         "raytrace.refine_contrast",

@@ -1,5 +1,6 @@
 //! The area each splat stands for: a partition of unity over the overlapping disks of one
-//! surface, with the share of border splats clipped half a spacing beyond them.
+//! surface, with the share of border splats clipped along their border row's line, half a
+//! spacing beyond the row.
 //! docs/octree.md, "Splat area".
 
 use glam::Vec3;
@@ -32,8 +33,9 @@ const ALL_DIRS: u32 = u32::MAX >> (32 - BORDER_DIRS);
 enum Border {
     /// Same-surface neighbours lie out every way: the whole disk.
     Interior,
-    /// On a straight stretch of border (the two lines coincide) or at a corner: up to half a
-    /// spacing beyond the splat along both outward directions `o1`, `o2` of its tangent frame.
+    /// On a straight stretch of border (the two lines coincide) or at a corner: up to `gap`
+    /// beyond the splat along both outward directions `o1`, `o2` of its tangent frame (half a
+    /// spacing from [`AreaPass::border`], then its row's line from [`AreaPass::align_borders`]).
     Edge {
         o1: (f32, f32),
         o2: (f32, f32),
@@ -57,13 +59,15 @@ enum Border {
 /// overhang the sampled surface by up to a radius, while a sampled surface ends about half a
 /// sample spacing beyond its outermost samples. A splat is on the border in a direction of its
 /// tangent plane when no same-surface neighbour lies more than half a spacing out that way;
-/// its share then stops half a spacing beyond its own centre along the outward direction (the
-/// middle of its open directions). Each border splat uses its own position rather than the
-/// outermost of its neighbours, and a point's weight counts all covering disks, so the jitter
-/// of the border row averages out instead of the extreme sample setting the edge. The half
-/// spacing comes from the areas themselves: g_i = ½√(least unclipped area around i), the
-/// least being an interior splat's (a second round from the clipped areas changed the
-/// reference Cornell areas by under 0.1 % and was dropped).
+/// its share then stops half a spacing beyond its row's line along the outward direction: the
+/// mean offset of the border row's centres around it ([`AreaPass::align_borders`]), not the
+/// outermost neighbour's (the extreme of the row's jitter would set the edge) nor its own (a ray
+/// sees the union of the row's disks, which then followed the outermost of their lines). A
+/// point's weight counts all covering disks. The half spacing comes from the areas themselves:
+/// ½√ of the mean unclipped area of the interior splats around i (first, to find the border,
+/// ½√ of the least unclipped area around i, the least being an interior splat's; a second
+/// round from the clipped areas changed the reference Cornell areas by under 0.1 % and was
+/// dropped).
 ///
 /// Speed: the splats of one leaf share one walk of the tree for their candidate disks
 /// ([`AreaPass::candidates`]), which each filters in one vector pass ([`AreaPass::near`]).
@@ -598,7 +602,9 @@ impl AreaPass<'_> {
                         true => row(o1),
                         false => 0.5 * (row(o1) + row(o2)),
                     };
-                    let gap = (line + half.unwrap_or(gap)).clamp(0.25 * gap, 2.5 * gap);
+                    let aligned = (line + half.unwrap_or(gap)).clamp(0.25 * gap, 2.5 * gap);
+                    // A row of zero-area splats (coincident points) keeps step 1's gap.
+                    let gap = if aligned.is_finite() { aligned } else { gap };
                     Border::Edge { o1, o2, gap }
                 }
                 b => b,
@@ -626,8 +632,9 @@ impl AreaPass<'_> {
         sum / n as f32
     }
 
-    /// Half the spacing of the interior splats among `near`: ½√ of their mean unclipped area;
-    /// None without any.
+    /// Half the spacing of the interior splats among `near`: ½√ of their mean unclipped area,
+    /// each group of identical splats counted once with its whole area (its representative's
+    /// share times its count); None without any.
     fn interior_half_spacing(
         &self,
         near: &[u32],
@@ -638,7 +645,10 @@ impl AreaPass<'_> {
             .iter()
             .filter(|&&j| borders[j as usize] == Border::Interior)
             .fold((0.0f32, 0u32), |(s, n), &j| {
-                (s + unclipped[j as usize], n + 1)
+                (
+                    s + self.dups.weight(j) as f32 * unclipped[j as usize],
+                    n + 1,
+                )
             });
         (n > 0).then(|| 0.5 * (sum / n as f32).max(0.0).sqrt())
     }

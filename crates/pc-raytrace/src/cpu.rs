@@ -43,18 +43,18 @@ pub struct RayCounts {
 
 pub use pc_tree::optics::{fresnel, reflect, refract, shading_normal, specular_bounce};
 
-/// Trace one pixel sample. `blend` is scratch for the splats blended at the hit, reused from
-/// sample to sample.
+/// Trace sample `k` of `spp` of a pixel (its position in the pixel from the pattern of `spp`
+/// samples). `blend` is scratch for the splats blended at the hit, reused from sample to sample.
 pub fn trace_sample(
     sc: &RenderScene,
-    (px, py, k): (u32, u32, u32),
+    (px, py, k, spp): (u32, u32, u32, u32),
     counts: &mut RayCounts,
     blend: &mut Vec<(u32, f32)>,
 ) -> SampleResult {
     let p = &sc.params;
     let view = &sc.view;
     let pixel = py * p.width + px;
-    let (ox, oy) = pixel_offset(p.seed, pixel, k, p.spp);
+    let (ox, oy) = pixel_offset(p.seed, pixel, k, spp);
     let dir = sc.camera_dir(
         (px as f32 + ox) / p.width as f32,
         (py as f32 + oy) / p.height as f32,
@@ -313,7 +313,8 @@ pub fn render(
             let mut px = Vec::with_capacity((TILE * TILE) as usize);
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
                 for x in tx * TILE..((tx + 1) * TILE).min(w) {
-                    px.push((y * w + x, pixel(sc, (x, y), &mut counts, &mut blend)));
+                    let spp = sc.params.spp;
+                    px.push((y * w + x, pixel(sc, (x, y, spp), &mut counts, &mut blend)));
                 }
             }
             add_counts(&totals, &counts);
@@ -343,29 +344,29 @@ pub fn render(
     (img, total_counts(&totals))
 }
 
-/// Pixel (x, y): the mean of its `sc.params.spp` samples, with the first sample's AOVs.
+/// Pixel (x, y): the mean of its `spp` samples, with the first sample's AOVs.
 fn pixel(
     sc: &RenderScene,
-    (x, y): (u32, u32),
+    (x, y, spp): (u32, u32, u32),
     counts: &mut RayCounts,
     blend: &mut Vec<(u32, f32)>,
 ) -> SampleResult {
     let mut acc = Vec3::ZERO;
     let mut first = SampleResult::default();
-    for k in 0..sc.params.spp {
-        let r = trace_sample(sc, (x, y, k), counts, blend);
+    for k in 0..spp {
+        let r = trace_sample(sc, (x, y, k, spp), counts, blend);
         acc += r.rgb;
         if k == 0 {
             first = r;
         }
     }
-    first.rgb = acc / sc.params.spp as f32;
+    first.rgb = acc / spp as f32;
     first
 }
 
-/// The colours of `pixels` (row-major indices) at `sc.params.spp` samples each: the second
-/// pass of [`crate::refine`], in parallel over runs of pixels.
-pub fn render_pixels(sc: &RenderScene, pixels: &[u32]) -> (Vec<[f32; 3]>, RayCounts) {
+/// The colours of `pixels` (row-major indices) at `spp` samples each (the pattern of `spp`): the
+/// second pass of [`crate::refine`], in parallel over runs of pixels.
+pub fn render_pixels(sc: &RenderScene, pixels: &[u32], spp: u32) -> (Vec<[f32; 3]>, RayCounts) {
     let totals = Totals::default();
     let w = sc.params.width;
     let rgb = pixels
@@ -375,7 +376,7 @@ pub fn render_pixels(sc: &RenderScene, pixels: &[u32]) -> (Vec<[f32; 3]>, RayCou
             let out: Vec<[f32; 3]> = run
                 .iter()
                 .map(|&i| {
-                    pixel(sc, (i % w, i / w), &mut counts, &mut blend)
+                    pixel(sc, (i % w, i / w, spp), &mut counts, &mut blend)
                         .rgb
                         .into()
                 })

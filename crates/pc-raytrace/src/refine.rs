@@ -37,21 +37,27 @@ impl Refine {
 
 /// The pixels (row-major indices, ascending) of `img` that differ from one of their eight
 /// neighbours by more than `contrast`: |a − b| / (½(a + b) + 0.01 m), the largest over the three
-/// channels, with m the mean of every channel of every pixel (the floor keeps black from
-/// marking its own noise; it is the per-pixel error's, pc-compare's, floor).
+/// channels, with m the mean of every finite channel value (the floor keeps black from marking
+/// its own noise; it is the per-pixel error's, pc-compare's, floor). A pixel that is not finite
+/// is marked, and so are its neighbours.
 pub fn marked(img: &Image, contrast: f32) -> Vec<u32> {
     let (w, h) = (img.width as usize, img.height as usize);
     if w * h == 0 {
         return Vec::new();
     }
-    let sum: f64 = img
+    let finite = |c: &f32| c.is_finite();
+    let (sum, n) = img
         .rgb
         .par_iter()
-        .map(|p| p.iter().map(|&c| c as f64).sum::<f64>())
-        .sum();
-    let floor = (0.01 * sum / (3 * w * h) as f64) as f32;
+        .flat_map_iter(|p| p.iter().copied().filter(finite))
+        .map(|c| (c as f64, 1u64))
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let floor = (0.01 * sum / n.max(1) as f64) as f32;
     let differ = |a: &[f32; 3], b: &[f32; 3]| {
-        (0..3).any(|c| (a[c] - b[c]).abs() > contrast * (0.5 * (a[c] + b[c]) + floor))
+        (0..3).any(|c| {
+            let (x, y) = (a[c], b[c]);
+            !(x.is_finite() && y.is_finite()) || (x - y).abs() > contrast * (0.5 * (x + y) + floor)
+        })
     };
     (0..h)
         .into_par_iter()
@@ -107,6 +113,14 @@ mod tests {
         let want: Vec<u32> = (1..4)
             .flat_map(|y| (1..4).map(move |x| y * 5 + x))
             .collect();
+        assert_eq!(marked(&img, 0.25), want);
+    }
+
+    #[test]
+    fn a_pixel_that_is_not_finite_is_marked_with_its_neighbours_and_spoils_nothing_else() {
+        let mut img = image(6, 3, |x, _| if x < 3 { 0.1 } else { 1.0 });
+        img.rgb[0] = [f32::NAN, 0.1, 0.1];
+        let want = [0, 1, 2, 3, 6, 7, 8, 9, 14, 15];
         assert_eq!(marked(&img, 0.25), want);
     }
 

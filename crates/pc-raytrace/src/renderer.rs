@@ -90,12 +90,12 @@ impl Renderer {
             }
         }
         let (mut img, counts) = crate::cpu::render(sc, aovs, tile_done);
-        let (pixels, more) = with_refine_spp(sc, &img, crate::cpu::render_pixels);
-        let (values, more) = more.unzip();
-        refine::merge(&mut img, &pixels, values.as_deref().unwrap_or(&[]));
+        let pixels = to_refine(sc, &img);
+        let (values, more) = crate::cpu::render_pixels(sc, &pixels, sc.refine.spp);
+        refine::merge(&mut img, &pixels, &values);
         Ok(Frame {
             image: img,
-            counts: Some(counts.plus(more.unwrap_or_default())),
+            counts: Some(counts.plus(more)),
             refined: pixels.len(),
         })
     }
@@ -114,34 +114,19 @@ pub struct Frame {
 fn refine_gpu(
     ctx: &pc_gpu::GpuContext,
     r: &GpuRenderer,
-    sc: &mut RenderScene,
+    sc: &RenderScene,
     mut img: Image,
 ) -> Result<(Image, usize), pc_gpu::GpuError> {
-    let (pixels, values) = with_refine_spp(sc, &img, |sc, pixels| r.render_marked(ctx, sc, pixels));
-    if let Some(values) = values {
-        refine::merge(&mut img, &pixels, &values?);
-    }
+    let pixels = to_refine(sc, &img);
+    let values = r.render_marked(ctx, sc, &pixels, sc.refine.spp)?;
+    refine::merge(&mut img, &pixels, &values);
     Ok((img, pixels.len()))
 }
 
-/// The pixels of `img` the second pass refines, and `second(sc, pixels)` run with the scene's
-/// samples per pixel set to `refine.spp` for its duration (None where there is no second pass
-/// or nothing to refine).
-fn with_refine_spp<T>(
-    sc: &mut RenderScene,
-    img: &Image,
-    second: impl FnOnce(&RenderScene, &[u32]) -> T,
-) -> (Vec<u32>, Option<T>) {
-    if !sc.refine.after(sc.params.spp) {
-        return (Vec::new(), None);
+/// The pixels of the first pass's `img` that the second pass renders again (none without one).
+fn to_refine(sc: &RenderScene, img: &Image) -> Vec<u32> {
+    match sc.refine.after(sc.params.spp) {
+        true => refine::marked(img, sc.refine.contrast),
+        false => Vec::new(),
     }
-    let pixels = refine::marked(img, sc.refine.contrast);
-    if pixels.is_empty() {
-        return (pixels, None);
-    }
-    let spp = sc.params.spp;
-    sc.params.spp = sc.refine.spp;
-    let out = second(sc, &pixels);
-    sc.params.spp = spp;
-    (pixels, Some(out))
 }

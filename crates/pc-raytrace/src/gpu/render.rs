@@ -43,10 +43,22 @@ pub struct GpuRenderer {
     leaf_rough: pc_gpu::Buffer,
     /// The photon-map fields of [`Params`].
     grid: Params,
+    /// Samples one dispatch traces at most ([`SAMPLES_PER_DISPATCH`]).
+    samples_per_dispatch: u64,
 }
 
 /// Samples per dispatch; bands of rows are sized to stay under this.
 const SAMPLES_PER_DISPATCH: u64 = 1 << 21;
+/// Pixels a band of the second pass spans at most (its marks go up and its words come back).
+const MARKED_BAND_PIXELS: u64 = 1 << 20;
+
+/// Bytes the kernel writes a pixel: [`PixelOut`] with AOVs, else one word of four (its first).
+fn pixel_bytes(with_aovs: bool) -> u64 {
+    match with_aovs {
+        true => std::mem::size_of::<PixelOut>() as u64,
+        false => std::mem::size_of::<[u32; 4]>() as u64,
+    }
+}
 
 impl GpuRenderer {
     pub fn new(ctx: &GpuContext, sc: &RenderScene) -> Result<GpuRenderer, GpuError> {
@@ -126,7 +138,15 @@ impl GpuRenderer {
             grid_offsets,
             leaf_rough,
             grid,
+            samples_per_dispatch: SAMPLES_PER_DISPATCH,
         })
+    }
+
+    /// Dispatches of at most `n` samples (at least a row's, or a marked pixel's): smaller ones
+    /// split a small image into several bands (tests).
+    pub fn with_samples_per_dispatch(mut self, n: u64) -> GpuRenderer {
+        self.samples_per_dispatch = n.max(1);
+        self
     }
 
     /// Render the image (bands of rows, each a dispatch of 8×8 pixel blocks).
@@ -138,13 +158,8 @@ impl GpuRenderer {
     ) -> Result<Image, GpuError> {
         let (w, h) = (sc.params.width, sc.params.height);
         let per_row = w as u64 * sc.params.spp as u64;
-        let band = (SAMPLES_PER_DISPATCH / per_row.max(1)).clamp(1, h as u64) as u32;
-        // The kernel writes PixelOut with AOVs, else one word of four a pixel (its first).
-        let pixel_bytes = match with_aovs {
-            true => std::mem::size_of::<PixelOut>(),
-            false => std::mem::size_of::<[u32; 4]>(),
-        } as u64;
-        let out_size = (w as u64) * (band as u64) * pixel_bytes;
+        let band = (self.samples_per_dispatch / per_row.max(1)).clamp(1, h as u64) as u32;
+        let out_size = (w as u64) * (band as u64) * pixel_bytes(with_aovs);
         let out = ctx.output("pixels", out_size)?;
         let mut img = Image::new(w, h);
         let mut aovs = with_aovs.then(|| Aovs {
@@ -156,7 +171,7 @@ impl GpuRenderer {
         let mut row = 0;
         while row < h {
             let rows = band.min(h - row);
-            let bytes = self.band(ctx, sc, (row, rows), with_aovs, false, &out)?;
+            let bytes = self.band(ctx, sc, (row, rows), sc.params.spp, with_aovs, false, &out)?;
             let at = (row * w) as usize;
             match aovs.as_mut() {
                 Some(a) => {
@@ -182,59 +197,75 @@ impl GpuRenderer {
         Ok(img)
     }
 
-    /// The colours of `pixels` (row-major indices, ascending) at `sc.params.spp` samples each:
-    /// the second pass of [`crate::refine`]. Band by band, the host marks the band's pixels in
-    /// the output buffer and the kernel renders those alone.
+    /// The colours of `pixels` (row-major indices, ascending) at `spp` samples each (the pattern
+    /// of `spp`): the second pass of [`crate::refine`]. Band by band, the host marks the band's
+    /// pixels in the output buffer ([`crate::refine::MARK`]) and the kernel renders those alone;
+    /// a band holds as many marked pixels as one dispatch's samples allow, over at most
+    /// [`MARKED_BAND_PIXELS`] pixels. A word the kernel was not asked for must come back as the
+    /// host wrote it, else the pass fails (and `auto` falls back to the CPU).
     pub fn render_marked(
         &self,
         ctx: &GpuContext,
         sc: &RenderScene,
         pixels: &[u32],
+        spp: u32,
     ) -> Result<Vec<[f32; 3]>, GpuError> {
         let (w, h) = (sc.params.width, sc.params.height);
-        let per_row = w as u64 * sc.params.spp as u64;
-        let band = (SAMPLES_PER_DISPATCH / per_row.max(1)).clamp(1, h as u64) as u32;
-        let out = ctx.output("pixels", w as u64 * band as u64 * 16)?;
+        let max_rows = (MARKED_BAND_PIXELS / w as u64).clamp(1, h as u64) as u32;
+        let per_band = (self.samples_per_dispatch / spp.max(1) as u64).max(1) as usize;
+        let out = ctx.output("pixels", w as u64 * max_rows as u64 * 16)?;
         let mut rgb = Vec::with_capacity(pixels.len());
-        let mut next = 0;
-        let mut row = 0;
-        while row < h && next < pixels.len() {
-            let rows = band.min(h - row);
-            let (at, end) = (row * w, (row + rows) * w);
-            let count = pixels[next..].iter().take_while(|&&i| i < end).count();
-            let here = &pixels[next..next + count];
-            if !here.is_empty() {
-                let mut words = vec![[0u32; 4]; (w * rows) as usize];
-                for &i in here {
-                    words[(i - at) as usize][3] = crate::refine::MARK;
-                }
-                ctx.write(&out, bytemuck::cast_slice(&words));
-                let bytes = self.band(ctx, sc, (row, rows), false, true, &out)?;
-                let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
-                rgb.extend(here.iter().map(|&i| {
-                    let p = px[(i - at) as usize];
-                    [p[0], p[1], p[2]]
-                }));
+        let mut rest = pixels;
+        while let Some(&first) = rest.first() {
+            let row = first / w;
+            let end = (row + max_rows).min(h) * w;
+            let here = &rest[..rest.len().min(per_band)];
+            let here = &here[..here.iter().take_while(|&&i| i < end).count()];
+            let rows = here[here.len() - 1] / w - row + 1;
+            let at = row * w;
+            let mut words = vec![[0u32; 4]; (w * rows) as usize];
+            for &i in here {
+                words[(i - at) as usize][3] = crate::refine::MARK;
             }
-            next += count;
-            row += rows;
+            ctx.write(&out, bytemuck::cast_slice(&words));
+            let bytes = self.band(ctx, sc, (row, rows), spp, false, true, &out)?;
+            let back: &[[u32; 4]] = bytemuck::cast_slice(&bytes);
+            let stray = back
+                .iter()
+                .zip(&words)
+                .any(|(b, w)| w[3] != crate::refine::MARK && b != w);
+            if stray {
+                return Err(GpuError::Device {
+                    adapter: ctx.describe(),
+                    msg: "the renderer's second pass wrote pixels it was not asked for".into(),
+                });
+            }
+            rgb.extend(here.iter().map(|&i| {
+                let p = back[(i - at) as usize];
+                [p[0], p[1], p[2]].map(f32::from_bits)
+            }));
+            rest = &rest[here.len()..];
         }
         Ok(rgb)
     }
 
-    /// One dispatch over the image rows `row..row + rows` into `out`, read back (`marked`:
-    /// only the pixels the host marked in `out`).
+    /// One dispatch over the image rows `row..row + rows` at `spp` samples a pixel into `out`,
+    /// read back (`marked`: only the pixels the host marked in `out`).
+    // (The dispatch's rows, sample count and output: seven arguments.)
+    #[allow(clippy::too_many_arguments)]
     fn band(
         &self,
         ctx: &GpuContext,
         sc: &RenderScene,
         (row, rows): (u32, u32),
+        spp: u32,
         with_aovs: bool,
         marked: bool,
         out: &pc_gpu::Buffer,
     ) -> Result<Vec<u8>, GpuError> {
         let g = &self.grid;
         let params = Params {
+            spp,
             row_offset: row,
             rows,
             caustic_radius: g.caustic_radius,
@@ -257,10 +288,6 @@ impl GpuRenderer {
         let w = sc.params.width;
         self.kernel
             .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
-        let pixel_bytes = match with_aovs {
-            true => std::mem::size_of::<PixelOut>(),
-            false => std::mem::size_of::<[u32; 4]>(),
-        } as u64;
-        ctx.read(out, (w * rows) as u64 * pixel_bytes)
+        ctx.read(out, (w * rows) as u64 * pixel_bytes(with_aovs))
     }
 }
