@@ -50,6 +50,9 @@ struct Params {
 
 // Twin of pc_raytrace::refine::MARK.
 const REFINE_MARK: u32 = 0xffffffffu;
+// Twin of pc_tree::ray::BLEND_MIN_COS: the least cosine between a covering splat's normal and
+// the hit's for the two to blend.
+const BLEND_MIN_COS: f32 = 0.5;
 
 // A stored photon (twin of pc_artifact::photons::Photon).
 struct Photon {
@@ -344,7 +347,7 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
                 j = begin_end[off + 2u + (kk - (end - begin))];
             }
             let sj = splats[j];
-            if dot(sj.normal, ns) <= 0.0 {
+            if dot(sj.normal, ns) <= BLEND_MIN_COS {
                 continue;
             }
             let dd = x - sj.position;

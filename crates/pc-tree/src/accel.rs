@@ -879,7 +879,7 @@ fn cover_lanes(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANE
         let d2 = add(add(mul(dx, dx), mul(dy, dy)), mul(dz, dz));
         let rho2 = sub(d2, mul(h, h));
         let ok = _mm_and_ps(
-            _mm_cmpgt_ps(facing, _mm_setzero_ps()),
+            _mm_cmpgt_ps(facing, _mm_set1_ps(crate::ray::BLEND_MIN_COS)),
             _mm_cmplt_ps(rho2, ld(&c.r2)),
         );
         let (mut ho, mut ro) = ([0.0f32; LANES], [0.0f32; LANES]);
@@ -905,7 +905,7 @@ fn cover_lanes_scalar(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f3
         let d = x - glam::Vec3::new(c.px[l], c.py[l], c.pz[l]);
         h[l] = d.dot(sn);
         rho2[l] = d.length_squared() - h[l] * h[l];
-        let ok = sn.dot(n) > 0.0 && rho2[l] < c.r2[l];
+        let ok = sn.dot(n) > crate::ray::BLEND_MIN_COS && rho2[l] < c.r2[l];
         mask |= (ok as u32) << l;
     }
     (h, rho2, mask)

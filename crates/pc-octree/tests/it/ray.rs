@@ -253,6 +253,52 @@ fn packed_leaf_lists_give_identical_hits() {
     assert!(covered > 1000, "{covered} hits with a blend");
 }
 
+/// Two walls meeting at a right angle, their normals tilted towards each other by rounding
+/// (10⁻⁶, as transformed scans and the reference sets carry): a hit on one wall within the
+/// blend's thickness of the corner blends that wall's splats alone. (While the test was
+/// "facing the same way", the other wall's disks took part and carried their light into the
+/// corner's pixels.)
+#[test]
+fn a_hit_beside_a_corner_blends_its_own_wall_alone() {
+    let (h, n) = (0.02f32, 40);
+    let mut soa = Soa::default();
+    let (floor_n, wall_n) = (
+        Vec3::new(1e-6, 1.0, 0.0).normalize(),
+        Vec3::new(1.0, 1e-6, 0.0).normalize(),
+    );
+    assert!(floor_n.dot(wall_n) > 0.0);
+    for i in 0..n {
+        for j in 0..n {
+            let (a, b) = ((i as f32 + 0.5) * h, (j as f32 + 0.5) * h);
+            soa.push(Vec3::new(a, 0.0, b), floor_n, h, 0);
+            soa.push(Vec3::new(0.0, a, b), wall_n, h, 1);
+        }
+    }
+    let o = soa
+        .build(&[class::DIFFUSE, class::DIFFUSE], OctreeParams::default())
+        .unwrap();
+    let view = o.view();
+    let accel = pc_tree::accel::Accel::new(&view);
+    let mut st = TraversalStats::default();
+    for k in 0..20 {
+        // Straight down onto the floor, a fifth of a radius from the wall.
+        let r = Ray::new(Vec3::new(0.2 * h, 0.5, 0.1 + 0.03 * k as f32), -Vec3::Y);
+        let (hit, leaf) = accel.intersect_in(&view, &r, &mut st).expect("the floor");
+        let x = r.origin + r.dir * hit.t;
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        accel.covering(&view, leaf, x, floor_n, 0.5, &mut a);
+        pc_tree::covering(&view, hit.leaf, x, floor_n, 0.5, &mut b);
+        assert_eq!(a, b, "ray {k}");
+        assert!(!a.is_empty(), "ray {k}: no floor splat covers its hit");
+        for (j, _) in a {
+            assert_eq!(
+                view.splats[j as usize].material, 0,
+                "ray {k}: the wall blends in"
+            );
+        }
+    }
+}
+
 /// The packed walk skips whole internal nodes whose disks all lie in a thin slab the ray's
 /// stretch misses: the hits stay identical, on the rays the V-map casts most (segments between
 /// two splats, which leave one wall and end just before another) and on the others, and the
