@@ -526,6 +526,14 @@ impl Default for RaytraceConfig {
     }
 }
 
+impl RaytraceConfig {
+    /// Samples of a pixel the second pass refines: `refine` × `spp` (no second pass unless
+    /// above `spp`).
+    pub fn refine_spp(&self) -> u32 {
+        self.spp.saturating_mul(self.refine)
+    }
+}
+
 /// A loaded configuration: the merged, overridden, validated config and where it came from.
 #[derive(Clone, Debug)]
 pub struct LoadedConfig {

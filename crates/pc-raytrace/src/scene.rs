@@ -196,7 +196,7 @@ impl<'a> RenderScene<'a> {
             radiance: None,
             caustics: None,
             refine: crate::refine::Refine {
-                spp: cfg.spp.saturating_mul(cfg.refine),
+                spp: cfg.refine_spp(),
                 contrast: cfg.refine_contrast,
             },
         }

@@ -288,7 +288,7 @@ impl Stage for RaytraceStage {
             .unwrap_or_default();
         let refined = match s.refined {
             0 => String::new(),
-            n => format!(", {n} pixels refined at {}", p.spp.saturating_mul(p.refine)),
+            n => format!(", {n} pixels refined at {}", p.refine_spp()),
         };
         format!(
             "pc-raytrace: wrote {} and {} ({}x{}, {} spp{refined}, {} shading{}) in {:.2} s on {}{rate}",

@@ -210,10 +210,13 @@ impl GpuRenderer {
         pixels: &[u32],
         spp: u32,
     ) -> Result<Vec<[f32; 3]>, GpuError> {
+        if pixels.is_empty() {
+            return Ok(Vec::new()); // no buffer to make for nothing
+        }
         let (w, h) = (sc.params.width, sc.params.height);
         let max_rows = (MARKED_BAND_PIXELS / w as u64).clamp(1, h as u64) as u32;
         let per_band = (self.samples_per_dispatch / spp.max(1) as u64).max(1) as usize;
-        let out = ctx.output("pixels", w as u64 * max_rows as u64 * 16)?;
+        let out = ctx.output("pixels", w as u64 * max_rows as u64 * pixel_bytes(false))?;
         let mut rgb = Vec::with_capacity(pixels.len());
         let mut rest = pixels;
         while let Some(&first) = rest.first() {
