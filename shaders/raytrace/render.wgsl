@@ -33,7 +33,7 @@ struct Params {
     rows: u32,
     // 1: diffuse hits show the per-splat radiance of `radiance` (pc-fmm's artifact).
     stored_radiance: u32,
-    // The photon map (twin of crate::caustic::PhotonGrid): density-estimate radius, photons in
+    // The photon map (twin of crate::photon_grid::PhotonGrid): density-estimate radius, photons in
     // `photons` (0: no caustic term), spatial hash of cells of side grid_cell from grid_origin.
     caustic_radius: f32,
     grid_origin: vec3<f32>,
@@ -62,6 +62,22 @@ struct Photon {
     bounces: u32,
     power: vec3<f32>,
     _pad: u32,
+}
+
+// A dense bucket's photons: power-weighted centroid and spread, mean direction, the bounds of
+// positions and directions about them, summed power, the photons in `photons` (twin of
+// crate::photon_grid::PhotonGroup).
+struct PhotonGroup {
+    position: vec3<f32>,
+    spread: f32,
+    dir: vec3<f32>,
+    extent: f32,
+    power: vec3<f32>,
+    start: u32,
+    count: u32,
+    dir_extent: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 struct PixelOut {
@@ -94,12 +110,16 @@ struct PixelOut {
 fn stored_radiance(j: u32) -> vec3<f32> {
     return vec3<f32>(radiance[3u * j], radiance[3u * j + 1u], radiance[3u * j + 2u]);
 }
-// The photons sorted by hash bucket, and each bucket's first photon (params.grid_mask + 2 entries).
+// The sparse buckets' photons sorted by hash bucket, then the groups' photons, and each
+// bucket's first photon (params.grid_mask + 2 entries) followed by each bucket's first group (as
+// many).
 @group(0) @binding(13) var<storage, read> photons: array<Photon>;
 @group(0) @binding(14) var<storage, read> grid_offsets: array<u32>;
 // Each octree leaf's roughness per node-pool slot (pc_tree::between::leaf_roughness) in direct
 // mode, for the shadow rays' own zones.
 @group(0) @binding(15) var<storage, read> leaf_rough: array<f32>;
+// The dense buckets' groups of photons (twin of crate::photon_grid::PhotonGroup).
+@group(0) @binding(16) var<storage, read> photon_groups: array<PhotonGroup>;
 
 // A shadow ray leaving the surface of splat `own`, past that surface's own roughness (twin of
 // RenderScene::occluded_leaving).
@@ -242,16 +262,46 @@ fn caustic(x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
         }
         seen[count] = h;
         count = count + 1u;
-        for (var k = grid_offsets[h]; k < grid_offsets[h + 1u]; k = k + 1u) {
-            let p = photons[k];
-            let d = p.position - x;
+        e = e + caustic_scan(grid_offsets[h], grid_offsets[h + 1u], x, n);
+        let at = params.grid_mask + 2u + h;
+        for (var k = grid_offsets[at]; k < grid_offsets[at + 1u]; k = k + 1u) {
+            let g = photon_groups[k];
+            let d = g.position - x;
             let d2 = dot(d, d);
-            if d2 <= r2 && dot(p.dir, n) < 0.0 && abs(dot(d, n)) <= 0.25 * r {
-                e = e + p.power * max(1.0 - d2 / r2, 0.0);
+            let dist = sqrt(d2);
+            let facing = dot(g.dir, n);
+            let off = abs(dot(d, n));
+            let plane = 0.25 * r;
+            // The group's bounds decide for all its photons, or leave it open (twin of
+            // PhotonGroup::fate).
+            if dist - g.extent > r || facing - g.dir_extent >= 0.0 || off - g.extent > plane {
+                continue;
+            }
+            if dist + g.extent <= r && facing + g.dir_extent < 0.0 && off + g.extent <= plane {
+                e = e + g.power * (1.0 - (d2 + g.spread) / r2);
+            } else {
+                e = e + caustic_scan(g.start, g.start + g.count, x, n);
             }
         }
     }
     return e * (2.0 / (PI * r2));
+}
+
+// The kernel-weighted power of photons[lo..hi] that count at x (twin of the scan in
+// PhotonGrid::irradiance).
+fn caustic_scan(lo: u32, hi: u32, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let r = params.caustic_radius;
+    let r2 = r * r;
+    var e = vec3<f32>(0.0);
+    for (var k = lo; k < hi; k = k + 1u) {
+        let p = photons[k];
+        let d = p.position - x;
+        let d2 = dot(d, d);
+        if d2 <= r2 && dot(p.dir, n) < 0.0 && abs(dot(d, n)) <= 0.25 * r {
+            e = e + p.power * max(1.0 - d2 / r2, 0.0);
+        }
+    }
+    return e;
 }
 
 fn phong(x: vec3<f32>, n: vec3<f32>, wo: vec3<f32>, e: f32, delta: f32) -> vec3<f32> {

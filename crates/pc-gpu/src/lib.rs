@@ -42,6 +42,9 @@ pub struct GpuContext {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
+    /// The device writes timestamps around each dispatch (the adapter has
+    /// `TIMESTAMP_QUERY`), so [`times`] holds the kernels' own time on the GPU's clock.
+    timestamps: bool,
 }
 
 impl GpuContext {
@@ -111,9 +114,10 @@ impl GpuContext {
     /// A device on `adapter` with the adapter's own limits.
     fn open(adapter: wgpu::Adapter) -> Result<GpuContext, GpuError> {
         let info = adapter.get_info();
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
         let desc = wgpu::DeviceDescriptor {
             label: Some("pcgi"),
-            required_features: wgpu::Features::empty(),
+            required_features: features,
             required_limits: adapter.limits(),
             ..Default::default()
         };
@@ -127,6 +131,7 @@ impl GpuContext {
             device,
             queue,
             info,
+            timestamps: !features.is_empty(),
         })
     }
 
@@ -481,14 +486,18 @@ impl Kernel {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some(&self.label),
             });
+        let stamps = ctx.timestamps.then(|| Stamps::new(ctx));
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some(&self.label),
-                timestamp_writes: None,
+                timestamp_writes: stamps.as_ref().map(Stamps::writes),
             });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+        }
+        if let Some(st) = &stamps {
+            st.resolve(&mut enc);
         }
         ctx.queue.submit([enc.finish()]);
         if let Some(e) = pollster::block_on(scope.pop()) {
@@ -501,7 +510,84 @@ impl Kernel {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         times::count(times::Op::Dispatch, started);
+        if let Some(st) = stamps {
+            st.count(ctx);
+        }
         Ok(())
+    }
+}
+
+/// Two timestamps around one dispatch, resolved into a buffer the host maps once the dispatch
+/// is done: the kernel's own time on the GPU's clock, without the submission, the wait and any
+/// work queued before it ([`times::GpuTimes::kernel_seconds`]).
+struct Stamps {
+    set: wgpu::QuerySet,
+    resolved: wgpu::Buffer,
+    staging: wgpu::Buffer,
+}
+
+impl Stamps {
+    const BYTES: u64 = 2 * std::mem::size_of::<u64>() as u64;
+
+    fn new(ctx: &GpuContext) -> Stamps {
+        let buffer = |label, usage| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: Stamps::BYTES,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        Stamps {
+            set: ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("dispatch timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            }),
+            resolved: buffer("timestamps", U::QUERY_RESOLVE | U::COPY_SRC),
+            staging: buffer("timestamps read", U::MAP_READ | U::COPY_DST),
+        }
+    }
+
+    fn writes(&self) -> wgpu::ComputePassTimestampWrites<'_> {
+        wgpu::ComputePassTimestampWrites {
+            query_set: &self.set,
+            beginning_of_pass_write_index: Some(0),
+            end_of_pass_write_index: Some(1),
+        }
+    }
+
+    fn resolve(&self, enc: &mut wgpu::CommandEncoder) {
+        enc.resolve_query_set(&self.set, 0..2, &self.resolved, 0);
+        enc.copy_buffer_to_buffer(&self.resolved, 0, &self.staging, 0, Stamps::BYTES);
+    }
+
+    /// Read the two timestamps (the dispatch is done) and count their span. A span that cannot
+    /// be read is not counted: the counters say how many dispatches were timed.
+    fn count(self, ctx: &GpuContext) {
+        let (tx, rx) = mpsc::channel();
+        self.staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        if ctx
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .is_err()
+        {
+            return;
+        }
+        if !matches!(rx.recv(), Ok(Ok(()))) {
+            return;
+        }
+        let Ok(view) = self.staging.get_mapped_range(..) else {
+            return;
+        };
+        let t: [u64; 2] = bytemuck::pod_read_unaligned(&view[..Stamps::BYTES as usize]);
+        drop(view);
+        self.staging.unmap();
+        let ticks = t[1].saturating_sub(t[0]) as f64;
+        times::count_kernel(ticks * f64::from(ctx.queue.get_timestamp_period()));
     }
 }
 

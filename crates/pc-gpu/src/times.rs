@@ -17,6 +17,8 @@ static DISPATCH_NS: AtomicU64 = AtomicU64::new(0);
 static DISPATCHES: AtomicU64 = AtomicU64::new(0);
 static READ_NS: AtomicU64 = AtomicU64::new(0);
 static READ_BYTES: AtomicU64 = AtomicU64::new(0);
+static KERNEL_NS: AtomicU64 = AtomicU64::new(0);
+static KERNELS_TIMED: AtomicU64 = AtomicU64::new(0);
 
 /// What a process spent on the GPU so far.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -33,6 +35,10 @@ pub struct GpuTimes {
     /// Bytes read back and the seconds of the copies and mappings.
     pub read_bytes: u64,
     pub read_seconds: f64,
+    /// Dispatches timed on the GPU's own clock (where the adapter writes timestamps) and the
+    /// seconds their kernels ran: `dispatch_seconds` less this is the host's side of them.
+    pub kernels_timed: u64,
+    pub kernel_seconds: f64,
 }
 
 /// The counters so far; `None` when this process ran no dispatch.
@@ -47,6 +53,8 @@ pub fn times() -> Option<GpuTimes> {
         dispatch_seconds: s(&DISPATCH_NS),
         read_bytes: READ_BYTES.load(Relaxed),
         read_seconds: s(&READ_NS),
+        kernels_timed: KERNELS_TIMED.load(Relaxed),
+        kernel_seconds: s(&KERNEL_NS),
     };
     (t.dispatches > 0).then_some(t)
 }
@@ -63,6 +71,8 @@ impl GpuTimes {
             "dispatch_seconds": self.dispatch_seconds,
             "read_bytes": self.read_bytes,
             "read_seconds": self.read_seconds,
+            "kernels_timed": self.kernels_timed,
+            "kernel_seconds": self.kernel_seconds,
         })
     }
 }
@@ -81,7 +91,15 @@ impl std::fmt::Display for GpuTimes {
             self.dispatch_seconds,
             mb(self.read_bytes),
             self.read_seconds
-        )
+        )?;
+        if self.kernels_timed > 0 {
+            write!(
+                f,
+                ", kernels {:.2} s on the GPU's clock",
+                self.kernel_seconds
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -104,4 +122,10 @@ pub(crate) fn count(op: Op, started: Instant) {
     };
     time.fetch_add(ns, Relaxed);
     n.fetch_add(by, Relaxed);
+}
+
+/// Adds one dispatch's kernel time, measured on the GPU's clock.
+pub(crate) fn count_kernel(ns: f64) {
+    KERNEL_NS.fetch_add(ns as u64, Relaxed);
+    KERNELS_TIMED.fetch_add(1, Relaxed);
 }

@@ -44,7 +44,13 @@ fn a_dispatch_is_counted_with_its_bytes() {
     assert_eq!(t.dispatches, 1);
     assert_eq!(t.read_bytes, 4000);
     assert!(t.dispatch_seconds > 0.0 && t.read_seconds > 0.0);
+    // Where the adapter writes timestamps, the dispatch was timed on the GPU's clock too, and
+    // the summary says so.
+    let stamps = ctx.adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+    assert_eq!(t.kernels_timed, stamps as u64);
+    assert!(t.kernel_seconds.is_finite() && t.kernel_seconds >= 0.0);
     let line = t.to_string();
+    assert_eq!(line.contains("on the GPU's clock"), stamps, "{line}");
     assert!(line.starts_with("GPU: 1 kernels built in "), "{line}");
     assert_eq!(t.json()["dispatches"], 1);
 }

@@ -19,6 +19,8 @@ use glam::Vec3;
 use kiddo::SquaredEuclidean;
 use pc_artifact::photons::Photon;
 
+pub use crate::photon_grid::PhotonGrid;
+
 /// The photon kd-tree: kiddo's immutable tree over `f32` positions, items are photon indices.
 pub type PhotonTree = kiddo::ImmutableKdTree<f32, 3>;
 
@@ -38,7 +40,7 @@ pub struct Caustics<'a> {
 /// Whether photon `p` counts at `x` (normal `n`, radius `r`): it arrived from the front and lies
 /// within a quarter radius of the tangent plane.
 #[inline]
-fn accept(p: &Photon, x: Vec3, n: Vec3, r: f32) -> bool {
+pub(crate) fn accept(p: &Photon, x: Vec3, n: Vec3, r: f32) -> bool {
     Vec3::from(p.dir).dot(n) < 0.0 && (Vec3::from(p.position) - x).dot(n).abs() <= 0.25 * r
 }
 
@@ -99,122 +101,5 @@ impl<'a> Caustics<'a> {
             return Vec3::ZERO;
         }
         e / (std::f32::consts::PI * r2)
-    }
-}
-
-/// The photon map as the GPU renderer reads it (`caustic` in shaders/raytrace/render.wgsl): a
-/// spatial hash of cubic cells of side `2r`, the photons sorted by bucket. A query at `x` scans
-/// the buckets of the 2×2×2 cells nearest `x` (they cover `x ± r` on every axis), each bucket
-/// once even when two cells hash to it, and keeps the photons within `r`: the same photons as a
-/// kd-tree's fixed-radius query. The CPU renderer uses it too ([`Caustics::irradiance`]): a
-/// lookup took 454 ns against the kd-tree's 1,095 at the 1M bench scene's hits, most of which
-/// lie far from every photon and find empty buckets.
-#[derive(Clone, Debug)]
-pub struct PhotonGrid {
-    /// Corner of cell (0, 0, 0): the photons' lower bound.
-    pub origin: [f32; 3],
-    /// Cell side, `2r`.
-    pub cell: f32,
-    /// Buckets − 1 (a power of two minus one).
-    pub mask: u32,
-    /// Bucket `b` holds `photons[offsets[b]..offsets[b + 1]]`.
-    pub offsets: Vec<u32>,
-    /// The photons, sorted by bucket.
-    pub photons: Vec<Photon>,
-    /// Density-estimate radius.
-    pub radius: f32,
-}
-
-/// Bucket of cell (i, j, k) (WGSL twin `grid_hash`).
-#[inline]
-pub fn grid_hash(c: [u32; 3], mask: u32) -> u32 {
-    (c[0].wrapping_mul(73_856_093) ^ c[1].wrapping_mul(19_349_663) ^ c[2].wrapping_mul(83_492_791))
-        & mask
-}
-
-impl PhotonGrid {
-    /// Bucket the photons (a counting sort) for fixed-radius queries of radius `radius`.
-    pub fn new(photons: &[Photon], radius: f32) -> PhotonGrid {
-        let mut lo = Vec3::splat(f32::INFINITY);
-        for p in photons {
-            lo = lo.min(Vec3::from(p.position));
-        }
-        if photons.is_empty() {
-            lo = Vec3::ZERO;
-        }
-        let cell = 2.0 * radius;
-        let buckets = photons.len().max(1).next_power_of_two() as u32;
-        let mask = buckets - 1;
-        let bucket = |p: &Photon| {
-            let q = ((Vec3::from(p.position) - lo) / cell)
-                .floor()
-                .max(Vec3::ZERO);
-            grid_hash([q.x as u32, q.y as u32, q.z as u32], mask)
-        };
-        let mut offsets = vec![0u32; buckets as usize + 1];
-        for p in photons {
-            offsets[bucket(p) as usize + 1] += 1;
-        }
-        for b in 0..buckets as usize {
-            offsets[b + 1] += offsets[b];
-        }
-        let mut next = offsets.clone();
-        let mut sorted = vec![Photon::default(); photons.len()];
-        for p in photons {
-            let b = bucket(p) as usize;
-            sorted[next[b] as usize] = *p;
-            next[b] += 1;
-        }
-        PhotonGrid {
-            origin: lo.into(),
-            cell,
-            mask,
-            offsets,
-            photons: sorted,
-            radius,
-        }
-    }
-
-    /// The buckets a query at `x` scans, each once (WGSL twin in `caustic`).
-    pub fn buckets(&self, x: Vec3) -> ([u32; 8], usize) {
-        let q = (x - Vec3::from(self.origin)) / self.cell;
-        let c = q.floor();
-        let f = q - c;
-        let mut out = [0u32; 8];
-        let mut n = 0;
-        for i in 0..8u32 {
-            let mut cc = [0i64; 3];
-            for a in 0..3 {
-                let step = if f[a] < 0.5 { -1 } else { 1 };
-                cc[a] = c[a] as i64 + if (i >> a) & 1 == 1 { step } else { 0 };
-            }
-            if cc.iter().any(|&v| v < 0 || v > u32::MAX as i64) {
-                continue;
-            }
-            let h = grid_hash([cc[0] as u32, cc[1] as u32, cc[2] as u32], self.mask);
-            if !out[..n].contains(&h) {
-                out[n] = h;
-                n += 1;
-            }
-        }
-        (out, n)
-    }
-
-    /// The fixed-radius estimate of [`Caustics::irradiance`] through the grid (CPU twin of the
-    /// WGSL `caustic`).
-    pub fn irradiance(&self, x: Vec3, n: Vec3) -> Vec3 {
-        let r = self.radius;
-        let (buckets, count) = self.buckets(x);
-        let mut e = Vec3::ZERO;
-        for &b in &buckets[..count] {
-            let (lo, hi) = (self.offsets[b as usize], self.offsets[b as usize + 1]);
-            for p in &self.photons[lo as usize..hi as usize] {
-                let d2 = (Vec3::from(p.position) - x).length_squared();
-                if d2 <= r * r && accept(p, x, n, r) {
-                    e += Vec3::from(p.power) * (1.0 - d2 / (r * r)).max(0.0);
-                }
-            }
-        }
-        e * (2.0 / (std::f32::consts::PI * r * r))
     }
 }

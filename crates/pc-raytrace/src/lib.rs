@@ -11,6 +11,7 @@ pub mod error;
 pub mod gpu;
 pub mod image;
 pub mod per_pixel;
+pub mod photon_grid;
 pub mod reference;
 pub mod refine;
 pub mod renderer;

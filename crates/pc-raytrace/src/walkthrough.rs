@@ -172,6 +172,7 @@ pub fn run(
             "frames_seconds": w.frames_seconds,
             "setup_seconds": w.setup_seconds,
             "frames_per_second": fps,
+            "gpu_times": pc_gpu::times().map(|t| t.json()),
         });
         pc_artifact::write_file_atomically(path, format!("{json}\n").as_bytes()).map_err(
             |source| RenderError::Io {

@@ -38,8 +38,7 @@ pub struct GpuRenderer {
     /// Materials, lights and emitters, bound after the octree.
     buffers: Vec<pc_gpu::Buffer>,
     radiance: pc_gpu::Buffer,
-    photons: pc_gpu::Buffer,
-    grid_offsets: pc_gpu::Buffer,
+    photons: PhotonBuffers,
     leaf_rough: pc_gpu::Buffer,
     /// The photon-map fields of [`Params`].
     grid: Params,
@@ -66,7 +65,7 @@ impl GpuRenderer {
         b.extend([Binding::ReadOnly; 9]);
         b.push(Binding::Uniform);
         b.push(Binding::ReadWrite);
-        b.extend([Binding::ReadOnly; 4]);
+        b.extend([Binding::ReadOnly; 5]);
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
         if limit < 14 {
             return Err(GpuError::Device {
@@ -100,42 +99,13 @@ impl GpuRenderer {
             Some(r) => ctx.storage("radiance", bytemuck::cast_slice(r))?,
             None => ctx.storage("radiance", &[0u8; 16])?,
         };
-        let mut grid = Params::default();
-        let (photons, grid_offsets) = match &sc.caustics {
-            Some(c) if c.k > 0 => {
-                return Err(GpuError::Device {
-                    adapter: ctx.describe(),
-                    msg: format!(
-                        "the GPU renderer's caustic estimate is fixed-radius only \
-                         (raytrace.caustic_k = {}: k-nearest renders on the CPU)",
-                        c.k
-                    ),
-                })
-            }
-            Some(c) if !c.photons.is_empty() => {
-                let g = PhotonGrid::new(c.photons, c.radius);
-                grid.caustic_radius = g.radius;
-                grid.grid_origin = g.origin;
-                grid.grid_mask = g.mask;
-                grid.photon_count = g.photons.len() as u32;
-                grid.grid_cell = g.cell;
-                (
-                    ctx.storage("photons", bytemuck::cast_slice(&g.photons))?,
-                    ctx.storage("grid_offsets", bytemuck::cast_slice(&g.offsets))?,
-                )
-            }
-            _ => (
-                ctx.storage("photons", &[0u8; 48])?,
-                ctx.storage("grid_offsets", &[0u8; 8])?,
-            ),
-        };
+        let (grid, photons) = photon_buffers(ctx, sc)?;
         Ok(GpuRenderer {
             kernel,
             octree,
             buffers,
             radiance,
             photons,
-            grid_offsets,
             leaf_rough,
             grid,
             samples_per_dispatch: SAMPLES_PER_DISPATCH,
@@ -285,12 +255,62 @@ impl GpuRenderer {
         bind.push(&uniform);
         bind.push(out);
         bind.push(&self.radiance);
-        bind.push(&self.photons);
-        bind.push(&self.grid_offsets);
+        bind.push(&self.photons.photons);
+        bind.push(&self.photons.offsets);
         bind.push(&self.leaf_rough);
+        bind.push(&self.photons.groups);
         let w = sc.params.width;
         self.kernel
             .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
         ctx.read(out, (w * rows) as u64 * pixel_bytes(with_aovs))
     }
+}
+
+/// The photon map's buffers (crate::photon_grid::PhotonGrid): photons, offsets, groups.
+struct PhotonBuffers {
+    photons: pc_gpu::Buffer,
+    offsets: pc_gpu::Buffer,
+    groups: pc_gpu::Buffer,
+}
+
+/// The photon-map fields of [`Params`] and the grid's buffers (placeholders without a map).
+fn photon_buffers(ctx: &GpuContext, sc: &RenderScene) -> Result<(Params, PhotonBuffers), GpuError> {
+    let mut grid = Params::default();
+    let c = match &sc.caustics {
+        Some(c) if c.k > 0 => {
+            return Err(GpuError::Device {
+                adapter: ctx.describe(),
+                msg: format!(
+                    "the GPU renderer's caustic estimate is fixed-radius only \
+                     (raytrace.caustic_k = {}: k-nearest renders on the CPU)",
+                    c.k
+                ),
+            })
+        }
+        Some(c) if !c.photons.is_empty() => c,
+        _ => {
+            let buffers = PhotonBuffers {
+                photons: ctx.storage("photons", &[0u8; 48])?,
+                offsets: ctx.storage("grid_offsets", &[0u8; 8])?,
+                groups: ctx.storage("photon_groups", &[0u8; 64])?,
+            };
+            return Ok((grid, buffers));
+        }
+    };
+    let g = PhotonGrid::new(c.photons, c.radius);
+    grid.caustic_radius = g.radius;
+    grid.grid_origin = g.origin;
+    grid.grid_mask = g.mask;
+    grid.photon_count = g.photons.len() as u32;
+    grid.grid_cell = g.cell;
+    let groups: &[u8] = match g.groups.is_empty() {
+        true => &[0u8; 64],
+        false => bytemuck::cast_slice(&g.groups),
+    };
+    let buffers = PhotonBuffers {
+        photons: ctx.storage("photons", bytemuck::cast_slice(&g.photons))?,
+        offsets: ctx.storage("grid_offsets", bytemuck::cast_slice(&g.offsets))?,
+        groups: ctx.storage("photon_groups", groups)?,
+    };
+    Ok((grid, buffers))
 }
