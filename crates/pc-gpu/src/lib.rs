@@ -254,39 +254,7 @@ impl GpuContext {
         if size == 0 {
             return Ok(Vec::new());
         }
-        let started = Instant::now();
-        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: padded,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("readback"),
-            });
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
-        self.queue.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let view = staging
-            .get_mapped_range(..)
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = view[..size as usize].to_vec();
-        drop(view);
-        staging.unmap();
-        times::count(times::Op::Read(size), started);
-        Ok(out)
+        Readback::new(self, size).read(self, buffer, size, <[u8]>::to_vec)
     }
 
     /// Build a compute kernel from WGSL source. `bindings` lists group 0's bindings in order.
@@ -660,5 +628,78 @@ pub fn test_context() -> Option<GpuContext> {
             );
             None
         }
+    }
+}
+
+/// A host-visible buffer that reads a device buffer back, kept from read to read (a frame after
+/// a frame) so that no read allocates and maps fresh memory.
+pub struct Readback {
+    staging: wgpu::Buffer,
+}
+
+impl Readback {
+    /// Room for reads of up to `capacity` bytes.
+    pub fn new(ctx: &GpuContext, capacity: u64) -> Readback {
+        Readback {
+            staging: ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size: capacity
+                    .max(4)
+                    .next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+        }
+    }
+
+    /// Bytes a read may take.
+    pub fn capacity(&self) -> u64 {
+        self.staging.size()
+    }
+
+    /// Copy the first `size` bytes of `buffer` (at most [`Readback::capacity`]) back and hand
+    /// them to `f` while mapped (blocking; counted as a read in [`times`]).
+    pub fn read<R>(
+        &self,
+        ctx: &GpuContext,
+        buffer: &wgpu::Buffer,
+        size: u64,
+        f: impl FnOnce(&[u8]) -> R,
+    ) -> Result<R, GpuError> {
+        let started = Instant::now();
+        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        if padded > self.capacity() {
+            return Err(GpuError::Readback(format!(
+                "{size} bytes do not fit a readback of {}",
+                self.capacity()
+            )));
+        }
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
+        enc.copy_buffer_to_buffer(buffer, 0, &self.staging, 0, padded);
+        ctx.queue.submit([enc.finish()]);
+        let (tx, rx) = mpsc::channel();
+        self.staging
+            .map_async(wgpu::MapMode::Read, ..padded, move |r| {
+                let _ = tx.send(r);
+            });
+        ctx.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let view = self
+            .staging
+            .get_mapped_range(..padded)
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let out = f(&view[..size as usize]);
+        drop(view);
+        self.staging.unmap();
+        times::count(times::Op::Read(size), started);
+        Ok(out)
     }
 }

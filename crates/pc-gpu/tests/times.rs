@@ -46,7 +46,10 @@ fn a_dispatch_is_counted_with_its_bytes() {
     assert!(t.dispatch_seconds > 0.0 && t.read_seconds > 0.0);
     // Where the adapter writes timestamps, the dispatch was timed on the GPU's clock too, and
     // the summary says so.
-    let stamps = ctx.adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+    let stamps = ctx
+        .adapter
+        .features()
+        .contains(wgpu::Features::TIMESTAMP_QUERY);
     assert_eq!(t.kernels_timed, stamps as u64);
     assert!(t.kernel_seconds.is_finite() && t.kernel_seconds >= 0.0);
     let line = t.to_string();

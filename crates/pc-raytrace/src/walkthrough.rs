@@ -46,7 +46,7 @@ pub struct Walkthrough {
     pub device_name: String,
     /// Time spent rendering the frames (loading and GPU setup excluded).
     pub render_seconds: f64,
-    /// Time spent writing the PNGs, on a thread of its own beside the rendering.
+    /// Time spent writing the PNGs, summed over the writer threads beside the rendering.
     pub write_seconds: f64,
     /// From the first frame's start to the last frame written.
     pub frames_seconds: f64,
@@ -66,8 +66,8 @@ pub struct Orbit {
 
 /// Render the frames of `orbit` along [`walkthrough_camera`]'s path on the cached solution (the
 /// artifacts are loaded once; the GPU keeps its buffers between frames), each PNG written
-/// atomically by a thread of its own while the next frame renders (one frame waits at most);
-/// `frame_done` hears of each frame rendered.
+/// atomically by one of [`png_writers`] threads while the next frames render (as many frames
+/// wait at most as there are writers); `frame_done` hears of each frame rendered.
 pub fn walkthrough(
     cfg: &LoadedConfig,
     inputs: &Inputs,
@@ -89,20 +89,33 @@ pub fn walkthrough(
         let paths: Vec<PathBuf> = (0..orbit.frames)
             .map(|i| orbit.dir.join(format!("frame_{i:05}.png")))
             .collect();
-        let (tx, rx) = std::sync::mpsc::sync_channel::<(&Path, Image)>(1);
+        let writers = png_writers();
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, &Path, Image)>(writers);
+        let rx = std::sync::Mutex::new(rx);
+        let failed = std::sync::atomic::AtomicBool::new(false);
         let frames_started = Instant::now();
         let (rendered, written) = std::thread::scope(|scope| {
-            let writer = scope.spawn(move || -> Result<f64, RenderError> {
+            let write = || -> (f64, Option<(usize, RenderError)>) {
                 let mut seconds = 0.0;
-                for (path, image) in rx {
+                loop {
+                    let next = rx.lock().unwrap_or_else(|e| e.into_inner()).recv();
+                    let Ok((i, path, image)) = next else {
+                        return (seconds, None);
+                    };
                     let t = Instant::now();
-                    write_png(path, &image, exposure)?;
+                    if let Err(e) = write_png(path, &image, exposure) {
+                        failed.store(true, std::sync::atomic::Ordering::Relaxed);
+                        return (seconds, Some((i, e.into())));
+                    }
                     seconds += t.elapsed().as_secs_f64();
                 }
-                Ok(seconds)
-            });
+            };
+            let handles: Vec<_> = (0..writers).map(|_| scope.spawn(write)).collect();
             let mut rendered = Ok(());
             for (i, path) in paths.iter().enumerate() {
+                if failed.load(std::sync::atomic::Ordering::Relaxed) {
+                    break; // the writers' error says why
+                }
                 let cam = walkthrough_camera(&c.camera, i, orbit.frames, orbit.degrees);
                 sc.set_camera(&Camera::new(&cam));
                 let t = Instant::now();
@@ -114,18 +127,20 @@ pub fn walkthrough(
                     }
                 };
                 render_seconds += t.elapsed().as_secs_f64();
-                // A closed channel means the writer stopped on an error, which its join gives.
-                if tx.send((path, image)).is_err() {
+                // A closed channel means every writer stopped on an error, which they give.
+                if tx.send((i, path, image)).is_err() {
                     break;
                 }
                 frame_done(i);
             }
             drop(tx);
-            let written = writer
-                .join()
-                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-            (rendered, written)
+            let written = handles.into_iter().map(|h| {
+                h.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            });
+            (rendered, first_error(written))
         });
+        drop(rx); // it held the paths' borrow
         rendered?;
         let write_seconds = written?;
         let frames_seconds = frames_started.elapsed().as_secs_f64();
@@ -139,6 +154,32 @@ pub fn walkthrough(
             setup_seconds,
         })
     })
+}
+
+/// Threads that write a walkthrough's PNGs: one a frame at once, up to 4 (a 1024² frame's sRGB
+/// encoding and compression took 28 ms on one core of the H200's host, three times its render).
+pub fn png_writers() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().clamp(1, 4))
+}
+
+/// The writers' summed seconds, or the error of the earliest frame that failed.
+fn first_error(
+    written: impl Iterator<Item = (f64, Option<(usize, RenderError)>)>,
+) -> Result<f64, RenderError> {
+    let mut seconds = 0.0;
+    let mut first: Option<(usize, RenderError)> = None;
+    for (s, e) in written {
+        seconds += s;
+        if let Some((i, e)) = e {
+            if first.as_ref().is_none_or(|(j, _)| i < *j) {
+                first = Some((i, e));
+            }
+        }
+    }
+    match first {
+        Some((_, e)) => Err(e),
+        None => Ok(seconds),
+    }
 }
 
 /// A walkthrough as the binary runs it: a progress bar (hidden when `quiet`), the frames, the

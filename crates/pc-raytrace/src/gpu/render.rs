@@ -44,6 +44,31 @@ pub struct GpuRenderer {
     grid: Params,
     /// Samples one dispatch traces at most ([`SAMPLES_PER_DISPATCH`]).
     samples_per_dispatch: u64,
+    /// The output buffers of the image pass and of the second pass, kept from frame to frame.
+    kept: std::sync::Mutex<[Option<FrameBuffers>; 2]>,
+}
+
+/// A pass's output buffer and its readback, kept from frame to frame: a walkthrough's frames
+/// allocate neither (on the H200 a fresh 16 MB pair cost 5-7 ms of a 1024² frame).
+struct FrameBuffers {
+    out: pc_gpu::Buffer,
+    back: pc_gpu::Readback,
+}
+
+/// The kernel's pass: samples a pixel, whether it writes AOVs, whether it renders the marked
+/// pixels alone (the second pass).
+#[derive(Clone, Copy)]
+struct Pass {
+    spp: u32,
+    aovs: bool,
+    marked: bool,
+}
+
+impl Pass {
+    /// Index of the pass's kept buffers.
+    fn slot(self) -> usize {
+        self.marked as usize
+    }
 }
 
 /// Samples per dispatch; bands of rows are sized to stay under this.
@@ -109,6 +134,7 @@ impl GpuRenderer {
             leaf_rough,
             grid,
             samples_per_dispatch: SAMPLES_PER_DISPATCH,
+            kept: Default::default(),
         })
     }
 
@@ -129,8 +155,12 @@ impl GpuRenderer {
         let (w, h) = (sc.params.width, sc.params.height);
         let per_row = w as u64 * sc.params.spp as u64;
         let band = (self.samples_per_dispatch / per_row.max(1)).clamp(1, h as u64) as u32;
+        let pass = Pass {
+            spp: sc.params.spp,
+            aovs: with_aovs,
+            marked: false,
+        };
         let out_size = (w as u64) * (band as u64) * pixel_bytes(with_aovs);
-        let out = ctx.output("pixels", out_size)?;
         let mut img = Image::new(w, h);
         let mut aovs = with_aovs.then(|| Aovs {
             depth: vec![0.0; (w * h) as usize],
@@ -138,31 +168,23 @@ impl GpuRenderer {
             albedo: vec![[0.0; 3]; (w * h) as usize],
             splat: vec![u32::MAX; (w * h) as usize],
         });
-        let mut row = 0;
-        while row < h {
-            let rows = band.min(h - row);
-            let bytes = self.band(ctx, sc, (row, rows), sc.params.spp, with_aovs, false, &out)?;
-            let at = (row * w) as usize;
-            match aovs.as_mut() {
-                Some(a) => {
-                    let px: &[PixelOut] = bytemuck::cast_slice(&bytes);
-                    for (i, p) in px.iter().enumerate() {
-                        img.rgb[at + i] = p.rgb;
-                        a.depth[at + i] = p.depth;
-                        a.normal[at + i] = p.normal;
-                        a.albedo[at + i] = p.albedo;
-                        a.splat[at + i] = p.splat;
+        self.with_buffers(ctx, pass, out_size, |fb| {
+            let mut row = 0;
+            while row < h {
+                let rows = band.min(h - row);
+                let at = (row * w) as usize;
+                let n = (w * rows) as usize;
+                let rgb = &mut img.rgb[at..at + n];
+                self.band(ctx, sc, (row, rows), pass, fb, |bytes| {
+                    match aovs.as_mut() {
+                        Some(a) => unpack_aovs(bytemuck::cast_slice(bytes), rgb, a, at),
+                        None => unpack_rgb(bytemuck::cast_slice(bytes), rgb),
                     }
-                }
-                None => {
-                    let px: &[[f32; 4]] = bytemuck::cast_slice(&bytes);
-                    for (i, p) in px.iter().enumerate() {
-                        img.rgb[at + i] = [p[0], p[1], p[2]];
-                    }
-                }
+                })?;
+                row += rows;
             }
-            row += rows;
-        }
+            Ok(())
+        })?;
         img.aovs = aovs;
         Ok(img)
     }
@@ -186,59 +208,85 @@ impl GpuRenderer {
         let (w, h) = (sc.params.width, sc.params.height);
         let max_rows = (MARKED_BAND_PIXELS / w as u64).clamp(1, h as u64) as u32;
         let per_band = (self.samples_per_dispatch / spp.max(1) as u64).max(1) as usize;
-        let out = ctx.output("pixels", w as u64 * max_rows as u64 * pixel_bytes(false))?;
+        let pass = Pass {
+            spp,
+            aovs: false,
+            marked: true,
+        };
+        let size = w as u64 * max_rows as u64 * pixel_bytes(false);
         let mut rgb = Vec::with_capacity(pixels.len());
-        let mut rest = pixels;
-        while let Some(&first) = rest.first() {
-            let row = first / w;
-            let end = (row + max_rows).min(h) * w;
-            let here = &rest[..rest.len().min(per_band)];
-            let here = &here[..here.iter().take_while(|&&i| i < end).count()];
-            let rows = here[here.len() - 1] / w - row + 1;
-            let at = row * w;
-            let mut words = vec![[0u32; 4]; (w * rows) as usize];
-            for &i in here {
-                words[(i - at) as usize][3] = crate::refine::MARK;
+        self.with_buffers(ctx, pass, size, |fb| {
+            let mut rest = pixels;
+            while let Some(&first) = rest.first() {
+                let row = first / w;
+                let end = (row + max_rows).min(h) * w;
+                let here = &rest[..rest.len().min(per_band)];
+                let here = &here[..here.iter().take_while(|&&i| i < end).count()];
+                let rows = here[here.len() - 1] / w - row + 1;
+                let at = row * w;
+                let mut words = vec![[0u32; 4]; (w * rows) as usize];
+                for &i in here {
+                    words[(i - at) as usize][3] = crate::refine::MARK;
+                }
+                ctx.write(&fb.out, bytemuck::cast_slice(&words));
+                let stray = self.band(ctx, sc, (row, rows), pass, fb, |bytes| {
+                    let back: &[[u32; 4]] = bytemuck::cast_slice(bytes);
+                    let stray = back
+                        .iter()
+                        .zip(&words)
+                        .any(|(b, w)| w[3] != crate::refine::MARK && b != w);
+                    rgb.extend(here.iter().map(|&i| {
+                        let p = back[(i - at) as usize];
+                        [p[0], p[1], p[2]].map(f32::from_bits)
+                    }));
+                    stray
+                })?;
+                if stray {
+                    return Err(GpuError::Device {
+                        adapter: ctx.describe(),
+                        msg: "the renderer's second pass wrote pixels it was not asked for".into(),
+                    });
+                }
+                rest = &rest[here.len()..];
             }
-            ctx.write(&out, bytemuck::cast_slice(&words));
-            let bytes = self.band(ctx, sc, (row, rows), spp, false, true, &out)?;
-            let back: &[[u32; 4]] = bytemuck::cast_slice(&bytes);
-            let stray = back
-                .iter()
-                .zip(&words)
-                .any(|(b, w)| w[3] != crate::refine::MARK && b != w);
-            if stray {
-                return Err(GpuError::Device {
-                    adapter: ctx.describe(),
-                    msg: "the renderer's second pass wrote pixels it was not asked for".into(),
-                });
-            }
-            rgb.extend(here.iter().map(|&i| {
-                let p = back[(i - at) as usize];
-                [p[0], p[1], p[2]].map(f32::from_bits)
-            }));
-            rest = &rest[here.len()..];
-        }
+            Ok(())
+        })?;
         Ok(rgb)
     }
 
-    /// One dispatch over the image rows `row..row + rows` at `spp` samples a pixel into `out`,
-    /// read back (`marked`: only the pixels the host marked in `out`).
-    // (The dispatch's rows, sample count and output: seven arguments.)
-    #[allow(clippy::too_many_arguments)]
-    fn band(
+    /// Run `f` with `pass`'s kept buffers, made (or remade larger) to hold `bytes`.
+    fn with_buffers<R>(
+        &self,
+        ctx: &GpuContext,
+        pass: Pass,
+        bytes: u64,
+        f: impl FnOnce(&FrameBuffers) -> Result<R, GpuError>,
+    ) -> Result<R, GpuError> {
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        let slot = &mut kept[pass.slot()];
+        if slot.as_ref().is_none_or(|fb| fb.back.capacity() < bytes) {
+            *slot = Some(FrameBuffers {
+                out: ctx.output("pixels", bytes)?,
+                back: pc_gpu::Readback::new(ctx, bytes),
+            });
+        }
+        f(slot.as_ref().expect("made above"))
+    }
+
+    /// One dispatch over the image rows `row..row + rows` into `fb`'s output, read back into `f`
+    /// (`pass.marked`: only the pixels the host marked in the output).
+    fn band<R>(
         &self,
         ctx: &GpuContext,
         sc: &RenderScene,
         (row, rows): (u32, u32),
-        spp: u32,
-        with_aovs: bool,
-        marked: bool,
-        out: &pc_gpu::Buffer,
-    ) -> Result<Vec<u8>, GpuError> {
+        pass: Pass,
+        fb: &FrameBuffers,
+        f: impl FnOnce(&[u8]) -> R,
+    ) -> Result<R, GpuError> {
         let g = &self.grid;
         let params = Params {
-            spp,
+            spp: pass.spp,
             row_offset: row,
             rows,
             caustic_radius: g.caustic_radius,
@@ -246,14 +294,14 @@ impl GpuRenderer {
             grid_mask: g.grid_mask,
             photon_count: g.photon_count,
             grid_cell: g.grid_cell,
-            aovs: with_aovs as u32,
-            refine: marked as u32,
+            aovs: pass.aovs as u32,
+            refine: pass.marked as u32,
             ..sc.params
         };
         let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
         let mut bind: Vec<&pc_gpu::Buffer> = self.octree.buffers().chain(&self.buffers).collect();
         bind.push(&uniform);
-        bind.push(out);
+        bind.push(&fb.out);
         bind.push(&self.radiance);
         bind.push(&self.photons.photons);
         bind.push(&self.photons.offsets);
@@ -262,7 +310,31 @@ impl GpuRenderer {
         let w = sc.params.width;
         self.kernel
             .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
-        ctx.read(out, (w * rows) as u64 * pixel_bytes(with_aovs))
+        let size = (w * rows) as u64 * pixel_bytes(pass.aovs);
+        fb.back.read(ctx, &fb.out, size, f)
+    }
+}
+
+/// A band's colours (the first word of each pixel's four) into `rgb`, in parallel.
+fn unpack_rgb(px: &[[f32; 4]], rgb: &mut [[f32; 3]]) {
+    use rayon::prelude::*;
+    rgb.par_chunks_mut(4096)
+        .zip(px.par_chunks(4096))
+        .for_each(|(d, s)| {
+            for (d, p) in d.iter_mut().zip(s) {
+                *d = [p[0], p[1], p[2]];
+            }
+        });
+}
+
+/// A band's pixels with AOVs into `rgb` and `a` (from pixel `at` of the image).
+fn unpack_aovs(px: &[PixelOut], rgb: &mut [[f32; 3]], a: &mut Aovs, at: usize) {
+    for (i, p) in px.iter().enumerate() {
+        rgb[i] = p.rgb;
+        a.depth[at + i] = p.depth;
+        a.normal[at + i] = p.normal;
+        a.albedo[at + i] = p.albedo;
+        a.splat[at + i] = p.splat;
     }
 }
 
