@@ -1,7 +1,7 @@
 //! The GPU against the CPU on the machine at hand (`--only gpu`): the whole chain through pc-run
 //! with every stage on the GPU (twice: the first pass pays the driver's kernel compiles, the
-//! second, in a fresh folder, finds them cached), then on the CPU, then a new view each, and a
-//! GPU walkthrough at 1024×1024, 1 spp. Each GPU stage's share (kernels built, bytes up,
+//! second, in a fresh folder, finds them cached), then on the CPU, then a new view each, and
+//! GPU walkthroughs at 512² and 1024², 1 spp. Each GPU stage's share (kernels built, bytes up,
 //! dispatches, bytes back) comes from its report. Then where `backend = "auto"` should switch:
 //! the precompute stages on the GPU and on the CPU with 2, 4, 8 and 16 worker threads
 //! (`RAYON_NUM_THREADS`, as many of those as the host has). Without a GPU adapter it says so and
@@ -183,33 +183,46 @@ fn sweep(bin: &Path, config: &Path, n: usize) -> Result<Vec<String>> {
     Ok(rows)
 }
 
-/// Frames per second of a 30-frame GPU walkthrough at 1024², 1 spp without the second pass over
-/// high-contrast pixels, on the first GPU pass's solution.
+/// Frames per second of 30-frame GPU walkthroughs at 512² (the seed's size) and 1024², 1 spp,
+/// without the second pass over high-contrast pixels, on the first GPU pass's solution: one
+/// line each, with a frame's milliseconds of dispatch and of kernel on the GPU's clock.
 fn walkthrough(bin: &Path, config: &Path, n: usize) -> Result<String> {
-    let stats = config.with_file_name("walkthrough.json");
-    let frames = config.with_file_name("frames");
-    run_checked(
-        Command::new(bin.join("pc-raytrace"))
-            .args(["--quiet", "--backend", "gpu", "--frames", "30", "--config"])
-            .arg(config)
-            .args(["--set", "output.dir=out-gpu", "--set", "camera.width=1024"])
-            .args(["--set", "camera.height=1024", "--set", "raytrace.spp=1"])
-            // One sample a pixel, as the seed's frame rates: no second pass over the edges.
-            .args(["--set", "raytrace.refine=0"])
-            .arg("--frames-dir")
-            .arg(&frames)
-            .arg("--stats-json")
-            .arg(&stats),
-        "pc-raytrace --frames",
-    )?;
-    let v = read_json(&stats)?;
-    let _ = std::fs::remove_dir_all(&frames);
-    Ok(format!(
-        "{}: {:.1} frames/s rendering, {:.1} with the PNGs written",
-        count(n),
-        v["frames_per_second"].as_f64().unwrap_or(f64::NAN),
-        30.0 / v["frames_seconds"].as_f64().unwrap_or(f64::NAN)
-    ))
+    let mut lines = Vec::new();
+    for size in [512, 1024] {
+        let stats = config.with_file_name("walkthrough.json");
+        let frames = config.with_file_name("frames");
+        let side = size.to_string();
+        run_checked(
+            Command::new(bin.join("pc-raytrace"))
+                .args(["--quiet", "--backend", "gpu", "--frames", "30", "--config"])
+                .arg(config)
+                .args(["--set", "output.dir=out-gpu"])
+                .args(["--set", &format!("camera.width={side}")])
+                .args(["--set", &format!("camera.height={side}")])
+                .args(["--set", "raytrace.spp=1"])
+                // One sample a pixel, as the seed's frame rates: no second pass over the edges.
+                .args(["--set", "raytrace.refine=0"])
+                .arg("--frames-dir")
+                .arg(&frames)
+                .arg("--stats-json")
+                .arg(&stats),
+            "pc-raytrace --frames",
+        )?;
+        let v = read_json(&stats)?;
+        let _ = std::fs::remove_dir_all(&frames);
+        let f = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+        let g = |k: &str| v["gpu_times"][k].as_f64().unwrap_or(f64::NAN);
+        let frames_n = f("frames");
+        lines.push(format!(
+            "{} at {size}²: {:.1} frames/s rendering, {:.1} with the PNGs written; a frame's dispatch {:.2} ms, its kernel {:.2} ms on the GPU's clock",
+            count(n),
+            f("frames_per_second"),
+            frames_n / f("frames_seconds"),
+            1e3 * g("dispatch_seconds") / frames_n,
+            1e3 * g("kernel_seconds") / frames_n,
+        ));
+    }
+    Ok(lines.join("; "))
 }
 
 fn stage<'a>(v: &'a Value, name: &str) -> Option<&'a Value> {
@@ -265,7 +278,7 @@ process wall time as pc-run measured it.\n\n\
 | splats | pass | {} | cold chain | new view |\n|---|---|---|---|---|---|---|---|---|\n{}\n\n\
 The GPU's share of each stage (kernels built, bytes up, dispatches, bytes back; docs/gpu.md):\n\n\
 | splats | pass | stage | kernels built | up | dispatches | back |\n|---|---|---|---|---|---|---|\n{}\n\n\
-Walkthrough on the GPU, 30 frames at 1024×1024, 1 spp (`raytrace.refine = 0`): {}.\n\n\
+Walkthroughs on the GPU, 30 frames, 1 spp (`raytrace.refine = 0`): {}.\n\n\
 Where `backend = \"auto\"` switches (pc_stage::device::AUTO_GPU_MAX_THREADS): pc-vmap, pc-caustics and \
 pc-fmm on the GPU and on the CPU with `RAYON_NUM_THREADS` worker threads, the GPU pass's octree, seconds each:\n\n\
 | splats | threads | GPU | together | CPU | together | CPU / GPU |\n|---|---|---|---|---|---|---|\n{}\n",
