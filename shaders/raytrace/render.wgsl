@@ -64,20 +64,21 @@ struct Photon {
     _pad: u32,
 }
 
-// A dense bucket's photons: power-weighted centroid and spread, mean direction, the bounds of
-// positions and directions about them, summed power, the photons in `photons` (twin of
-// crate::photon_grid::PhotonGroup).
+// A dense bucket's photons: their mean position (the moments' origin), the bounds of positions
+// and directions about it, and per channel the power moments Σ Φ, Σ Φ |p − q|², Σ Φ (p − q)
+// (one row per channel); the photons in `photons` (twin of crate::photon_grid::PhotonGroup).
 struct PhotonGroup {
     position: vec3<f32>,
-    spread: f32,
-    dir: vec3<f32>,
     extent: f32,
+    dir: vec3<f32>,
+    dir_extent: f32,
     power: vec3<f32>,
     start: u32,
+    second: vec3<f32>,
     count: u32,
-    dir_extent: f32,
-    _pad0: u32,
-    _pad1: u32,
+    first_r: vec4<f32>,
+    first_g: vec4<f32>,
+    first_b: vec4<f32>,
 }
 
 struct PixelOut {
@@ -278,13 +279,21 @@ fn caustic(x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
                 continue;
             }
             if dist + g.extent <= r && facing + g.dir_extent < 0.0 && off + g.extent <= plane {
-                e = e + g.power * (1.0 - (d2 + g.spread) / r2);
+                e = e + group_sum(g, d, r2);
             } else {
                 e = e + caustic_scan(g.start, g.start + g.count, x, n);
             }
         }
     }
     return e * (2.0 / (PI * r2));
+}
+
+// Σ Φ (1 − |p − x|²/r²) over a group's photons from its moments, d = its position − x (twin of
+// PhotonGroup::sum).
+fn group_sum(g: PhotonGroup, d: vec3<f32>, r2: f32) -> vec3<f32> {
+    let first = vec3<f32>(dot(d, g.first_r.xyz), dot(d, g.first_g.xyz), dot(d, g.first_b.xyz));
+    let spread = g.second + 2.0 * first + dot(d, d) * g.power;
+    return g.power - spread / r2;
 }
 
 // The kernel-weighted power of photons[lo..hi] that count at x (twin of the scan in

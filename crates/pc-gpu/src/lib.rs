@@ -45,6 +45,8 @@ pub struct GpuContext {
     /// The device writes timestamps around each dispatch (the adapter has
     /// `TIMESTAMP_QUERY`), so [`times`] holds the kernels' own time on the GPU's clock.
     timestamps: bool,
+    /// A dispatch's timestamp buffers, kept for the next ([`Stamps`]).
+    stamps: std::sync::Mutex<Option<Stamps>>,
 }
 
 impl GpuContext {
@@ -132,6 +134,7 @@ impl GpuContext {
             queue,
             info,
             timestamps: !features.is_empty(),
+            stamps: Default::default(),
         })
     }
 
@@ -454,7 +457,10 @@ impl Kernel {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some(&self.label),
             });
-        let stamps = ctx.timestamps.then(|| Stamps::new(ctx));
+        let stamps = ctx.timestamps.then(|| {
+            let kept = ctx.stamps.lock().map(|mut k| k.take()).ok().flatten();
+            kept.unwrap_or_else(|| Stamps::new(ctx))
+        });
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some(&self.label),
@@ -478,8 +484,10 @@ impl Kernel {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         times::count(times::Op::Dispatch, started);
-        if let Some(st) = stamps {
-            st.count(ctx);
+        if let Some(st) = stamps.and_then(|st| st.count(ctx)) {
+            if let Ok(mut kept) = ctx.stamps.lock() {
+                *kept = Some(st);
+            }
         }
         Ok(())
     }
@@ -531,31 +539,26 @@ impl Stamps {
         enc.copy_buffer_to_buffer(&self.resolved, 0, &self.staging, 0, Stamps::BYTES);
     }
 
-    /// Read the two timestamps (the dispatch is done) and count their span. A span that cannot
-    /// be read is not counted: the counters say how many dispatches were timed.
-    fn count(self, ctx: &GpuContext) {
+    /// Read the two timestamps (the dispatch is done) and count their span; the buffers back,
+    /// unmapped, for the next dispatch. A span that cannot be read is not counted (the counters
+    /// say how many dispatches were timed), and its buffers are dropped.
+    fn count(self, ctx: &GpuContext) -> Option<Stamps> {
         let (tx, rx) = mpsc::channel();
         self.staging.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send(r);
         });
-        if ctx
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .is_err()
-        {
-            return;
-        }
+        ctx.device.poll(wgpu::PollType::wait_indefinitely()).ok()?;
         if !matches!(rx.recv(), Ok(Ok(()))) {
-            return;
+            return None;
         }
-        let Ok(view) = self.staging.get_mapped_range(..) else {
-            return;
+        let t: [u64; 2] = {
+            let _unmap = Unmap(&self.staging);
+            let view = self.staging.get_mapped_range(..).ok()?;
+            bytemuck::pod_read_unaligned(&view[..Stamps::BYTES as usize])
         };
-        let t: [u64; 2] = bytemuck::pod_read_unaligned(&view[..Stamps::BYTES as usize]);
-        drop(view);
-        self.staging.unmap();
         let ticks = t[1].saturating_sub(t[0]) as f64;
         times::count_kernel(ticks * f64::from(ctx.queue.get_timestamp_period()));
+        Some(self)
     }
 }
 
@@ -692,14 +695,26 @@ impl Readback {
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
+        // Mapped: unmapped however this ends (an error, a panic in `f`), so that the next read
+        // can map it. (After a failed map there is nothing to unmap, and a caller that keeps a
+        // `Readback` drops it after an error: pc-raytrace's kept frame buffers.)
+        let _unmap = Unmap(&self.staging);
         let view = self
             .staging
             .get_mapped_range(..padded)
             .map_err(|e| GpuError::Readback(e.to_string()))?;
         let out = f(&view[..size as usize]);
         drop(view);
-        self.staging.unmap();
         times::count(times::Op::Read(size), started);
         Ok(out)
+    }
+}
+
+/// Unmaps its buffer when dropped (after any view of it, which borrows it).
+struct Unmap<'a>(&'a wgpu::Buffer);
+
+impl Drop for Unmap<'_> {
+    fn drop(&mut self) {
+        self.0.unmap();
     }
 }

@@ -11,14 +11,17 @@
 //! in the glass sphere's focus held each 1 spp frame's dispatch for 8 ms, whatever the image's
 //! size (docs/gpu.md). A bucket of more than [`DENSE_BUCKET`] photons is therefore kept as
 //! groups: the photons of one splat, one cube of side [`MERGE_CELL`] radii and one octant of
-//! directions. A group carries its photons' summed power, their power-weighted centroid `c`,
-//! their spread `σ²` (power-weighted mean squared distance from `c`), their mean direction, and
-//! how far its photons lie from `c` and from that direction. Where a lookup finds every photon
-//! of a group inside the radius, in front of the surface and near its tangent plane (the
-//! bounds decide it), the group's share is exact in one step, because the kernel is a quadratic
-//! in the photon's position:
+//! directions. A group carries its photons' mean position `q`, how far they lie from it and
+//! from their mean direction, and per colour channel the power moments `Σ Φᵢ`,
+//! `Σ Φᵢ (pᵢ − q)` and `Σ Φᵢ |pᵢ − q|²`. Where a lookup finds every photon of a group inside
+//! the radius, in front of the surface and near its tangent plane (the bounds decide it), the
+//! group's share is exact in one step, because the kernel is a quadratic in the photon's
+//! position: with `d = q − x`, per channel,
 //!
-//! `Σ Φᵢ (1 − |pᵢ − x|²/r²) = Φ (1 − (|c − x|² + σ²)/r²)`.
+//! `Σ Φᵢ (1 − |pᵢ − x|²/r²) = Σ Φᵢ − (Σ Φᵢ |pᵢ − q|² + 2 d · Σ Φᵢ (pᵢ − q) + |d|² Σ Φᵢ) / r²`.
+//!
+//! (Moments per channel: photons of different colours in one group, from coloured lights or
+//! walls, keep the identity exact. One centroid weighted by total power would not.)
 //!
 //! Where the bounds leave it open, the lookup scans the group's photons one by one. The
 //! estimate is the photon-by-photon one up to rounding; a lookup in a focus scans the groups
@@ -39,26 +42,29 @@ pub const DENSE_BUCKET: usize = 256;
 /// r/4**, 4,382 with 0.35 r and 5,071 with r/2, against 14,162 without groups.
 pub const MERGE_CELL: f32 = 0.25;
 
-/// A dense bucket's group of photons (WGSL twin `PhotonGroup`).
+/// A dense bucket's group of photons (WGSL twin `PhotonGroup`): where they lie and point, and
+/// each colour channel's power moments about `position`, from which a lookup that the bounds
+/// show takes every photon gets their kernel-weighted sum in one step ([`PhotonGroup::sum`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct PhotonGroup {
-    /// The photons' power-weighted centroid.
+    /// The photons' mean position: the moments' origin and the bounds' centre.
     pub position: [f32; 3],
-    /// Their power-weighted mean squared distance from `position`.
-    pub spread: f32,
-    /// Their power-weighted mean direction of travel, normalised.
-    pub dir: [f32; 3],
     /// The farthest photon's distance from `position`.
     pub extent: f32,
-    /// Their summed power (W, linear RGB).
+    /// Their power-weighted mean direction of travel, normalised.
+    pub dir: [f32; 3],
+    /// The largest `|dᵢ − dir|` of the photons' directions.
+    pub dir_extent: f32,
+    /// Their summed power (W, linear RGB): `Σ Φᵢ`.
     pub power: [f32; 3],
     /// The photons: `PhotonGrid::photons[start..start + count]`.
     pub start: u32,
+    /// Per channel, `Σ Φᵢ |pᵢ − position|²`.
+    pub second: [f32; 3],
     pub count: u32,
-    /// The largest `|dᵢ − dir|` of the photons' directions.
-    pub dir_extent: f32,
-    pub _pad: [u32; 2],
+    /// Per channel (red, green, blue), `Σ Φᵢ (pᵢ − position)`; the fourth word is padding.
+    pub first: [[f32; 4]; 3],
 }
 
 /// The grid: sparse buckets' photons, dense buckets' groups.
@@ -186,7 +192,7 @@ impl PhotonGrid {
             for g in &self.groups[lo as usize..hi as usize] {
                 e += match g.fate(x, n, r) {
                     Fate::None => Vec3::ZERO,
-                    Fate::All(d2) => Vec3::from(g.power) * (1.0 - (d2 + g.spread) / r2),
+                    Fate::All => g.sum(x, r2),
                     Fate::Open => {
                         scan(&self.photons[g.start as usize..(g.start + g.count) as usize])
                     }
@@ -222,15 +228,15 @@ impl PhotonGrid {
 enum Fate {
     /// No photon of the group counts.
     None,
-    /// Every photon counts; the centroid's squared distance.
-    All(f32),
+    /// Every photon counts.
+    All,
     /// The bounds leave it open: scan the photons.
     Open,
 }
 
 impl PhotonGroup {
-    /// The bounds' verdict (WGSL twin in `caustic`): the photons lie within `extent` of the
-    /// centroid and their directions within `dir_extent` of the mean, so the triangle
+    /// The bounds' verdict (WGSL twin in `caustic`): the photons lie within `extent` of
+    /// `position` and their directions within `dir_extent` of the mean, so the triangle
     /// inequality bounds each test of [`accept`] and of the radius for all of them at once.
     fn fate(&self, x: Vec3, n: Vec3, r: f32) -> Fate {
         let d = Vec3::from(self.position) - x;
@@ -243,9 +249,26 @@ impl PhotonGroup {
             return Fate::None;
         }
         if dist + self.extent <= r && facing + self.dir_extent < 0.0 && off + self.extent <= plane {
-            return Fate::All(d2);
+            return Fate::All;
         }
         Fate::Open
+    }
+
+    /// `Σ Φᵢ (1 − |pᵢ − x|²/r²)` over the group's photons, from its moments (WGSL twin
+    /// `group_sum`): with `q = position` and `d = q − x`, per channel,
+    /// `Σ Φᵢ |pᵢ − x|² = Σ Φᵢ |pᵢ − q|² + 2 d · Σ Φᵢ (pᵢ − q) + |d|² Σ Φᵢ`.
+    pub fn sum(&self, x: Vec3, r2: f32) -> Vec3 {
+        let d = Vec3::from(self.position) - x;
+        let first = Vec3::from([0, 1, 2].map(|c| {
+            d.dot(Vec3::new(
+                self.first[c][0],
+                self.first[c][1],
+                self.first[c][2],
+            ))
+        }));
+        let power = Vec3::from(self.power);
+        let spread = Vec3::from(self.second) + 2.0 * first + d.length_squared() * power;
+        power - spread / r2
     }
 }
 
@@ -336,35 +359,32 @@ impl Grouping {
     }
 }
 
-/// The group of `photons` (at least one), its photons at `start`. Sums in f64 about the first
-/// photon: the spread is a small difference of squares.
+/// The group of `photons` (at least one), its photons at `start`. The moments are summed in
+/// f64 about the photons' mean position, then rounded once.
 fn group(photons: &[Photon], start: u32) -> PhotonGroup {
-    let first = DVec3::from(photons[0].position.map(f64::from));
-    let (mut w, mut wp, mut wp2, mut wd, mut power) =
-        (0.0, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO);
+    let at = |p: &Photon| DVec3::from(p.position.map(f64::from));
+    let mean = photons.iter().map(at).sum::<DVec3>() / photons.len() as f64;
+    let position = mean.as_vec3();
+    let q = position.as_dvec3();
+    let (mut power, mut second, mut first, mut wd) =
+        (DVec3::ZERO, DVec3::ZERO, [DVec3::ZERO; 3], DVec3::ZERO);
     for p in photons {
-        let pw = DVec3::from(p.power.map(f64::from));
-        let weight = pw.element_sum();
-        let d = DVec3::from(p.position.map(f64::from)) - first;
-        w += weight;
-        wp += weight * d;
-        wp2 += weight * d.length_squared();
-        wd += weight * DVec3::from(p.dir.map(f64::from));
-        power += pw;
-    }
-    // Without power to weigh by (or with directions that cancel), the first photon's.
-    let (c, spread, dir) = match w > 0.0 && wd.length() > 0.0 {
-        true => {
-            let c = wp / w;
-            (c, (wp2 / w - c.length_squared()).max(0.0), wd.normalize())
+        let phi = DVec3::from(p.power.map(f64::from));
+        let d = at(p) - q;
+        power += phi;
+        second += phi * d.length_squared();
+        for (c, f) in first.iter_mut().enumerate() {
+            *f += phi[c] * d;
         }
-        false => (DVec3::ZERO, 0.0, DVec3::from(photons[0].dir.map(f64::from))),
+        wd += phi.element_sum() * DVec3::from(p.dir.map(f64::from));
+    }
+    // Without power to weigh the directions by, or where they cancel, the first photon's.
+    let dir = match wd.length() > 0.0 {
+        true => wd.normalize().as_vec3(),
+        false => Vec3::from(photons[0].dir),
     };
-    let centre = first + c;
-    let position = centre.as_vec3();
-    let dir = dir.as_vec3();
-    // The bounds from the f32 centroid and direction the lookup reads, widened by a rounding's
-    // worth so that every photon lies within them.
+    // The bounds about the f32 centre and direction the lookup reads, widened by a rounding's
+    // worth at the positions' scale so that every photon lies within them.
     let extent = photons
         .iter()
         .map(|p| (Vec3::from(p.position) - position).length())
@@ -373,15 +393,19 @@ fn group(photons: &[Photon], start: u32) -> PhotonGroup {
         .iter()
         .map(|p| (Vec3::from(p.dir) - dir).length())
         .fold(0.0, f32::max);
+    let scale = position.abs().max_element().max(extent);
     PhotonGroup {
         position: position.into(),
-        spread: spread as f32,
+        extent: extent * (1.0 + 1e-5) + 1e-6 * scale,
         dir: dir.into(),
-        extent: extent * (1.0 + 1e-5) + 1e-6 * position.abs().max_element(),
+        dir_extent: dir_extent * (1.0 + 1e-5) + 1e-6,
         power: power.as_vec3().into(),
         start,
+        second: second.as_vec3().into(),
         count: photons.len() as u32,
-        dir_extent: dir_extent * (1.0 + 1e-5) + 1e-6,
-        _pad: [0; 2],
+        first: first.map(|f| {
+            let f = f.as_vec3();
+            [f.x, f.y, f.z, 0.0]
+        }),
     }
 }

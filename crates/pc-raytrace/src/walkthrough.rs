@@ -95,19 +95,28 @@ pub fn walkthrough(
         let failed = std::sync::atomic::AtomicBool::new(false);
         let frames_started = Instant::now();
         let (rendered, written) = std::thread::scope(|scope| {
+            // A writer that fails keeps taking frames (and drops them) until the renderer,
+            // seeing `failed`, stops sending: a writer that returned could leave the renderer
+            // blocked on a full channel with no one to empty it.
             let write = || -> (f64, Option<(usize, RenderError)>) {
                 let mut seconds = 0.0;
+                let mut error = None;
                 loop {
                     let next = rx.lock().unwrap_or_else(|e| e.into_inner()).recv();
                     let Ok((i, path, image)) = next else {
-                        return (seconds, None);
+                        return (seconds, error);
                     };
-                    let t = Instant::now();
-                    if let Err(e) = write_png(path, &image, exposure) {
-                        failed.store(true, std::sync::atomic::Ordering::Relaxed);
-                        return (seconds, Some((i, e.into())));
+                    if error.is_some() {
+                        continue;
                     }
-                    seconds += t.elapsed().as_secs_f64();
+                    let t = Instant::now();
+                    match write_png(path, &image, exposure) {
+                        Ok(()) => seconds += t.elapsed().as_secs_f64(),
+                        Err(e) => {
+                            failed.store(true, std::sync::atomic::Ordering::Relaxed);
+                            error = Some((i, e.into()));
+                        }
+                    }
                 }
             };
             let handles: Vec<_> = (0..writers).map(|_| scope.spawn(write)).collect();
@@ -127,9 +136,8 @@ pub fn walkthrough(
                     }
                 };
                 render_seconds += t.elapsed().as_secs_f64();
-                // A closed channel means every writer stopped on an error, which they give.
                 if tx.send((i, path, image)).is_err() {
-                    break;
+                    break; // (the receiver lives until the writers are joined)
                 }
                 frame_done(i);
             }

@@ -9,8 +9,8 @@ use pc_gpu::{Binding, GpuContext, GpuError, Kernel};
 
 use pc_tree::gpu::{GpuOctree, OctreeParts};
 
-use crate::caustic::PhotonGrid;
 use crate::image::{Aovs, Image};
+use crate::photon_grid::{PhotonGrid, PhotonGroup};
 use crate::scene::{Params, RenderScene};
 
 /// The kernel's source (`shaders/raytrace/render.wgsl` with the files it requires).
@@ -71,6 +71,10 @@ impl Pass {
     }
 }
 
+/// Storage buffers the kernel binds: the octree's and scene's 9, the output, and radiance,
+/// photons, grid offsets, leaf roughness and photon groups.
+const STORAGE_BUFFERS: u32 = 15;
+
 /// Samples per dispatch; bands of rows are sized to stay under this.
 const SAMPLES_PER_DISPATCH: u64 = 1 << 21;
 /// Pixels a band of the second pass spans at most (its marks go up and its words come back).
@@ -92,11 +96,11 @@ impl GpuRenderer {
         b.push(Binding::ReadWrite);
         b.extend([Binding::ReadOnly; 5]);
         let limit = ctx.device.limits().max_storage_buffers_per_shader_stage;
-        if limit < 14 {
+        if limit < STORAGE_BUFFERS {
             return Err(GpuError::Device {
                 adapter: ctx.describe(),
                 msg: format!(
-                    "the renderer needs 14 storage buffers per stage, the adapter allows {limit}"
+                    "the renderer needs {STORAGE_BUFFERS} storage buffers per stage, the adapter allows {limit}"
                 ),
             });
         }
@@ -262,7 +266,15 @@ impl GpuRenderer {
         bytes: u64,
         f: impl FnOnce(&FrameBuffers) -> Result<R, GpuError>,
     ) -> Result<R, GpuError> {
-        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        let mut kept = match self.kept.lock() {
+            Ok(kept) => kept,
+            Err(poisoned) => {
+                // A pass panicked while holding them: make them afresh.
+                let mut kept = poisoned.into_inner();
+                *kept = Default::default();
+                kept
+            }
+        };
         let slot = &mut kept[pass.slot()];
         if slot.as_ref().is_none_or(|fb| fb.back.capacity() < bytes) {
             *slot = Some(FrameBuffers {
@@ -270,7 +282,11 @@ impl GpuRenderer {
                 back: pc_gpu::Readback::new(ctx, bytes),
             });
         }
-        f(slot.as_ref().expect("made above"))
+        let out = f(slot.as_ref().expect("made above"));
+        if out.is_err() {
+            *slot = None; // a failed pass's buffers are not trusted again
+        }
+        out
     }
 
     /// One dispatch over the image rows `row..row + rows` into `fb`'s output, read back into `f`
@@ -338,6 +354,9 @@ fn unpack_aovs(px: &[PixelOut], rgb: &mut [[f32; 3]], a: &mut Aovs, at: usize) {
     }
 }
 
+/// One [`PhotonGroup`]'s bytes: the placeholder of a map without groups.
+const GROUP_BYTES: usize = std::mem::size_of::<PhotonGroup>();
+
 /// The photon map's buffers (crate::photon_grid::PhotonGrid): photons, offsets, groups.
 struct PhotonBuffers {
     photons: pc_gpu::Buffer,
@@ -364,7 +383,7 @@ fn photon_buffers(ctx: &GpuContext, sc: &RenderScene) -> Result<(Params, PhotonB
             let buffers = PhotonBuffers {
                 photons: ctx.storage("photons", &[0u8; 48])?,
                 offsets: ctx.storage("grid_offsets", &[0u8; 8])?,
-                groups: ctx.storage("photon_groups", &[0u8; 64])?,
+                groups: ctx.storage("photon_groups", &[0u8; GROUP_BYTES])?,
             };
             return Ok((grid, buffers));
         }
@@ -376,7 +395,7 @@ fn photon_buffers(ctx: &GpuContext, sc: &RenderScene) -> Result<(Params, PhotonB
     grid.photon_count = g.photons.len() as u32;
     grid.grid_cell = g.cell;
     let groups: &[u8] = match g.groups.is_empty() {
-        true => &[0u8; 64],
+        true => &[0u8; GROUP_BYTES],
         false => bytemuck::cast_slice(&g.groups),
     };
     let buffers = PhotonBuffers {
