@@ -163,7 +163,7 @@ fn lookup_row(bin: &Path, config: &Path, n: usize) -> Result<String> {
     let c = &v["caustic"];
     let f = |k: &str| c[k].as_f64().unwrap_or(f64::NAN);
     Ok(format!(
-        "| {:.2}M | {:.0}k | {:.4} | {:.0}k ({:.0} % near photons) | {:.0} ns | {:.0} ns (k {}) | {:.0} ns (built in {:.3} s) |",
+        "| {:.2}M | {:.0}k | {:.4} | {:.0}k ({:.0} % near photons) | {:.0} ns | {:.0} ns (k {}) | {:.0} ns (built in {:.3} s; {:.0} groups; reads {:.1} a lookup, at most {:.0}) |",
         n as f64 / 1e6,
         f("photons") / 1e3,
         f("radius"),
@@ -174,6 +174,9 @@ fn lookup_row(bin: &Path, config: &Path, n: usize) -> Result<String> {
         c["k"],
         f("grid_ns"),
         f("grid_build_s"),
+        f("groups"),
+        f("reads_mean"),
+        f("reads_max"),
     ))
 }
 
@@ -186,9 +189,11 @@ scaled so that about 1M photons are traced (the budget covers the lights' whole 
 aimed at light-visible specular leaves are traced). Trace time: emission plan excluded, tracing only.\n\n\
 | splats | device | budget | traced | stored | trace | photons/s |\n|---|---|---|---|---|---|---|\n{}\n\n\
 Caustic lookup per shaded hit (CPU, per thread): the diffuse hits of 512×512 primary rays from the scene \
-camera, on the photon map above; fixed radius through the CPU renderer's kd-tree (built when the photon \
-map is opened), k-nearest through it, and the hashed grid the GPU renderer uses, run on the CPU.\n\n\
-| splats | photons | radius | lookups | kd-tree, fixed radius | kd-tree, k-nearest | hashed grid |\n|---|---|---|---|---|---|---|\n{}\n",
+camera, on the photon map above; fixed radius through a kd-tree (kiddo's, built before the timing: \
+the grid's predecessor), k-nearest through it (the renderers' `caustic_k` path), and the hashed grid both \
+renderers read for the fixed radius (dense buckets held as groups; a lookup's reads are its photons and \
+groups).\n\n\
+| splats | photons | radius | lookups | kd-tree, fixed radius | kd-tree, k-nearest | hashed grid (the renderers') |\n|---|---|---|---|---|---|---|\n{}\n",
         machine(),
         today(),
         sizes_arg(sizes),

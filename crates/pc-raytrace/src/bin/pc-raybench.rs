@@ -356,7 +356,29 @@ fn caustic_lookups(
             lit,
         )
     };
-    let (kd_ns, lit) = time(&|x, n| c.irradiance(x, n));
+    // The fixed-radius estimate through the kd-tree (the renderers read the grid, timed below;
+    // this is the baseline the grid replaced): the photons within the radius that count
+    // (`caustic::accept`), under the Epanechnikov kernel.
+    let tree = c.tree();
+    let kd_fixed = |x: Vec3, n: Vec3| -> Vec3 {
+        use kiddo::SquaredEuclidean;
+        let r2 = radius * radius;
+        let found = tree
+            .query(&x.to_array())
+            .within::<SquaredEuclidean<f32>>(r2)
+            .unsorted()
+            .execute();
+        let mut e = Vec3::ZERO;
+        for f in &found {
+            let p = &c.photons[f.item as usize];
+            let d = Vec3::from(p.position) - x;
+            if Vec3::from(p.dir).dot(n) < 0.0 && d.dot(n).abs() <= 0.25 * radius {
+                e += Vec3::from(p.power) * (1.0 - f.distance / r2).max(0.0);
+            }
+        }
+        e * (2.0 / (std::f32::consts::PI * r2))
+    };
+    let (kd_ns, lit) = time(&kd_fixed);
     let k = if rt.caustic_k > 0 { rt.caustic_k } else { 50 };
     c.k = k;
     let (knn_ns, _) = time(&|x, n| c.irradiance(x, n));
@@ -365,18 +387,26 @@ fn caustic_lookups(
     let grid = PhotonGrid::new(c.photons, radius);
     let grid_build = t.elapsed().as_secs_f64();
     let (grid_ns, _) = time(&|x, n| grid.irradiance(x, n));
+    // What a lookup reads in the grid (photons and groups): the mean, and the most, which is
+    // what a GPU thread in a caustic's focus holds its warp for (docs/gpu.md).
+    let reads: Vec<usize> = hits.par_iter().map(|(x, n)| grid.reads(*x, *n)).collect();
+    let reads_mean = reads.iter().sum::<usize>() as f64 / reads.len().max(1) as f64;
+    let reads_max = reads.iter().copied().max().unwrap_or(0);
     println!(
         "pc-raybench: caustic lookup at {} diffuse primary hits ({:.0} % near photons), {} photons, \
          radius {radius:.4}: kd-tree {kd_ns:.0} ns, k-nearest (k {k}) {knn_ns:.0} ns, hashed grid \
-         {grid_ns:.0} ns per lookup per thread (grid built in {grid_build:.3} s)",
+         {grid_ns:.0} ns per lookup per thread (grid built in {grid_build:.3} s, {} groups; a lookup \
+         reads {reads_mean:.1} photons and groups, at most {reads_max})",
         hits.len(),
         100.0 * lit as f64 / hits.len().max(1) as f64,
-        c.photons.len()
+        c.photons.len(),
+        grid.groups.len()
     );
     Ok(format!(
-        "{{\"photons\": {}, \"lookups\": {}, \"found\": {lit}, \"radius\": {radius}, \"kdtree_ns\": {kd_ns:.1}, \"k\": {k}, \"knn_ns\": {knn_ns:.1}, \"grid_ns\": {grid_ns:.1}, \"grid_build_s\": {grid_build:.4}}}",
+        "{{\"photons\": {}, \"lookups\": {}, \"found\": {lit}, \"radius\": {radius}, \"kdtree_ns\": {kd_ns:.1}, \"k\": {k}, \"knn_ns\": {knn_ns:.1}, \"grid_ns\": {grid_ns:.1}, \"grid_build_s\": {grid_build:.4}, \"groups\": {}, \"reads_mean\": {reads_mean:.2}, \"reads_max\": {reads_max}}}",
         c.photons.len(),
-        hits.len()
+        hits.len(),
+        grid.groups.len()
     ))
 }
 
