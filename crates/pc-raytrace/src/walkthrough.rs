@@ -244,3 +244,30 @@ pub fn run(
         w.write_seconds
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The writers' seconds add up, and where several writers failed the error is the earliest
+    /// frame's, whichever writer met it.
+    #[test]
+    fn the_earliest_failed_frame_is_reported() {
+        let io = |frame: &str| RenderError::Io {
+            path: PathBuf::from(frame),
+            source: std::io::Error::other("disk full"),
+        };
+        let ok = first_error([(1.0, None), (0.5, None)].into_iter()).unwrap();
+        assert_eq!(ok, 1.5);
+        let e = first_error(
+            [
+                (1.0, Some((5, io("frame_00005.png")))),
+                (0.5, None),
+                (2.0, Some((3, io("frame_00003.png")))),
+            ]
+            .into_iter(),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("frame_00003.png"), "{e}");
+    }
+}
