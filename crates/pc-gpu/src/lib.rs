@@ -543,19 +543,13 @@ impl Stamps {
     /// unmapped, for the next dispatch. A span that cannot be read is not counted (the counters
     /// say how many dispatches were timed), and its buffers are dropped.
     fn count(self, ctx: &GpuContext) -> Option<Stamps> {
-        let (tx, rx) = mpsc::channel();
-        self.staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.device.poll(wgpu::PollType::wait_indefinitely()).ok()?;
-        if !matches!(rx.recv(), Ok(Ok(()))) {
-            return None;
-        }
-        let t: [u64; 2] = {
-            let _unmap = Unmap(&self.staging);
-            let view = self.staging.get_mapped_range(..).ok()?;
-            bytemuck::pod_read_unaligned(&view[..Stamps::BYTES as usize])
-        };
+        let t: [u64; 2] = map_read(
+            ctx,
+            &self.staging,
+            Stamps::BYTES,
+            bytemuck::pod_read_unaligned,
+        )
+        .ok()?;
         let ticks = t[1].saturating_sub(t[0]) as f64;
         times::count_kernel(ticks * f64::from(ctx.queue.get_timestamp_period()));
         Some(self)
@@ -684,30 +678,36 @@ impl Readback {
             });
         enc.copy_buffer_to_buffer(buffer, 0, &self.staging, 0, padded);
         ctx.queue.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        self.staging
-            .map_async(wgpu::MapMode::Read, ..padded, move |r| {
-                let _ = tx.send(r);
-            });
-        ctx.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        // Mapped: unmapped however this ends (an error, a panic in `f`), so that the next read
-        // can map it. (After a failed map there is nothing to unmap, and a caller that keeps a
-        // `Readback` drops it after an error: pc-raytrace's kept frame buffers.)
-        let _unmap = Unmap(&self.staging);
-        let view = self
-            .staging
-            .get_mapped_range(..padded)
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let out = f(&view[..size as usize]);
-        drop(view);
+        let out = map_read(ctx, &self.staging, padded, |bytes| {
+            f(&bytes[..size as usize])
+        })?;
         times::count(times::Op::Read(size), started);
         Ok(out)
     }
+}
+
+/// Map the first `padded` bytes of `staging` (its copy submitted), hand them to `f`, unmap
+/// (blocking). Unmapped however this ends once mapped (an error, a panic in `f`), so the next
+/// use can map it again; after a failed map there is nothing to unmap, and a caller that keeps
+/// the buffer drops it after an error (pc-raytrace's kept frame buffers).
+fn map_read<R>(
+    ctx: &GpuContext,
+    staging: &wgpu::Buffer,
+    padded: u64,
+    f: impl FnOnce(&[u8]) -> R,
+) -> Result<R, GpuError> {
+    let err = |e: &dyn std::fmt::Display| GpuError::Readback(e.to_string());
+    let (tx, rx) = mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, ..padded, move |r| {
+        let _ = tx.send(r);
+    });
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| err(&e))?;
+    rx.recv().map_err(|e| err(&e))?.map_err(|e| err(&e))?;
+    let _unmap = Unmap(staging);
+    let view = staging.get_mapped_range(..padded).map_err(|e| err(&e))?;
+    Ok(f(&view))
 }
 
 /// Unmaps its buffer when dropped (after any view of it, which borrows it).

@@ -192,7 +192,7 @@ impl PhotonGrid {
             for g in &self.groups[lo as usize..hi as usize] {
                 e += match g.fate(x, n, r) {
                     Fate::None => Vec3::ZERO,
-                    Fate::All => g.sum(x, r2),
+                    Fate::All(d) => g.sum(d, r2),
                     Fate::Open => {
                         scan(&self.photons[g.start as usize..(g.start + g.count) as usize])
                     }
@@ -228,8 +228,8 @@ impl PhotonGrid {
 enum Fate {
     /// No photon of the group counts.
     None,
-    /// Every photon counts.
-    All,
+    /// Every photon counts; the group's position less the lookup's.
+    All(Vec3),
     /// The bounds leave it open: scan the photons.
     Open,
 }
@@ -249,16 +249,15 @@ impl PhotonGroup {
             return Fate::None;
         }
         if dist + self.extent <= r && facing + self.dir_extent < 0.0 && off + self.extent <= plane {
-            return Fate::All;
+            return Fate::All(d);
         }
         Fate::Open
     }
 
-    /// `Σ Φᵢ (1 − |pᵢ − x|²/r²)` over the group's photons, from its moments (WGSL twin
-    /// `group_sum`): with `q = position` and `d = q − x`, per channel,
+    /// `Σ Φᵢ (1 − |pᵢ − x|²/r²)` over the group's photons, from its moments and `d = q − x`
+    /// (`q = position`; WGSL twin `group_sum`): per channel,
     /// `Σ Φᵢ |pᵢ − x|² = Σ Φᵢ |pᵢ − q|² + 2 d · Σ Φᵢ (pᵢ − q) + |d|² Σ Φᵢ`.
-    pub fn sum(&self, x: Vec3, r2: f32) -> Vec3 {
-        let d = Vec3::from(self.position) - x;
+    pub fn sum(&self, d: Vec3, r2: f32) -> Vec3 {
         let first = Vec3::from([0, 1, 2].map(|c| {
             d.dot(Vec3::new(
                 self.first[c][0],
