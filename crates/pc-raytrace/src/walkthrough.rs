@@ -2,6 +2,9 @@
 //! solution (the seed's interactive walkthrough, §10, as a fixed path).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::Receiver;
+use std::sync::Mutex;
 use std::time::Instant;
 
 use pc_config::{Backend, LoadedConfig};
@@ -66,8 +69,8 @@ pub struct Orbit {
 
 /// Render the frames of `orbit` along [`walkthrough_camera`]'s path on the cached solution (the
 /// artifacts are loaded once; the GPU keeps its buffers between frames), each PNG written
-/// atomically by one of [`png_writers`] threads while the next frames render (as many frames
-/// wait at most as there are writers); `frame_done` hears of each frame rendered.
+/// atomically by one of [`png_writers`] threads while the next frames render ([`with_writers`]);
+/// `frame_done` hears of each frame rendered.
 pub fn walkthrough(
     cfg: &LoadedConfig,
     inputs: &Inputs,
@@ -84,71 +87,26 @@ pub fn walkthrough(
     with_scene(cfg, inputs, backend, |sc, _, _| {
         let mut renderer = Renderer::new(sc, backend)?;
         let setup_seconds = started.elapsed().as_secs_f64();
-        let exposure = c.raytrace.exposure;
         let mut render_seconds = 0.0;
         let paths: Vec<PathBuf> = (0..orbit.frames)
             .map(|i| orbit.dir.join(format!("frame_{i:05}.png")))
             .collect();
-        let writers = png_writers();
-        let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, &Path, Image)>(writers);
-        let rx = std::sync::Mutex::new(rx);
-        let failed = std::sync::atomic::AtomicBool::new(false);
         let frames_started = Instant::now();
-        let (rendered, written) = std::thread::scope(|scope| {
-            // A writer that fails keeps taking frames (and drops them) until the renderer,
-            // seeing `failed`, stops sending: a writer that returned could leave the renderer
-            // blocked on a full channel with no one to empty it.
-            let write = || -> (f64, Option<(usize, RenderError)>) {
-                let mut seconds = 0.0;
-                let mut error = None;
-                loop {
-                    let next = rx.lock().unwrap_or_else(|e| e.into_inner()).recv();
-                    let Ok((i, path, image)) = next else {
-                        return (seconds, error);
-                    };
-                    if error.is_some() {
-                        continue;
-                    }
-                    let t = Instant::now();
-                    match write_png(path, &image, exposure) {
-                        Ok(()) => seconds += t.elapsed().as_secs_f64(),
-                        Err(e) => {
-                            failed.store(true, std::sync::atomic::Ordering::Relaxed);
-                            error = Some((i, e.into()));
-                        }
-                    }
-                }
-            };
-            let handles: Vec<_> = (0..writers).map(|_| scope.spawn(write)).collect();
-            let mut rendered = Ok(());
+        let (rendered, written) = with_writers(c.raytrace.exposure, |writers| {
             for (i, path) in paths.iter().enumerate() {
-                if failed.load(std::sync::atomic::Ordering::Relaxed) {
+                if writers.failed() {
                     break; // the writers' error says why
                 }
                 let cam = walkthrough_camera(&c.camera, i, orbit.frames, orbit.degrees);
                 sc.set_camera(&Camera::new(&cam));
                 let t = Instant::now();
-                let image = match renderer.render(sc, false, &|| {}) {
-                    Ok(frame) => frame.image,
-                    Err(e) => {
-                        rendered = Err(e);
-                        break;
-                    }
-                };
+                let image = renderer.render(sc, false, &|| {})?.image;
                 render_seconds += t.elapsed().as_secs_f64();
-                if tx.send((i, path, image)).is_err() {
-                    break; // (the receiver lives until the writers are joined)
-                }
+                writers.send(i, path, image);
                 frame_done(i);
             }
-            drop(tx);
-            let written = handles.into_iter().map(|h| {
-                h.join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-            });
-            (rendered, first_error(written))
+            Ok::<(), RenderError>(())
         });
-        drop(rx); // it held the paths' borrow
         rendered?;
         let write_seconds = written?;
         let frames_seconds = frames_started.elapsed().as_secs_f64();
@@ -162,6 +120,88 @@ pub fn walkthrough(
             setup_seconds,
         })
     })
+}
+
+/// One rendered frame on its way to a writer: its number, its PNG's path, the image.
+type Frame<'p> = (usize, &'p Path, Image);
+
+/// Where `render` ([`with_writers`]) hands its frames.
+struct Writers<'p, 'w> {
+    tx: std::sync::mpsc::SyncSender<Frame<'p>>,
+    failed: &'w AtomicBool,
+}
+
+impl<'p> Writers<'p, '_> {
+    /// Whether a writer has failed: the frames after it would not be written.
+    fn failed(&self) -> bool {
+        self.failed.load(Ordering::Relaxed)
+    }
+
+    /// Hands frame `i` to a writer, waiting while as many frames wait as there are writers.
+    fn send(&self, i: usize, path: &'p Path, image: Image) {
+        // The writers take frames until the sender is dropped, so the channel stays open.
+        let _ = self.tx.send((i, path, image));
+    }
+}
+
+/// Runs `render` with [`png_writers`] threads writing the frames it hands to [`Writers`] as
+/// PNGs (atomically, at the exposure given); returns what `render` returned and the writers'
+/// summed seconds, or the error of the earliest frame that failed ([`first_error`]).
+fn with_writers<'p, R>(
+    exposure: f32,
+    render: impl FnOnce(&Writers<'p, '_>) -> R,
+) -> (R, Result<f64, RenderError>) {
+    let n = png_writers();
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Frame<'p>>(n);
+    let rx = Mutex::new(rx);
+    let failed = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..n)
+            .map(|_| scope.spawn(|| write_frames(&rx, &failed, exposure)))
+            .collect();
+        let writers = Writers {
+            tx,
+            failed: &failed,
+        };
+        let out = render(&writers);
+        drop(writers); // the writers stop once the channel is empty
+        let written = handles.into_iter().map(|h| {
+            h.join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        });
+        (out, first_error(written))
+    })
+}
+
+/// One writer thread: writes the frames it takes from `rx` until the channel closes; its
+/// seconds spent writing and its first failure (frame and error). After a failure it sets
+/// `failed` and keeps taking frames (dropping them) until the renderer, seeing `failed`, stops
+/// sending: a writer that returned could leave the renderer blocked on a full channel with no
+/// one to empty it.
+fn write_frames(
+    rx: &Mutex<Receiver<Frame<'_>>>,
+    failed: &AtomicBool,
+    exposure: f32,
+) -> (f64, Option<(usize, RenderError)>) {
+    let mut seconds = 0.0;
+    let mut error = None;
+    loop {
+        let next = rx.lock().unwrap_or_else(|e| e.into_inner()).recv();
+        let Ok((i, path, image)) = next else {
+            return (seconds, error);
+        };
+        if error.is_some() {
+            continue;
+        }
+        let t = Instant::now();
+        match write_png(path, &image, exposure) {
+            Ok(()) => seconds += t.elapsed().as_secs_f64(),
+            Err(e) => {
+                failed.store(true, Ordering::Relaxed);
+                error = Some((i, e.into()));
+            }
+        }
+    }
 }
 
 /// Threads that write a walkthrough's PNGs: one a frame at once, up to 4 (a 1024² frame's sRGB
