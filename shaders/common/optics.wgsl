@@ -146,3 +146,35 @@ fn specular_bounce(m: Material, color: vec3<f32>, ns: vec3<f32>, n: vec3<f32>, d
     }
     return Bounce(reflected, vec3<f32>(1.0));
 }
+
+// Both ways out of a dielectric at once (twin of pc_tree::optics::dielectric_split): the
+// reflection tinted by the Fresnel reflectance f and, when `transmits` (not total internal
+// reflection), the refraction tinted by (1 - f) and `color`. Arguments as specular_bounce's.
+struct Split {
+    reflected: vec3<f32>,
+    r_tint: vec3<f32>,
+    refracted: vec3<f32>,
+    t_tint: vec3<f32>,
+    transmits: bool,
+}
+
+fn dielectric_split(m: Material, color: vec3<f32>, ns: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> Split {
+    var nf = n;
+    if dot(dir, n) >= 0.0 {
+        nf = -n;
+    }
+    var eta = m.ior;
+    if dot(dir, ns) < 0.0 {
+        eta = 1.0 / m.ior;
+    }
+    let ci = -dot(dir, nf);
+    let f = fresnel(clamp(ci, 0.0, 1.0), eta);
+    let sin2_t = eta * eta * max(1.0 - ci * ci, 0.0);
+    var out = Split(reflect_dir(dir, nf), vec3<f32>(f), vec3<f32>(0.0), vec3<f32>(0.0), false);
+    if sin2_t < 1.0 {
+        out.refracted = normalize(eta * dir + (eta * ci - sqrt(1.0 - sin2_t)) * nf);
+        out.t_tint = (1.0 - f) * color;
+        out.transmits = true;
+    }
+    return out;
+}

@@ -46,6 +46,50 @@ struct Params {
     // 1: the second pass of refined pixels (crate::refine): only the pixels whose word's fourth
     // lane the host set to REFINE_MARK are rendered, the others left as they are.
     refine: u32,
+    // Dielectric hits per sample that take both ways out (raytrace.splits, at most 3).
+    splits: u32,
+    // This dispatch's samples of each pixel: sample_count of them from sample_offset, added to
+    // the sums the dispatch before left in out_pixels (several dispatches on a software
+    // adapter, whose loops end after 65535 iterations per invocation group; crate::gpu::render).
+    sample_offset: u32,
+    sample_count: u32,
+    _pad0: u32,
+}
+
+// A camera sample's branch waiting to be traced (twin of an entry of cpu.rs's Branches): its
+// ray, throughput and the bounce it starts at.
+struct Branch {
+    ro: vec3<f32>,
+    rd: vec3<f32>,
+    t_min: f32,
+    throughput: vec3<f32>,
+    bounce: u32,
+}
+
+// The branches waiting, last in first out: at most pc_config::MAX_SPLITS (3) at once.
+struct Slots {
+    s0: Branch,
+    s1: Branch,
+    s2: Branch,
+    n: u32,
+}
+
+fn push_branch(slots: ptr<function, Slots>, b: Branch) {
+    switch (*slots).n {
+        case 0u: { (*slots).s0 = b; }
+        case 1u: { (*slots).s1 = b; }
+        default: { (*slots).s2 = b; }
+    }
+    (*slots).n = (*slots).n + 1u;
+}
+
+fn pop_branch(slots: ptr<function, Slots>) -> Branch {
+    (*slots).n = (*slots).n - 1u;
+    switch (*slots).n {
+        case 0u: { return (*slots).s0; }
+        case 1u: { return (*slots).s1; }
+        default: { return (*slots).s2; }
+    }
 }
 
 // Twin of pc_raytrace::refine::MARK.
@@ -348,118 +392,165 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
     var rd = normalize(params.cam_forward + cx * params.cam_right + cy * params.cam_up);
     var t_min = 0.0;
     var throughput = vec3<f32>(1.0);
-    for (var bounce = 0u; bounce <= params.max_bounces; bounce = bounce + 1u) {
-        let hit = trace(ro, rd, t_min, F32_MAX, false);
-        if !hit.found {
-            res.rgb = res.rgb + throughput * params.background;
-            break;
-        }
-        let s = splats[hit.splat];
-        let m = materials[s.material];
-        let x = ro + rd * hit.t;
-        let delta = params.self_hit * s.radius;
-        let ns = s.normal;
-        if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
-            let n = shading_normal(hit.splat, x);
-            let color = m.color * s.albedo;
-            if bounce == 0u {
-                res.depth = hit.t;
-                res.normal = n;
-                res.albedo = color;
-                res.splat = s.source;
-            }
-            var nf = n;
-            if dot(rd, n) >= 0.0 {
-                nf = -n;
-            }
-            if m.phong > 0.0 {
-                res.rgb = res.rgb + throughput * color * phong(x, nf, -rd, m.phong, delta);
-            }
-            let b = specular_bounce(m, color, ns, n, rd, rand(pixel, k, dim(bounce, 0u)));
-            throughput = throughput * b.tint;
-            ro = x;
-            rd = b.dir;
-            t_min = delta;
-            continue;
-        }
-        if dot(rd, ns) >= 0.0 {
-            if bounce == 0u {
-                res.depth = hit.t;
-                res.normal = ns;
-                res.splat = s.source;
-            }
-            break;
-        }
-        // Blend the splats of this surface covering x (twin of OctreeView::covering).
-        var wsum = 0.0;
-        var albedo = vec3<f32>(0.0);
-        var emit = vec3<f32>(0.0);
-        var nsum = vec3<f32>(0.0);
-        let off = hit.leaf & NODE_PTR;
-        let begin = begin_end[off];
-        let extra = begin_end[off + 1u];
-        let end = begin_end[off + 2u + extra];
-        let count = (end - begin) + extra;
-        for (var kk = 0u; kk < count; kk = kk + 1u) {
-            var j = begin + kk;
-            if kk >= end - begin {
-                j = begin_end[off + 2u + (kk - (end - begin))];
-            }
-            let sj = splats[j];
-            if dot(sj.normal, ns) <= BLEND_MIN_COS {
-                continue;
-            }
-            let dd = x - sj.position;
-            let h = dot(dd, sj.normal);
-            let rho2 = dot(dd, dd) - h * h;
-            let r2 = sj.radius * sj.radius;
-            if abs(h) <= params.blend_thickness * sj.radius && rho2 < r2 && within_clip(sj, x - sj.normal * h) {
-                let uu = 1.0 - rho2 / r2;
-                let wgt = uu * uu;
-                let mj = materials[sj.material];
-                wsum = wsum + wgt;
-                albedo = albedo + wgt * mj.color * sj.albedo;
-                if params.stored_radiance == 1u {
-                    emit = emit + wgt * stored_radiance(j);
-                } else if mj.class_id == CLASS_EMITTER {
-                    emit = emit + wgt * mj.radiance;
+    var bounce = 0u;
+    // The refracted branches of the path's splits at dielectrics, last split first (twin of
+    // cpu.rs's Branches), and the splits made. One flat loop, a bounce an iteration, that takes
+    // the next branch where one ends: with the branches as a loop around the bounces' loop,
+    // llvmpipe ended the sample loop of neighbouring pixels early (whole samples lost).
+    var slots = Slots(Branch(), Branch(), Branch(), 0u);
+    var splits = 0u;
+    loop {
+        var ended = true;
+        if bounce <= params.max_bounces {
+            let hit = trace(ro, rd, t_min, F32_MAX, false);
+            if !hit.found {
+                res.rgb = res.rgb + throughput * params.background;
+            } else {
+                let s = splats[hit.splat];
+                let m = materials[s.material];
+                let x = ro + rd * hit.t;
+                let delta = params.self_hit * s.radius;
+                let ns = s.normal;
+                if m.class_id == CLASS_MIRROR || m.class_id == CLASS_DIELECTRIC {
+                    let n = shading_normal(hit.splat, x);
+                    let color = m.color * s.albedo;
+                    if bounce == 0u {
+                        res.depth = hit.t;
+                        res.normal = n;
+                        res.albedo = color;
+                        res.splat = s.source;
+                    }
+                    var nf = n;
+                    if dot(rd, n) >= 0.0 {
+                        nf = -n;
+                    }
+                    if m.phong > 0.0 {
+                        res.rgb = res.rgb + throughput * color * phong(x, nf, -rd, m.phong, delta);
+                    }
+                    var b: Bounce;
+                    var halves = Split(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), false);
+                    if m.class_id == CLASS_DIELECTRIC && splits < params.splits {
+                        halves = dielectric_split(m, color, ns, n, rd);
+                    }
+                    if halves.transmits {
+                        splits = splits + 1u;
+                        push_branch(&slots, Branch(x, halves.refracted, delta, throughput * halves.t_tint, bounce + 1u));
+                        b = Bounce(halves.reflected, halves.r_tint);
+                    } else {
+                        var u = 0.0;
+                        if m.class_id != CLASS_MIRROR {
+                            u = rand(pixel, k, dim(bounce, 0u));
+                        }
+                        b = specular_bounce(m, color, ns, n, rd, u);
+                    }
+                    throughput = throughput * b.tint;
+                    ro = x;
+                    rd = b.dir;
+                    t_min = delta;
+                    ended = false;
+                } else if dot(rd, ns) >= 0.0 {
+                    // Diffuse or emitting splats are one-sided: black from behind.
+                    if bounce == 0u {
+                        res.depth = hit.t;
+                        res.normal = ns;
+                        res.splat = s.source;
+                    }
+                } else {
+                    shade_diffuse(&res, hit, x, throughput, pixel, k, bounce);
                 }
-                nsum = nsum + wgt * sj.normal;
             }
         }
-        if wsum <= 0.0 {
-            wsum = 1.0;
-            albedo = m.color * s.albedo;
-            emit = vec3<f32>(0.0);
-            if params.stored_radiance == 1u {
-                emit = stored_radiance(hit.splat);
-            } else if m.class_id == CLASS_EMITTER {
-                emit = m.radiance;
-            }
-            nsum = ns;
+        if !ended {
+            bounce = bounce + 1u;
+        } else if slots.n > 0u {
+            let next = pop_branch(&slots);
+            ro = next.ro;
+            rd = next.rd;
+            t_min = next.t_min;
+            throughput = next.throughput;
+            bounce = next.bounce;
+        } else {
+            break;
         }
-        albedo = albedo / wsum;
-        emit = emit / wsum;
-        var n = ns;
-        if length(nsum) > 0.0 {
-            n = normalize(nsum);
-        }
-        if bounce == 0u {
-            res.depth = hit.t;
-            res.normal = n;
-            res.albedo = albedo;
-            res.splat = s.source;
-        }
-        res.rgb = res.rgb + throughput * emit;
-        if params.photon_count > 0u {
-            res.rgb = res.rgb + throughput * albedo / PI * caustic(x, n);
-        }
-        if params.mode == 1u {
-            res.rgb = res.rgb + throughput * albedo / PI * direct(x, n, delta, hit.splat, pixel, k, bounce);
-        }
-        break;
     }
     return res;
+}
+
+// A diffuse or emitting hit seen from the front ends its branch: the blend of the splats of its
+// surface covering x (twin of OctreeView::covering), their stored radiance or emission, the
+// caustic estimate and in direct mode the direct light, times `throughput`, added to `res`.
+fn shade_diffuse(res: ptr<function, PixelOut>, hit: Hit, x: vec3<f32>, throughput: vec3<f32>, pixel: u32, k: u32, bounce: u32) {
+    let s = splats[hit.splat];
+    let m = materials[s.material];
+    let delta = params.self_hit * s.radius;
+    let ns = s.normal;
+    // Blend the splats of this surface covering x (twin of OctreeView::covering).
+    var wsum = 0.0;
+    var albedo = vec3<f32>(0.0);
+    var emit = vec3<f32>(0.0);
+    var nsum = vec3<f32>(0.0);
+    let off = hit.leaf & NODE_PTR;
+    let begin = begin_end[off];
+    let extra = begin_end[off + 1u];
+    let end = begin_end[off + 2u + extra];
+    let count = (end - begin) + extra;
+    for (var kk = 0u; kk < count; kk = kk + 1u) {
+        var j = begin + kk;
+        if kk >= end - begin {
+            j = begin_end[off + 2u + (kk - (end - begin))];
+        }
+        let sj = splats[j];
+        if dot(sj.normal, ns) <= BLEND_MIN_COS {
+            continue;
+        }
+        let dd = x - sj.position;
+        let h = dot(dd, sj.normal);
+        let rho2 = dot(dd, dd) - h * h;
+        let r2 = sj.radius * sj.radius;
+        if abs(h) <= params.blend_thickness * sj.radius && rho2 < r2 && within_clip(sj, x - sj.normal * h) {
+            let uu = 1.0 - rho2 / r2;
+            let wgt = uu * uu;
+            let mj = materials[sj.material];
+            wsum = wsum + wgt;
+            albedo = albedo + wgt * mj.color * sj.albedo;
+            if params.stored_radiance == 1u {
+                emit = emit + wgt * stored_radiance(j);
+            } else if mj.class_id == CLASS_EMITTER {
+                emit = emit + wgt * mj.radiance;
+            }
+            nsum = nsum + wgt * sj.normal;
+        }
+    }
+    if wsum <= 0.0 {
+        wsum = 1.0;
+        albedo = m.color * s.albedo;
+        emit = vec3<f32>(0.0);
+        if params.stored_radiance == 1u {
+            emit = stored_radiance(hit.splat);
+        } else if m.class_id == CLASS_EMITTER {
+            emit = m.radiance;
+        }
+        nsum = ns;
+    }
+    albedo = albedo / wsum;
+    emit = emit / wsum;
+    var n = ns;
+    if length(nsum) > 0.0 {
+        n = normalize(nsum);
+    }
+    if bounce == 0u {
+        (*res).depth = hit.t;
+        (*res).normal = n;
+        (*res).albedo = albedo;
+        (*res).splat = s.source;
+    }
+    (*res).rgb = (*res).rgb + throughput * emit;
+    if params.photon_count > 0u {
+        (*res).rgb = (*res).rgb + throughput * albedo / PI * caustic(x, n);
+    }
+    if params.mode == 1u {
+        (*res).rgb = (*res).rgb + throughput * albedo / PI * direct(x, n, delta, hit.splat, pixel, k, bounce);
+    }
 }
 
 @compute @workgroup_size(8, 8)
@@ -473,22 +564,34 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if params.refine == 1u && out_pixels[row * params.width + px].w != REFINE_MARK {
         return;
     }
+    // The colour word: its sum so far (a dispatch before this one's samples) and the depth
+    // lane, which holds the first sample's depth or, in the second pass, the host's mark.
+    var w = 1u;
+    if params.aovs == 1u {
+        w = 3u;
+    }
+    let j = row * params.width + px;
+    let last = params.sample_offset + params.sample_count;
     var acc = vec3<f32>(0.0);
-    var first = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0xffffffffu, vec3<f32>(0.0), 0u);
-    for (var k = 0u; k < params.spp; k = k + 1u) {
+    var lane = out_pixels[w * j].w;
+    if params.sample_offset > 0u {
+        acc = bitcast<vec3<f32>>(out_pixels[w * j].xyz);
+    }
+    for (var k = params.sample_offset; k < last; k = k + 1u) {
         let r = trace_sample(px, py, k);
         acc = acc + r.rgb;
         if k == 0u {
-            first = r;
+            if params.refine == 0u {
+                lane = bitcast<u32>(r.depth);
+            }
+            if params.aovs == 1u {
+                out_pixels[3u * j + 1u] = vec4<u32>(bitcast<vec3<u32>>(r.normal), r.splat);
+                out_pixels[3u * j + 2u] = vec4<u32>(bitcast<vec3<u32>>(r.albedo), 0u);
+            }
         }
     }
-    let j = row * params.width + px;
-    let colour = vec4<u32>(bitcast<vec3<u32>>(acc / f32(params.spp)), bitcast<u32>(first.depth));
-    if params.aovs == 0u {
-        out_pixels[j] = colour;
-        return;
+    if last == params.spp {
+        acc = acc / f32(params.spp);
     }
-    out_pixels[3u * j] = colour;
-    out_pixels[3u * j + 1u] = vec4<u32>(bitcast<vec3<u32>>(first.normal), first.splat);
-    out_pixels[3u * j + 2u] = vec4<u32>(bitcast<vec3<u32>>(first.albedo), 0u);
+    out_pixels[w * j] = vec4<u32>(bitcast<vec3<u32>>(acc), lane);
 }

@@ -476,6 +476,11 @@ pub struct RaytraceConfig {
     pub refine_contrast: f32,
     /// Specular bounces after the camera ray (§8.5.8's b).
     pub max_bounces: u32,
+    /// Dielectric hits per camera sample at which the path takes both ways out, the reflection
+    /// and the refraction, each weighted by its Fresnel share, instead of choosing one at
+    /// random (at most [`MAX_SPLITS`]; 0: a random choice at every hit). docs/raytrace.md,
+    /// "Splitting at glass".
+    pub splits: u32,
     pub mode: ShadingMode,
     pub backend: Backend,
     /// Self-hit distance Δ (§8.5.6) in units of the radius of the splat a ray leaves.
@@ -503,6 +508,11 @@ pub struct RaytraceConfig {
     pub image: PathBuf,
 }
 
+/// The most `raytrace.splits`: the renderers hold this many branches of a camera sample
+/// waiting (the GPU kernel's three slots, shaders/raytrace/render.wgsl). A fourth split
+/// changed the reference's per-pixel error by 10⁻⁴ (docs/raytrace.md, "Splitting at glass").
+pub const MAX_SPLITS: u32 = 3;
+
 impl Default for RaytraceConfig {
     fn default() -> Self {
         RaytraceConfig {
@@ -510,6 +520,7 @@ impl Default for RaytraceConfig {
             refine: 4,
             refine_contrast: 1.0,
             max_bounces: 8,
+            splits: 2,
             mode: ShadingMode::Auto,
             backend: Backend::Auto,
             self_hit: 0.5,

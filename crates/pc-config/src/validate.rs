@@ -262,6 +262,7 @@ fn raytrace(c: &PipelineConfig) -> Result<(), ParamError> {
         Excl(2.0),
     )?;
     int("raytrace.max_bounces", r.max_bounces, 0..=64)?;
+    int("raytrace.splits", r.splits, 0..=crate::MAX_SPLITS as u64)?;
     real("raytrace.self_hit", r.self_hit, Incl(0.0), Incl(100.0))?;
     real(
         "raytrace.blend_thickness",

@@ -119,6 +119,13 @@ pub struct Params {
     /// 1: the second pass of refined pixels ([`crate::refine`]): the kernel renders only the
     /// pixels whose output word's fourth lane the host set to [`crate::refine::MARK`].
     pub refine: u32,
+    /// Dielectric hits per sample that take both ways out (`raytrace.splits`).
+    pub splits: u32,
+    /// The GPU kernel's samples this dispatch: `sample_count` of them from `sample_offset`,
+    /// added to the sums a dispatch before left (0, 0 on the CPU, which takes all `spp`).
+    pub sample_offset: u32,
+    pub sample_count: u32,
+    pub _pad: u32,
 }
 
 /// Everything a render reads.
@@ -161,6 +168,7 @@ impl<'a> RenderScene<'a> {
             spp: cfg.spp,
             cam_up: camera.up.into(),
             max_bounces: cfg.max_bounces,
+            splits: cfg.splits,
             background: cfg.background,
             mode: match cfg.mode {
                 ShadingMode::Stored | ShadingMode::Auto => 0,

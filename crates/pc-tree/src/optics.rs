@@ -104,32 +104,90 @@ pub fn specular_bounce(
     dir: Vec3,
     u: f32,
 ) -> Bounce {
-    let s = &view.splats[splat as usize];
-    let ns = Vec3::from(s.normal);
-    let n = shading_normal(view, splat, x);
-    let nf = if dir.dot(n) < 0.0 { n } else { -n };
-    let color = Vec3::from(m.color) * Vec3::from(s.albedo);
+    let color = Vec3::from(m.color) * Vec3::from(view.splats[splat as usize].albedo);
+    let i = Interface::at(view, m, splat, x, dir);
     if m.class == class::MIRROR {
         return Bounce {
-            dir: reflect(dir, nf),
+            dir: reflect(dir, i.nf),
             tint: color,
             transmitted: false,
         };
     }
-    let entering = dir.dot(ns) < 0.0;
-    let eta = if entering { 1.0 / m.ior } else { m.ior };
-    let cos_i = (-dir.dot(nf)).clamp(0.0, 1.0);
-    let f = fresnel(cos_i, eta);
-    match refract(dir, nf, eta) {
-        Some(t) if u >= f => Bounce {
+    match i.refracted {
+        Some(t) if u >= i.f => Bounce {
             dir: t.normalize(),
             tint: color,
             transmitted: true,
         },
         _ => Bounce {
-            dir: reflect(dir, nf),
+            dir: reflect(dir, i.nf),
             tint: Vec3::ONE,
             transmitted: false,
         },
+    }
+}
+
+/// Both ways out of a dielectric at once, each weighted by its share, where
+/// [`specular_bounce`] chooses one by a random number: the reflection, tinted by the Fresnel
+/// reflectance `f`, and the refraction, tinted by `(1 − f)` and the dielectric's color; None
+/// under total internal reflection (the only way out is the reflection, untinted, as
+/// [`specular_bounce`] gives it). The renderer splits its paths here once (docs/raytrace.md,
+/// "Splitting at glass"); the photon tracer keeps the random choice. WGSL twin:
+/// `dielectric_split` in shaders/common/optics.wgsl.
+#[inline]
+pub fn dielectric_split(
+    view: &OctreeView,
+    m: &MaterialRecord,
+    splat: u32,
+    x: Vec3,
+    dir: Vec3,
+) -> Option<[Bounce; 2]> {
+    let color = Vec3::from(m.color) * Vec3::from(view.splats[splat as usize].albedo);
+    let i = Interface::at(view, m, splat, x, dir);
+    let t = i.refracted?;
+    Some([
+        Bounce {
+            dir: reflect(dir, i.nf),
+            tint: Vec3::splat(i.f),
+            transmitted: false,
+        },
+        Bounce {
+            dir: t.normalize(),
+            tint: (1.0 - i.f) * color,
+            transmitted: true,
+        },
+    ])
+}
+
+/// What a ray along unit `dir` meets at `x` on specular splat `splat`: the shading normal
+/// facing it, and for a dielectric the Fresnel reflectance and the refracted direction (None
+/// under total internal reflection, where the reflectance is 1).
+struct Interface {
+    nf: Vec3,
+    f: f32,
+    refracted: Option<Vec3>,
+}
+
+impl Interface {
+    #[inline]
+    fn at(view: &OctreeView, m: &MaterialRecord, splat: u32, x: Vec3, dir: Vec3) -> Interface {
+        let ns = Vec3::from(view.splats[splat as usize].normal);
+        let n = shading_normal(view, splat, x);
+        let nf = if dir.dot(n) < 0.0 { n } else { -n };
+        if m.class == class::MIRROR {
+            return Interface {
+                nf,
+                f: 1.0,
+                refracted: None,
+            };
+        }
+        let entering = dir.dot(ns) < 0.0;
+        let eta = if entering { 1.0 / m.ior } else { m.ior };
+        let cos_i = (-dir.dot(nf)).clamp(0.0, 1.0);
+        Interface {
+            nf,
+            f: fresnel(cos_i, eta),
+            refracted: refract(dir, nf, eta),
+        }
     }
 }

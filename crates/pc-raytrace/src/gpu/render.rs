@@ -44,6 +44,9 @@ pub struct GpuRenderer {
     grid: Params,
     /// Samples one dispatch traces at most ([`SAMPLES_PER_DISPATCH`]).
     samples_per_dispatch: u64,
+    /// Samples of a pixel one dispatch traces at most: all of them on a hardware GPU,
+    /// [`SOFTWARE_SAMPLES`] on a software adapter.
+    samples_per_invocation: u32,
     /// The output buffers of the image pass and of the second pass, kept from frame to frame.
     kept: std::sync::Mutex<[Option<FrameBuffers>; 2]>,
 }
@@ -79,6 +82,13 @@ const STORAGE_BUFFERS: u32 = 15;
 const SAMPLES_PER_DISPATCH: u64 = 1 << 21;
 /// Pixels a band of the second pass spans at most (its marks go up and its words come back).
 const MARKED_BAND_PIXELS: u64 = 1 << 20;
+/// Samples of a pixel one dispatch traces on a software adapter. llvmpipe ends a shader's loops
+/// after 65535 iterations per invocation group, all loops together (Mesa's
+/// `LP_MAX_TGSI_LOOP_ITERATIONS`), silently: a pixel's later samples were lost (16 samples of
+/// a pixel beside a glass ball with three splits each kept 12; 1024 plain ones, 27). One sample
+/// a dispatch keeps each invocation to one sample's walks and lookups (docs/gpu.md, "llvmpipe's
+/// loop limit").
+const SOFTWARE_SAMPLES: u32 = 1;
 
 /// Bytes the kernel writes a pixel: [`PixelOut`] with AOVs, else one word of four (its first).
 fn pixel_bytes(with_aovs: bool) -> u64 {
@@ -138,6 +148,10 @@ impl GpuRenderer {
             leaf_rough,
             grid,
             samples_per_dispatch: SAMPLES_PER_DISPATCH,
+            samples_per_invocation: match ctx.is_software() {
+                true => SOFTWARE_SAMPLES,
+                false => u32::MAX,
+            },
             kept: Default::default(),
         })
     }
@@ -289,8 +303,10 @@ impl GpuRenderer {
         out
     }
 
-    /// One dispatch over the image rows `row..row + rows` into `fb`'s output, read back into `f`
-    /// (`pass.marked`: only the pixels the host marked in the output).
+    /// The dispatches over the image rows `row..row + rows` into `fb`'s output, read back into
+    /// `f` (`pass.marked`: only the pixels the host marked in the output): one, or on a software
+    /// adapter one a few samples, each adding its samples to the sums the one before left in the
+    /// output (the CPU's order of addition).
     fn band<R>(
         &self,
         ctx: &GpuContext,
@@ -301,31 +317,39 @@ impl GpuRenderer {
         f: impl FnOnce(&[u8]) -> R,
     ) -> Result<R, GpuError> {
         let g = &self.grid;
-        let params = Params {
-            spp: pass.spp,
-            row_offset: row,
-            rows,
-            caustic_radius: g.caustic_radius,
-            grid_origin: g.grid_origin,
-            grid_mask: g.grid_mask,
-            photon_count: g.photon_count,
-            grid_cell: g.grid_cell,
-            aovs: pass.aovs as u32,
-            refine: pass.marked as u32,
-            ..sc.params
-        };
-        let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
-        let mut bind: Vec<&pc_gpu::Buffer> = self.octree.buffers().chain(&self.buffers).collect();
-        bind.push(&uniform);
-        bind.push(&fb.out);
-        bind.push(&self.radiance);
-        bind.push(&self.photons.photons);
-        bind.push(&self.photons.offsets);
-        bind.push(&self.leaf_rough);
-        bind.push(&self.photons.groups);
         let w = sc.params.width;
-        self.kernel
-            .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
+        let mut first = 0;
+        while first < pass.spp {
+            let count = self.samples_per_invocation.min(pass.spp - first);
+            let params = Params {
+                spp: pass.spp,
+                sample_offset: first,
+                sample_count: count,
+                row_offset: row,
+                rows,
+                caustic_radius: g.caustic_radius,
+                grid_origin: g.grid_origin,
+                grid_mask: g.grid_mask,
+                photon_count: g.photon_count,
+                grid_cell: g.grid_cell,
+                aovs: pass.aovs as u32,
+                refine: pass.marked as u32,
+                ..sc.params
+            };
+            let uniform = ctx.uniform("params", bytemuck::bytes_of(&params));
+            let mut bind: Vec<&pc_gpu::Buffer> =
+                self.octree.buffers().chain(&self.buffers).collect();
+            bind.push(&uniform);
+            bind.push(&fb.out);
+            bind.push(&self.radiance);
+            bind.push(&self.photons.photons);
+            bind.push(&self.photons.offsets);
+            bind.push(&self.leaf_rough);
+            bind.push(&self.photons.groups);
+            self.kernel
+                .run(ctx, &bind, (w.div_ceil(8), rows.div_ceil(8), 1))?;
+            first += count;
+        }
         let size = (w * rows) as u64 * pixel_bytes(pass.aovs);
         fb.back.read(ctx, &fb.out, size, f)
     }

@@ -502,3 +502,94 @@ fn wgsl_records_match_rust_layouts() {
         std::mem::offset_of!(MaterialRecord, phong)
     );
 }
+
+#[test]
+fn every_sample_of_a_heavy_pixel_counts_on_the_gpu() {
+    // llvmpipe ends a shader's loops after 65535 iterations per invocation group, silently:
+    // with every sample of a pixel in one dispatch, the pixels beside the glass ball kept their
+    // first 12 to 27 samples and came out up to five times too dark at 64. The renderer
+    // gives a software adapter one sample a dispatch; on any adapter every pixel is the CPU's.
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let (o, mats) = mixed_room();
+    let frame = |backend| {
+        let mut sc = refine_scene(&o, mats.clone(), 64, 0);
+        let mut r = pc_raytrace::renderer::Renderer::new(&mut sc, backend).unwrap();
+        r.render(&mut sc, false, &|| {}).unwrap()
+    };
+    let (gpu, cpu) = (
+        frame(pc_config::Backend::Gpu),
+        frame(pc_config::Backend::Cpu),
+    );
+    let c = pc_raytrace::image::compare(&gpu.image, &cpu.image).unwrap();
+    assert!(
+        c.mean_relative < 1e-5 && c.max_abs < 1e-4,
+        "{c} on {}",
+        ctx.describe()
+    );
+}
+
+#[test]
+fn splitting_at_glass_keeps_the_mean_and_cuts_the_noise() {
+    // The glass ball of the mixed room at 16 samples a pixel, two seeds each: taking both ways
+    // out of its first three glass hits (weighted by the Fresnel shares) instead of choosing one
+    // at random leaves the ball's mean where it was and its seed-to-seed difference smaller
+    // (measured: RMS 0.0122 against 0.0296).
+    // Stored shading, each splat a fixed radiance (the light's bright), so that what a sample
+    // meets past the glass has no noise of its own.
+    let (o, mats) = mixed_room();
+    let radiance: Vec<[f32; 3]> = o
+        .splats
+        .iter()
+        .map(|s| match s.material {
+            2 => [5.0; 3],
+            1 => [0.3, 0.05, 0.05],
+            _ => [0.3; 3],
+        })
+        .collect();
+    let render = |splits: u32, seed: u32| {
+        let cam = camera(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, Vec3::Y, 40.0, 48, 40);
+        let mut p = params(16, ShadingMode::Stored);
+        p.splits = splits;
+        p.seed = seed;
+        let mut sc = RenderScene::new(o.view(), mats.clone(), &[], &cam, &p);
+        sc.radiance = Some(&radiance);
+        sc.prepare_cpu();
+        pc_raytrace::cpu::render(&sc, true, &|| {}).0
+    };
+    let glass = |img: &pc_raytrace::image::Image| -> Vec<bool> {
+        let by_source: std::collections::HashMap<u32, u32> =
+            o.splats.iter().map(|s| (s.source, s.material)).collect();
+        let aovs = img.aovs.as_ref().unwrap();
+        aovs.splat
+            .iter()
+            .map(|i| by_source.get(i) == Some(&4))
+            .collect()
+    };
+    let runs = [(0, 1), (0, 2), (3, 1), (3, 2)].map(|(s, k)| render(s, k));
+    let ball = glass(&runs[0]);
+    assert!(ball.iter().filter(|&&b| b).count() > 50);
+    let lum = |img: &pc_raytrace::image::Image| -> Vec<f64> {
+        let l = img
+            .rgb
+            .iter()
+            .map(|c| c.iter().map(|&v| v as f64).sum::<f64>() / 3.0);
+        l.zip(&ball).filter(|(_, &b)| b).map(|(v, _)| v).collect()
+    };
+    let [a0, a1, b0, b1] = [0, 1, 2, 3].map(|i| lum(&runs[i]));
+    let spread = |x: &[f64], y: &[f64]| -> f64 {
+        (x.iter().zip(y).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / x.len() as f64).sqrt()
+    };
+    let mean = |x: &[f64]| x.iter().sum::<f64>() / x.len() as f64;
+    let (random, split) = (spread(&a0, &a1), spread(&b0, &b1));
+    assert!(
+        split < 0.6 * random,
+        "seed-to-seed RMS {split} with splits, {random} without"
+    );
+    let (m_random, m_split) = ((mean(&a0) + mean(&a1)) / 2.0, (mean(&b0) + mean(&b1)) / 2.0);
+    assert!(
+        (m_split / m_random - 1.0).abs() < 0.03,
+        "the ball's mean {m_split} with splits, {m_random} without"
+    );
+}
