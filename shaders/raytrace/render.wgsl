@@ -1,8 +1,9 @@
 // requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
 // Ray tracing kernel: one thread per pixel of a band of rows, looping over the pixel's samples.
-// Line-by-line twin of crates/pc-raytrace/src/cpu.rs (trace_sample, direct, phong) and of the
-// traversal in crates/pc-tree/src/ray.rs; shares shaders/common/octree.wgsl. Threads run in
-// 8x8 pixel blocks, so neighbouring rays (coherent, §8.5.14) share a workgroup.
+// Twin of crates/pc-raytrace/src/cpu.rs (trace_sample with Path::follow and shade_diffuse,
+// direct, phong), line by line but for the branches' loop, and of the traversal in
+// crates/pc-tree/src/ray.rs; shares shaders/common/octree.wgsl. Threads run in 8x8 pixel
+// blocks, so neighbouring rays (coherent, §8.5.14) share a workgroup.
 
 struct PointLight {
     position: vec3<f32>,
@@ -66,7 +67,8 @@ struct Branch {
     bounce: u32,
 }
 
-// The branches waiting, last in first out: at most pc_config::MAX_SPLITS (3) at once.
+// The branches waiting, last in first out: at most pc_config::MAX_SPLITS (3) at once, in
+// named slots (no array indexed per thread).
 struct Slots {
     s0: Branch,
     s1: Branch,
@@ -394,9 +396,8 @@ fn trace_sample(px: u32, py: u32, k: u32) -> PixelOut {
     var throughput = vec3<f32>(1.0);
     var bounce = 0u;
     // The refracted branches of the path's splits at dielectrics, last split first (twin of
-    // cpu.rs's Branches), and the splits made. One flat loop, a bounce an iteration, that takes
-    // the next branch where one ends: with the branches as a loop around the bounces' loop,
-    // llvmpipe ended the sample loop of neighbouring pixels early (whole samples lost).
+    // cpu.rs's Branches), and the splits made. One loop, a bounce an iteration, that takes the
+    // next branch where one ends (the CPU follows each branch in a call of its own).
     var slots = Slots(Branch(), Branch(), Branch(), 0u);
     var splits = 0u;
     loop {

@@ -1,9 +1,10 @@
 //! The CPU renderer (rayon over 16×16 tiles): the reference twin of shaders/raytrace/render.wgsl.
 //!
 //! One path per pixel sample: the camera ray, then specular bounces (mirror reflection;
-//! dielectric reflection or refraction chosen by Fresnel, total internal reflection) up to
-//! `max_bounces`, ending at the first diffuse or emitting splat, whose blended stored radiance
-//! (and in `direct` mode its direct lighting, with shadow rays) is the sample's value. See
+//! dielectric reflection and refraction, both at the first `splits` glass hits, weighted by
+//! Fresnel, then one chosen by Fresnel; total internal reflection) up to `max_bounces`, each
+//! branch ending at the first diffuse or emitting splat, whose blended stored radiance (and in
+//! `direct` mode its direct lighting, with shadow rays) is its share of the sample's value. See
 //! docs/raytrace.md.
 
 use std::f32::consts::PI;
