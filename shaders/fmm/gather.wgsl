@@ -6,11 +6,15 @@
 // Line-by-line twin of pc_fmm::gather::gather_splat (crates/pc-fmm/src/gather.rs), from the same
 // counter-based random numbers. Driven by pc_fmm::gather::GpuGather.
 
+// This dispatch casts each splat's rays first .. first + rays of strata² (all of them on a
+// hardware GPU; a few at a time on a software adapter, whose loops end after 65535 iterations
+// per invocation group, all loops together: pc_fmm::gather::GpuGather), adding to the sums
+// the dispatch before left in the slots; the last divides.
 struct GatherParams {
     strata: u32,
     count: u32,
-    _pad0: u32,
-    _pad1: u32,
+    first: u32,
+    rays: u32,
 }
 
 // The splat to gather (written by the host) and its gathered light (written here).
@@ -36,14 +40,16 @@ const GATHER_SEED: u32 = 0x67617468u;
 // Each octree leaf's roughness, per node-pool slot (pc_tree::between::leaf_roughness).
 @group(0) @binding(10) var<storage, read> leaf_rough: array<f32>;
 
-fn gather(i: u32) -> vec3<f32> {
+// Splat i's rays of this dispatch added to `sum` (its rays so far); over all of them, its mean.
+fn gather(i: u32, sum_before: vec3<f32>) -> vec3<f32> {
     let s = splats[i];
     let n = s.normal;
     let rough = leaf_rough[splat_leaf[i]];
     let m = f32(params.strata);
     let count = params.strata * params.strata;
-    var sum = vec3<f32>(0.0);
-    for (var k = 0u; k < count; k = k + 1u) {
+    let last = min(params.first + params.rays, count);
+    var sum = sum_before;
+    for (var k = params.first; k < last; k = k + 1u) {
         let u1 = (f32(k / params.strata) + rand4(GATHER_SEED, i, k, 0u)) / m;
         let u2 = (f32(k % params.strata) + rand4(GATHER_SEED, i, k, 1u)) / m;
         let dir = cosine_dir(n, u1, u2);
@@ -51,6 +57,9 @@ fn gather(i: u32) -> vec3<f32> {
         if hit.found && dot(splats[hit.splat].normal, dir) < 0.0 {
             sum = sum + reflected[hit.splat].xyz;
         }
+    }
+    if last < count {
+        return sum;
     }
     return sum / f32(max(count, 1u));
 }
@@ -61,5 +70,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if j >= params.count {
         return;
     }
-    slots[j].value = gather(slots[j].splat);
+    slots[j].value = gather(slots[j].splat, slots[j].value);
 }
