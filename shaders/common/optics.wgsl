@@ -121,30 +121,52 @@ struct Bounce {
     tint: vec3<f32>,
 }
 
-// The specular bounce of a ray along unit `dir` on a splat with own normal `ns`, shading normal
-// `n`, material `m` and color `color`: mirrors reflect and tint; dielectrics reflect with the
-// Fresnel probability (always under total internal reflection), otherwise refract, tinted; `u`
-// in [0, 1) is the random choice.
-fn specular_bounce(m: Material, color: vec3<f32>, ns: vec3<f32>, n: vec3<f32>, dir: vec3<f32>, u: f32) -> Bounce {
+// What a ray along unit `dir` meets on a specular splat with own normal `ns` and shading normal
+// `n` (twin of pc_tree::optics's Interface): the shading normal facing it, and for a dielectric
+// of index `ior` the Fresnel reflectance and, unless totally reflected, the refracted direction.
+struct Interface {
+    nf: vec3<f32>,
+    f: f32,
+    refracted: vec3<f32>,
+    transmits: bool,
+}
+
+fn interface_at(m: Material, ns: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> Interface {
     var nf = n;
     if dot(dir, n) >= 0.0 {
         nf = -n;
     }
-    let reflected = reflect_dir(dir, nf);
+    var out = Interface(nf, 1.0, vec3<f32>(0.0), false);
     if m.class_id == CLASS_MIRROR {
-        return Bounce(reflected, color);
+        return out;
     }
     var eta = m.ior;
     if dot(dir, ns) < 0.0 {
         eta = 1.0 / m.ior;
     }
     let ci = -dot(dir, nf);
-    let f = fresnel(clamp(ci, 0.0, 1.0), eta);
+    out.f = fresnel(clamp(ci, 0.0, 1.0), eta);
     let sin2_t = eta * eta * max(1.0 - ci * ci, 0.0);
-    if sin2_t < 1.0 && u >= f {
-        return Bounce(normalize(eta * dir + (eta * ci - sqrt(1.0 - sin2_t)) * nf), color);
+    if sin2_t < 1.0 {
+        out.refracted = normalize(eta * dir + (eta * ci - sqrt(1.0 - sin2_t)) * nf);
+        out.transmits = true;
     }
-    return Bounce(reflected, vec3<f32>(1.0));
+    return out;
+}
+
+// The specular bounce of a ray along unit `dir` on a splat with own normal `ns`, shading normal
+// `n`, material `m` and color `color`: mirrors reflect and tint; dielectrics reflect with the
+// Fresnel probability (always under total internal reflection), otherwise refract, tinted; `u`
+// in [0, 1) is the random choice.
+fn specular_bounce(m: Material, color: vec3<f32>, ns: vec3<f32>, n: vec3<f32>, dir: vec3<f32>, u: f32) -> Bounce {
+    let i = interface_at(m, ns, n, dir);
+    if m.class_id == CLASS_MIRROR {
+        return Bounce(reflect_dir(dir, i.nf), color);
+    }
+    if i.transmits && u >= i.f {
+        return Bounce(i.refracted, color);
+    }
+    return Bounce(reflect_dir(dir, i.nf), vec3<f32>(1.0));
 }
 
 // Both ways out of a dielectric at once (twin of pc_tree::optics::dielectric_split): the
@@ -159,22 +181,6 @@ struct Split {
 }
 
 fn dielectric_split(m: Material, color: vec3<f32>, ns: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> Split {
-    var nf = n;
-    if dot(dir, n) >= 0.0 {
-        nf = -n;
-    }
-    var eta = m.ior;
-    if dot(dir, ns) < 0.0 {
-        eta = 1.0 / m.ior;
-    }
-    let ci = -dot(dir, nf);
-    let f = fresnel(clamp(ci, 0.0, 1.0), eta);
-    let sin2_t = eta * eta * max(1.0 - ci * ci, 0.0);
-    var out = Split(reflect_dir(dir, nf), vec3<f32>(f), vec3<f32>(0.0), vec3<f32>(0.0), false);
-    if sin2_t < 1.0 {
-        out.refracted = normalize(eta * dir + (eta * ci - sqrt(1.0 - sin2_t)) * nf);
-        out.t_tint = (1.0 - f) * color;
-        out.transmits = true;
-    }
-    return out;
+    let i = interface_at(m, ns, n, dir);
+    return Split(reflect_dir(dir, i.nf), vec3<f32>(i.f), i.refracted, (1.0 - i.f) * color, i.transmits);
 }
