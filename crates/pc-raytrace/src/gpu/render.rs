@@ -86,8 +86,8 @@ const MARKED_BAND_PIXELS: u64 = 1 << 20;
 /// after 65535 iterations per invocation group, all loops together (Mesa's
 /// `LP_MAX_TGSI_LOOP_ITERATIONS`), silently: a pixel's later samples were lost (16 samples of
 /// a pixel beside a glass ball with three splits each kept 12; 1024 plain ones, 27). One sample
-/// a dispatch keeps each invocation to one sample's walks and lookups (docs/gpu.md, "llvmpipe's
-/// loop limit").
+/// a dispatch keeps each invocation to one sample's walks and lookups (docs/raytrace.md,
+/// "llvmpipe's loop limit").
 const SOFTWARE_SAMPLES: u32 = 1;
 
 /// Bytes the kernel writes a pixel: [`PixelOut`] with AOVs, else one word of four (its first).
@@ -305,7 +305,7 @@ impl GpuRenderer {
 
     /// The dispatches over the image rows `row..row + rows` into `fb`'s output, read back into
     /// `f` (`pass.marked`: only the pixels the host marked in the output): one, or on a software
-    /// adapter one a few samples, each adding its samples to the sums the one before left in the
+    /// adapter one a sample, each adding its samples to the sums the one before left in the
     /// output (the CPU's order of addition).
     fn band<R>(
         &self,
