@@ -198,7 +198,13 @@ fn finish(p: Pooled, params: &OctreeParams, phases: &mut Phases) -> Result<Octre
         s.clip = clip;
     }
     phases.start("node statistics");
-    let node_info = node_statistics(&split, &splats, &splat_area, &material_class);
+    let node_info = node_statistics(
+        &split,
+        &table.begin_end,
+        &splats,
+        &splat_area,
+        &material_class,
+    );
     let timings = phases.finish();
 
     let nodes = split.nodes;
@@ -625,10 +631,12 @@ fn begin_end_table(split: &mut Split, refs: &[(u32, u32)], n: usize) -> Result<T
     })
 }
 
-/// Per-node average disk, normal, area and class; normal fields of leaves (§8.5.5). Empty
-/// nodes get class `NONE`.
+/// Per-node average disk, normal, area and class; normal fields of leaves (§8.5.5), fitted
+/// over each leaf's listed disks (`begin_end`: its own, then those it references). Empty nodes
+/// get class `NONE`.
 fn node_statistics(
     split: &Split,
+    begin_end: &[u32],
     splats: &[Splat],
     splat_area: &[f32],
     material_class: &[u32],
@@ -638,12 +646,17 @@ fn node_statistics(
         .par_iter()
         .map(|s| {
             let range = s.lo as usize..s.hi as usize;
-            let is_leaf = node::is_leaf(split.nodes[s.slot as usize]);
+            let word = split.nodes[s.slot as usize];
+            let referenced = match node::is_leaf(word) {
+                true => pc_artifact::octree::BeginEnd::leaf(begin_end, node::ptr(word))
+                    .map_or(&[][..], |(_, _, refs)| refs),
+                false => &[],
+            };
             let info = node_info(
-                &splats[range.clone()],
+                (&splats[range.clone()], referenced, splats),
                 &splat_area[range],
                 material_class,
-                is_leaf,
+                node::is_leaf(word),
             );
             (s.slot, info)
         })

@@ -694,6 +694,46 @@ fn a_jittered_border_row_is_clipped_along_the_border() {
 }
 
 #[test]
+fn small_leaves_fit_the_curvature_from_the_disks_they_reference() {
+    // Leaves of one to three splats (k = 2) have no spread of their own to fit a tilt to; their
+    // fields are fitted over the disks they reference of their own surface too, so the small
+    // leaves of a sphere tilt as the large ones do (1/R), and no leaf shades flat.
+    let mut s = Soa::default();
+    s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
+    let o = s
+        .build(
+            &[class::MIRROR],
+            OctreeParams {
+                max_leaf_points: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    let mut small = Vec::new();
+    let (mut err_field, mut err_flat) = (0.0f64, 0.0f64);
+    for (i, x) in o.splats.iter().enumerate() {
+        let info = &o.node_info[o.splat_leaf[i] as usize];
+        let p = Vec3::from(x.position);
+        err_field += field_normal(info, p).angle_between(p.normalize()) as f64;
+        err_flat += Vec3::from(info.normal).angle_between(p.normalize()) as f64;
+        if info.count <= 3 {
+            small.extend(info.tilt);
+        }
+    }
+    assert!(small.len() > 10_000, "{} small-leaf tilts", small.len());
+    small.sort_by(f32::total_cmp);
+    let (low, median) = (small[small.len() / 20], small[small.len() / 2]);
+    assert!(
+        (median - 0.5).abs() < 0.05 && low > 0.3,
+        "small leaves' tilt: median {median}, 5th percentile {low}, 1/R = 0.5"
+    );
+    assert!(
+        err_field < 0.5 * err_flat,
+        "field {err_field} vs flat {err_flat}"
+    );
+}
+
+#[test]
 fn normal_fields_follow_the_curvature() {
     let mut s = Soa::default();
     s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
