@@ -622,6 +622,33 @@ material = "white"
     }
 
     #[test]
+    fn a_value_of_the_wrong_type_names_its_key() {
+        // In the file, in a model's table, and from --set: the key, then serde's reason.
+        let t = format!("{BASE}\n[raytrace]\nspp = -1\n");
+        let e = parse_config(&t, Path::new("/x")).unwrap_err().to_string();
+        assert!(
+            e.contains("raytrace.spp: invalid value: integer `-1`"),
+            "{e}"
+        );
+        let t = BASE.replace("file = \"a.ply\"", "file = 3");
+        let e = parse_config(&t, Path::new("/x")).unwrap_err().to_string();
+        assert!(
+            e.contains("models[0].file: invalid type: integer `3`"),
+            "{e}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pipeline.toml");
+        std::fs::write(&path, BASE).unwrap();
+        let e = load_config(&path, &["camera.fov=\"wide\"".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("pipeline.toml") && e.contains("camera.fov: invalid type: string \"wide\""),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn unknown_keys_are_rejected() {
         let t = format!("{BASE}\n[octree]\nmax_leaf_point = 3\n");
         let e = parse_config(&t, Path::new("/x")).unwrap_err().to_string();

@@ -17,9 +17,7 @@ pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, Co
         refuse_retired(&value, path, &format!("--set {o}: "))?;
     }
     let text = toml::to_string(&value).map_err(|e| ConfigError::invalid(path, e.to_string()))?;
-    let mut config: PipelineConfig = value
-        .try_into()
-        .map_err(|e: toml::de::Error| ConfigError::invalid(path, e.message().to_string()))?;
+    let mut config = deserialize(value, path)?;
     config.include.clear();
     validate(&config, path)?;
     let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -33,15 +31,28 @@ pub fn load_config(path: &Path, overrides: &[String]) -> Result<LoadedConfig, Co
     Ok(cfg)
 }
 
+/// The merged config as [`PipelineConfig`]; a value of the wrong type is named by its key
+/// (`raytrace.spp: invalid value: integer \`-1\`, expected u32`), which the merged tree's own
+/// errors do not say.
+fn deserialize(value: toml::Value, path: &Path) -> Result<PipelineConfig, ConfigError> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let key = e.path().to_string();
+        let why = e.inner().message().to_string();
+        let msg = match key.as_str() {
+            "" | "." => why,
+            _ => format!("{key}: {why}"),
+        };
+        ConfigError::invalid(path, msg)
+    })
+}
+
 /// Parse a config from text (relative paths resolve against `base_dir`), for tests and tools.
 pub fn parse_config(text: &str, base_dir: &Path) -> Result<LoadedConfig, ConfigError> {
     let pseudo = base_dir.join("<inline>");
     let value: toml::Value =
         toml::from_str(text).map_err(|e| ConfigError::invalid(&pseudo, e.to_string()))?;
     refuse_retired(&value, &pseudo, "")?;
-    let config: PipelineConfig = value
-        .try_into()
-        .map_err(|e: toml::de::Error| ConfigError::invalid(&pseudo, e.message().to_string()))?;
+    let config = deserialize(value, &pseudo)?;
     validate(&config, &pseudo)?;
     Ok(LoadedConfig {
         config,
