@@ -693,22 +693,23 @@ fn a_jittered_border_row_is_clipped_along_the_border() {
     );
 }
 
+/// The octree of a mirror sphere of radius 2 (20,000 splats) with leaves of at most `k`.
+fn mirror_sphere(k: u32) -> Octree {
+    let mut s = Soa::default();
+    s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
+    let params = OctreeParams {
+        max_leaf_points: k,
+        ..Default::default()
+    };
+    s.build(&[class::MIRROR], params).unwrap()
+}
+
 #[test]
 fn small_leaves_fit_the_curvature_from_the_disks_they_reference() {
     // Leaves of one to three splats (k = 2) have no spread of their own to fit a tilt to; their
     // fields are fitted over the disks they reference of their own surface too, so the small
     // leaves of a sphere tilt as the large ones do (1/R), and no leaf shades flat.
-    let mut s = Soa::default();
-    s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
-    let o = s
-        .build(
-            &[class::MIRROR],
-            OctreeParams {
-                max_leaf_points: 2,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = mirror_sphere(2);
     let mut small = Vec::new();
     let (mut err_field, mut err_flat) = (0.0f64, 0.0f64);
     for (i, x) in o.splats.iter().enumerate() {
@@ -735,17 +736,7 @@ fn small_leaves_fit_the_curvature_from_the_disks_they_reference() {
 
 #[test]
 fn normal_fields_follow_the_curvature() {
-    let mut s = Soa::default();
-    s.sphere(Vec3::ZERO, 2.0, 20_000, 0);
-    let o = s
-        .build(
-            &[class::MIRROR],
-            OctreeParams {
-                max_leaf_points: 32,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let o = mirror_sphere(32);
     let (mut err_field, mut err_flat, mut count) = (0.0f64, 0.0f64, 0);
     let mut tilts = Vec::new();
     for (i, x) in o.splats.iter().enumerate() {
