@@ -41,7 +41,14 @@ pub struct Caustics<'a> {
 /// within a quarter radius of the tangent plane.
 #[inline]
 pub(crate) fn accept(p: &Photon, x: Vec3, n: Vec3, r: f32) -> bool {
-    Vec3::from(p.dir).dot(n) < 0.0 && (Vec3::from(p.position) - x).dot(n).abs() <= 0.25 * r
+    accept_at(p, Vec3::from(p.position) - x, n, r)
+}
+
+/// [`accept`] with the photon's offset `d` from the lookup's point; both tests evaluated, so
+/// that a scan decides without a branch.
+#[inline]
+pub(crate) fn accept_at(p: &Photon, d: Vec3, n: Vec3, r: f32) -> bool {
+    (Vec3::from(p.dir).dot(n) < 0.0) & (d.dot(n).abs() <= 0.25 * r)
 }
 
 impl<'a> Caustics<'a> {

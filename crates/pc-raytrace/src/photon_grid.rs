@@ -30,7 +30,7 @@
 use glam::{DVec3, Vec3};
 use pc_artifact::photons::Photon;
 
-use crate::caustic::accept;
+use crate::caustic::accept_at;
 
 /// Photons a bucket holds before it is kept as groups ([`PhotonGrid`]).
 pub const DENSE_BUCKET: usize = 256;
@@ -177,10 +177,11 @@ impl PhotonGrid {
         let scan = |photons: &[Photon]| {
             let mut e = Vec3::ZERO;
             for p in photons {
-                let d2 = (Vec3::from(p.position) - x).length_squared();
-                if d2 <= r2 && accept(p, x, n, r) {
-                    e += Vec3::from(p.power) * (1.0 - d2 / r2).max(0.0);
-                }
+                let d = Vec3::from(p.position) - x;
+                let d2 = d.length_squared();
+                let counts = (d2 <= r2) & accept_at(p, d, n, r);
+                let w = if counts { 1.0 - d2 / r2 } else { 0.0 };
+                e += Vec3::from(p.power) * w;
             }
             e
         };
