@@ -40,6 +40,7 @@ use pc_artifact::octree::class;
 use pc_artifact::specular::{FluxLink, GatherLink, SpecularView};
 use pc_artifact::vmap::VmapView;
 use pc_tree::accel::Accel;
+use pc_tree::between::surface;
 use pc_tree::rng::rand;
 use pc_tree::{cosine_dir, disk_point, Between, OctreeView, Ray, TraversalStats};
 use rayon::prelude::*;
@@ -431,11 +432,16 @@ struct Bin {
     extent: f32,
     /// Kept paths that landed in it.
     paths: u32,
+    /// Their directions of travel, each weighted by its weight's channel sum: where its light
+    /// comes from ([`Shade`]).
+    arrival: Vec3,
+    /// The diffuse splat nearest its centroid: where a [`Shade`] ray leaves it.
+    origin: u32,
 }
 
 /// The tables from the traced paths of `aims`.
 pub fn build(
-    view: &OctreeView,
+    scene: Scene,
     materials: &[pc_artifact::octree::MaterialRecord],
     leaves: &Leaves,
     aims: &[Aim],
@@ -446,6 +452,7 @@ pub fn build(
     if traced.photons.is_empty() {
         return Links::default();
     }
+    let view = scene.view;
     let diffuse = |j: usize| !class::is_specular(materials[view.splats[j].material as usize].class);
     let mut bins = bins(view, leaves, &diffuse);
     // The splat each kept path left: the tracer's own draw (`Tracer::photon`, random number 0 of
@@ -453,8 +460,9 @@ pub fn build(
     // images a bright spot on the floor; a leaf's mean would spread it first).
     let first = emit::first_ids(aims);
     // Flux rows: (bin, sender splat, weight), merged per pair (made in parallel, in the paths'
-    // order; two binary searches and a walk over a leaf's splats each).
-    let mut rows: Vec<(u32, u32, Vec3)> = traced
+    // order; two binary searches and a walk over a leaf's splats each), and each path's
+    // direction of travel where it landed.
+    let kept: Vec<((u32, u32, Vec3), Vec3)> = traced
         .photons
         .par_iter()
         .zip(&traced.id)
@@ -463,15 +471,19 @@ pub fn build(
             match aims[a].source {
                 Source::Area(d) => {
                     let j = leaves.pick(view, d, rand(seed, id, 0, 0));
-                    Some((leaves.leaf_of(p.splat) as u32, j, Vec3::from(p.power)))
+                    let row = (leaves.leaf_of(p.splat) as u32, j, Vec3::from(p.power));
+                    Some((row, Vec3::from(p.dir)))
                 }
                 Source::Point(_) => None,
             }
         })
         .collect();
-    for r in &rows {
-        bins[r.0 as usize].paths += 1;
+    for (r, dir) in &kept {
+        let b = &mut bins[r.0 as usize];
+        b.paths += 1;
+        b.arrival += r.2.element_sum() * *dir;
     }
+    let mut rows: Vec<(u32, u32, Vec3)> = kept.into_iter().map(|(r, _)| r).collect();
     rows.sort_unstable_by_key(|r| (r.0, r.1));
     let mut merged: Vec<(u32, u32, Vec3)> = Vec::with_capacity(rows.len());
     for r in rows {
@@ -494,7 +506,18 @@ pub fn build(
     for b in 0..bins.len() {
         out.flux_offsets[b + 1] += out.flux_offsets[b];
     }
-    let [smooth, interpolate] = gather_links(view, &bins, &diffuse, &|j| leaves.leaf_of(j), gather);
+    let shade = Shade {
+        scene,
+        materials,
+        bins: &bins,
+    };
+    let [smooth, interpolate] = gather_links(
+        view,
+        &bins,
+        &diffuse,
+        &|j| leaves.leaf_of(j),
+        (gather, &shade),
+    );
     (out.smooth_offsets, out.smooth) = smooth;
     (out.gather_offsets, out.gather) = interpolate;
     out
@@ -518,17 +541,68 @@ fn bins(view: &OctreeView, leaves: &Leaves, diffuse: &(dyn Fn(usize) -> bool + S
             if b.area > 0.0 {
                 b.centroid /= b.area;
                 b.normal = b.normal.normalize_or_zero();
+                let mut nearest = f32::INFINITY;
                 for j in l.lo as usize..l.hi as usize {
                     if diffuse(j) {
                         let s = &view.splats[j];
-                        let d = (Vec3::from(s.position) - b.centroid).length() + s.radius;
-                        b.extent = b.extent.max(d);
+                        let d = (Vec3::from(s.position) - b.centroid).length();
+                        b.extent = b.extent.max(d + s.radius);
+                        if d < nearest {
+                            (nearest, b.origin) = (d, j as u32);
+                        }
                     }
                 }
             }
             b
         })
         .collect()
+}
+
+/// Shadows within a density estimate's reach: whether the light that another bin of its
+/// surface receives through mirrors and glass would reach a bin. A ray from the bin back along
+/// the way the other's light arrives (its paths' mean direction, weighted) that first meets a
+/// diffuse or emitting splat within the smoothing radius says no; a mirror or a glass met first
+/// may be where that light comes from. The other bin is then left out of the bin's estimate and
+/// of its splats' interpolation, where its light would spread into the shadow: the ceiling above
+/// a lamp hanging 1 cm under it, which a mirror ball lights all around (docs/caustics.md,
+/// "Shadows in the smoothing").
+struct Shade<'a> {
+    scene: Scene<'a>,
+    materials: &'a [pc_artifact::octree::MaterialRecord],
+    bins: &'a [Bin],
+}
+
+impl Shade<'_> {
+    /// Whether the light arriving at bin `from` is blocked within `reach` in front of bin `at`.
+    fn hides(&self, at: u32, from: u32, reach: f32) -> bool {
+        if at == from {
+            return false;
+        }
+        let (b, c) = (&self.bins[at as usize], &self.bins[from as usize]);
+        let Some(back) = (-c.arrival).try_normalize() else {
+            return false;
+        };
+        let view = self.scene.view;
+        let (s, rough) = surface(view, self.scene.rough, b.origin);
+        if Vec3::from(s.normal).dot(back) <= 0.0 {
+            return false;
+        }
+        let ray = Ray {
+            origin: s.position.into(),
+            dir: back,
+            t_min: LEAVE_EPS * s.radius,
+            t_max: reach,
+        };
+        let seg = Between::leaving(ray, (s, rough));
+        let mut stats = TraversalStats::default();
+        self.scene
+            .accel
+            .intersect_between(view, &seg, &mut stats)
+            .is_some_and(|hit| {
+                let m = view.splats[hit.splat as usize].material;
+                !class::is_specular(self.materials[m as usize].class)
+            })
+    }
 }
 
 /// Bins farther than this from a splat's plane, in kernel radii, lie on another surface.
@@ -568,7 +642,7 @@ fn gather_links(
     bins: &[Bin],
     diffuse: &(dyn Fn(usize) -> bool + Sync),
     leaf_of: &(dyn Fn(u32) -> usize + Sync),
-    gather: u32,
+    (gather, shade): (u32, &Shade),
 ) -> [(Vec<u32>, Vec<GatherLink>); 2] {
     let used: Vec<u32> = (0..bins.len() as u32)
         .filter(|&b| bins[b as usize].area > 0.0)
@@ -594,12 +668,15 @@ fn gather_links(
                 }
             });
     };
-    // The density estimate of each bin: the radius that holds `gather` paths of its surface.
-    let smooth: Vec<Vec<GatherLink>> = bins
+    // The density estimate of each bin: the radius that holds `gather` paths of its surface,
+    // without the bins whose light a surface close in front of it hides ([`Shade`]); and
+    // those bins.
+    let (smooth, hidden): (Vec<Vec<GatherLink>>, Vec<Vec<u32>>) = bins
         .par_iter()
-        .map(|b| {
+        .enumerate()
+        .map(|(at, b)| {
             if b.area <= 0.0 {
-                return Vec::new();
+                return (Vec::new(), Vec::new());
             }
             let q: [f32; 3] = b.centroid.into();
             // The paths of the surface's bins among the `want` nearest, nearest first, until
@@ -637,23 +714,29 @@ fn gather_links(
                 gathered(RADIUS_CANDIDATES).1
             };
             let h = reach.max(2.0 * b.extent);
-            let (mut norm, mut row) = (0.0f64, Vec::new());
+            let (mut norm, mut row, mut hidden) = (0.0f64, Vec::new(), Vec::new());
             around(b.centroid, b.normal, h, &mut |i, c, k| {
+                if c.paths > 0 && shade.hides(at as u32, i, h) {
+                    hidden.push(i);
+                    return;
+                }
                 norm += (k * c.area) as f64;
                 if c.paths > 0 {
                     row.push(GatherLink { bin: i, weight: k });
                 }
             });
+            hidden.sort_unstable();
             if norm <= 0.0 {
-                return Vec::new();
+                return (Vec::new(), hidden);
             }
             let scale = (1.0 / (std::f64::consts::PI * norm)) as f32;
             row.sort_unstable_by_key(|g| g.bin);
             row.iter_mut().for_each(|g| g.weight *= scale);
-            row
+            (row, hidden)
         })
-        .collect();
-    // Each splat between the bins of its surface within twice its own bin's extent.
+        .unzip();
+    // Each splat between the bins of its surface within twice its own bin's extent, but for
+    // those its own bin's estimate left out.
     let interpolate: Vec<Vec<GatherLink>> = (0..view.splats.len())
         .into_par_iter()
         .map(|i| {
@@ -668,6 +751,9 @@ fn gather_links(
             }
             let (mut norm, mut row) = (0.0f32, Vec::new());
             around(s.position.into(), s.normal.into(), h, &mut |b, _, k| {
+                if hidden[own].binary_search(&b).is_ok() {
+                    return;
+                }
                 norm += k;
                 if !smooth[b as usize].is_empty() {
                     row.push(GatherLink { bin: b, weight: k });

@@ -231,7 +231,7 @@ pub fn run(
         None => {
             progress.phase("specular links");
             let l = links::build(
-                &view,
+                scene,
                 &materials,
                 &leaves,
                 &spec_aims,
