@@ -33,7 +33,7 @@ commands:
                                              N frames (default 60) of a camera orbit on it as
                                              out/<scene>/walkthrough-{cpu,gpu}/frame_NNNNN.png,
                                              and report frames per second on the CPU and the GPU
-  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|scale|mitsuba|gpu]
+  bench [--sizes 1M,4M] [--runs N] [--only octree|rays|caustics|fmm|chain|render|scale|mitsuba|gpu]
         [--peer embree] [--write]
                                              octree build and ray traversal benchmarks; with
                                              --only rays --peer embree, the same rays traced by
@@ -46,7 +46,9 @@ commands:
                                              --only fmm, the radiosity solve (default sizes
                                              100k,1M,4M; best of N runs); with --only chain,
                                              the whole chain cold and a new view (default 1M);
-                                             with --only gpu, the chain with every stage on the
+                                             with --only render, the CPU renderer's camera
+                                             samples per second on the default scene (median
+                                             of N runs); with --only gpu, the chain with every stage on the
                                              GPU (twice) and on the CPU, each GPU stage's share,
                                              and GPU frames per second (default 1M; skipped
                                              without an adapter). PCGI_BENCH_BIN_DIR=DIR runs

@@ -303,4 +303,28 @@ impl Stage for RaytraceStage {
             s.device_name,
         )
     }
+
+    /// The render's time and its work: camera samples (every pixel's `spp`, and the refined
+    /// pixels' second pass), the rays where the CPU counted them.
+    fn stats(&self, s: &Summary, seconds: f64) -> serde_json::Value {
+        let p = &self.cfg.config.raytrace;
+        let pixels = s.image.width as u64 * s.image.height as u64;
+        let samples = pixels * p.spp as u64 + s.refined as u64 * p.refine_spp() as u64;
+        let rays = s.counts.map(
+            |c| serde_json::json!({ "camera": c.camera, "bounce": c.bounce, "shadow": c.shadow }),
+        );
+        serde_json::json!({
+            "stage": "pc-raytrace",
+            "width": s.image.width,
+            "height": s.image.height,
+            "spp": p.spp,
+            "refined": s.refined,
+            "refine_spp": p.refine_spp(),
+            "camera_samples": samples,
+            "rays": rays,
+            "render_seconds": s.seconds,
+            "total_seconds": seconds,
+            "device": s.device_name,
+        })
+    }
 }

@@ -1,4 +1,4 @@
-//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|scale|mitsuba|gpu]
+//! `cargo xtask bench [--sizes a,b] [--runs N] [--write] [--only octree|rays|caustics|fmm|chain|render|scale|mitsuba|gpu]
 //! [--peer embree]`:
 //! the options and which benchmarks run; each benchmark is in its own module. With
 //! `PCGI_BENCH_BIN_DIR` set, the benchmarks run the release binaries found there instead of
@@ -13,6 +13,7 @@ mod mitsuba;
 mod octree;
 mod peer;
 mod rays;
+mod render;
 mod scale;
 mod table;
 
@@ -69,7 +70,7 @@ impl Options {
                     o.only = Some(
                         it.next()
                             .context(
-                                "--only needs octree, rays, caustics, fmm, chain, scale, mitsuba or gpu",
+                                "--only needs octree, rays, caustics, fmm, chain, render, scale, mitsuba or gpu",
                             )?
                             .clone(),
                     )
@@ -107,6 +108,7 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
         }
         Some("caustics") => caustics::bench(&o.sizes_or(&[1_000_000]), runs, write),
         Some("chain") => chain::bench(&o.sizes_or(&[1_000_000]), write),
+        Some("render") => render::bench(runs, write),
         // Not part of the full run: it installs Mitsuba into a virtual environment.
         Some("mitsuba") => mitsuba::bench(write),
         Some("fmm") => fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write),
@@ -117,17 +119,18 @@ pub(crate) fn bench(args: &[String]) -> Result<()> {
         Some("scale") => scale::bench(&o.sizes_or(&[1_000_000, 4_000_000, 20_000_000]), write),
         None => {
             // Every benchmark: the stages' own (the radiosity solve at 100k, 1M and 4M), then the
-            // whole chain at 1M splats.
+            // whole chain at 1M splats and the renderer on the default scene.
             for what in ["octree", "rays"] {
                 octree_or_rays(what, &o.sizes, runs, write)?;
             }
             let small = o.sizes_or(&[1_000_000]);
             caustics::bench(&small, runs, write)?;
             fmm::bench(&o.sizes_or(&[100_000, 1_000_000, 4_000_000]), runs, write)?;
-            chain::bench(&small, write)
+            chain::bench(&small, write)?;
+            render::bench(runs, write)
         }
         Some(other) => {
-            bail!("bench: --only takes octree, rays, caustics, fmm, chain, scale, mitsuba or gpu, not `{other}`")
+            bail!("bench: --only takes octree, rays, caustics, fmm, chain, render, scale, mitsuba or gpu, not `{other}`")
         }
     }
 }
