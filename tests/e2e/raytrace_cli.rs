@@ -19,6 +19,7 @@ fn renders_exr_and_png_on_the_cpu() {
     let dir = temp_dir();
     let cfg = scene(dir.path());
     pc_octree(args!["--quiet", "--config", &cfg]).success();
+    let stats = dir.path().join("stats.json");
     let out = run(
         "pc-raytrace",
         args![
@@ -28,11 +29,25 @@ fn renders_exr_and_png_on_the_cpu() {
             "--config",
             &cfg,
             "--set",
-            "raytrace.aovs=true"
+            "raytrace.aovs=true",
+            "--stats-json",
+            &stats
         ],
     )
     .success();
     assert!(out.stdout.contains("40x32, 4 spp"), "{out:?}");
+    // The stats count every camera sample: each pixel's spp, and the refined pixels' second pass
+    // (`cargo xtask bench --only render` divides them by the render's time).
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let refined = json["refined"].as_u64().unwrap();
+    let samples = 40 * 32 * 4 + refined * json["refine_spp"].as_u64().unwrap();
+    assert_eq!(json["camera_samples"].as_u64(), Some(samples), "{json}");
+    assert_eq!(json["rays"]["camera"].as_u64(), Some(samples), "{json}");
+    assert!(
+        json["render_seconds"].as_f64().is_some_and(|s| s > 0.0),
+        "{json}"
+    );
     assert!(out.stdout.lines().count() == 1, "{out:?}");
     let exr = dir.path().join("out/image.exr");
     let png = dir.path().join("out/image.png");
