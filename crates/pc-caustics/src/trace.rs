@@ -10,7 +10,7 @@ use pc_artifact::octree::{class, MaterialRecord};
 use pc_artifact::photons::Photon;
 use pc_tree::accel::Accel;
 use pc_tree::between::surface;
-use pc_tree::optics::specular_bounce;
+use pc_tree::optics::{shading_normal, specular_bounce};
 use pc_tree::rng::rand;
 use pc_tree::{cosine_dir, disk_point, Between, OctreeView, Ray, TraversalStats};
 
@@ -171,7 +171,8 @@ impl Tracer<'_> {
                     return Fate::Lost;
                 }
                 let u = rand(self.seed, id, 0, DIM_BOUNCE + bounces);
-                let b = specular_bounce(view, m, hit.splat, x, ray.dir, u);
+                let n = shading_normal(view, hit.splat, x);
+                let b = specular_bounce(view, m, (hit.splat, n), ray.dir, u);
                 power *= b.tint;
                 bounces += 1;
                 ray = Ray {

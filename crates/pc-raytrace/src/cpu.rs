@@ -147,7 +147,7 @@ impl Path {
                 t_max: f32::INFINITY,
             };
             let halves = match (m.class, self.splits < p.splits) {
-                (class::DIELECTRIC, true) => dielectric_split(view, m, hit.splat, x, ray.dir),
+                (class::DIELECTRIC, true) => dielectric_split(view, m, (hit.splat, n), ray.dir),
                 _ => None,
             };
             let b = match halves {
@@ -166,7 +166,7 @@ impl Path {
                         class::MIRROR => 0.0,
                         _ => rand(p.seed, self.at.pixel, self.at.k, dim(bounce, 0)),
                     };
-                    specular_bounce(view, m, hit.splat, x, ray.dir, u)
+                    specular_bounce(view, m, (hit.splat, n), ray.dir, u)
                 }
             };
             throughput *= b.tint;

@@ -90,22 +90,22 @@ pub struct Bounce {
     pub transmitted: bool,
 }
 
-/// The specular bounce at `x` on splat `splat` of material `m` (mirror or dielectric): mirrors
-/// reflect and tint; dielectrics reflect with the Fresnel probability (always under total
-/// internal reflection) and otherwise refract, tinted, with `u` ∈ [0, 1) the random choice. The
-/// side comes from the splat's own normal (entering when `dir` opposes it), the direction from
-/// the normal field.
+/// The specular bounce on splat `splat` of material `m` (mirror or dielectric) where its
+/// shading normal is `n` ([`shading_normal`] at the hit, which the caller has for its own use
+/// too): mirrors reflect and tint; dielectrics reflect with the Fresnel probability (always
+/// under total internal reflection) and otherwise refract, tinted, with `u` ∈ [0, 1) the random
+/// choice. The side comes from the splat's own normal (entering when `dir` opposes it), the
+/// direction from `n`. WGSL twin: `specular_bounce` in shaders/common/optics.wgsl.
 #[inline]
 pub fn specular_bounce(
     view: &OctreeView,
     m: &MaterialRecord,
-    splat: u32,
-    x: Vec3,
+    (splat, n): (u32, Vec3),
     dir: Vec3,
     u: f32,
 ) -> Bounce {
     let color = Vec3::from(m.color) * Vec3::from(view.splats[splat as usize].albedo);
-    let i = Interface::at(view, m, splat, x, dir);
+    let i = Interface::at(view, m, (splat, n), dir);
     if m.class == class::MIRROR {
         return Bounce {
             dir: reflect(dir, i.nf),
@@ -132,18 +132,18 @@ pub fn specular_bounce(
 /// reflectance `f`, and the refraction, tinted by `(1 − f)` and the dielectric's color; None
 /// under total internal reflection (the only way out is the reflection, untinted, as
 /// [`specular_bounce`] gives it). The renderer splits its paths here once (docs/raytrace.md,
-/// "Splitting at glass"); the photon tracer keeps the random choice. WGSL twin:
-/// `dielectric_split` in shaders/common/optics.wgsl.
+/// "Splitting at glass"); the photon tracer keeps the random choice. `n` is the shading normal
+/// at the hit, as for [`specular_bounce`]. WGSL twin: `dielectric_split` in
+/// shaders/common/optics.wgsl.
 #[inline]
 pub fn dielectric_split(
     view: &OctreeView,
     m: &MaterialRecord,
-    splat: u32,
-    x: Vec3,
+    (splat, n): (u32, Vec3),
     dir: Vec3,
 ) -> Option<[Bounce; 2]> {
     let color = Vec3::from(m.color) * Vec3::from(view.splats[splat as usize].albedo);
-    let i = Interface::at(view, m, splat, x, dir);
+    let i = Interface::at(view, m, (splat, n), dir);
     let t = i.refracted?;
     Some([
         Bounce {
@@ -159,9 +159,10 @@ pub fn dielectric_split(
     ])
 }
 
-/// What a ray along unit `dir` meets at `x` on specular splat `splat`: the shading normal
-/// facing it, and for a dielectric the Fresnel reflectance and the refracted direction (None
-/// under total internal reflection, where the reflectance is 1).
+/// What a ray along unit `dir` meets on specular splat `splat` where its shading normal is `n`:
+/// that normal facing the ray, and for a dielectric the Fresnel reflectance and the refracted
+/// direction (None under total internal reflection, where the reflectance is 1). WGSL twin:
+/// `interface_at`.
 struct Interface {
     nf: Vec3,
     f: f32,
@@ -170,9 +171,8 @@ struct Interface {
 
 impl Interface {
     #[inline]
-    fn at(view: &OctreeView, m: &MaterialRecord, splat: u32, x: Vec3, dir: Vec3) -> Interface {
+    fn at(view: &OctreeView, m: &MaterialRecord, (splat, n): (u32, Vec3), dir: Vec3) -> Interface {
         let ns = Vec3::from(view.splats[splat as usize].normal);
-        let n = shading_normal(view, splat, x);
         let nf = if dir.dot(n) < 0.0 { n } else { -n };
         if m.class == class::MIRROR {
             return Interface {
