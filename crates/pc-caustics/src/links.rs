@@ -464,7 +464,7 @@ pub fn build(
     // Flux rows: (bin, sender splat, weight), merged per pair (made in parallel, in the paths'
     // order; two binary searches and a walk over a leaf's splats each), and each path's
     // direction of travel where it landed.
-    let kept: Vec<((u32, u32, Vec3), Vec3)> = traced
+    let (mut rows, arrivals): (Vec<(u32, u32, Vec3)>, Vec<Vec3>) = traced
         .photons
         .par_iter()
         .zip(&traced.id)
@@ -479,8 +479,8 @@ pub fn build(
                 Source::Point(_) => None,
             }
         })
-        .collect();
-    for (r, dir) in &kept {
+        .unzip();
+    for (r, dir) in rows.iter().zip(&arrivals) {
         let b = &mut bins[r.0 as usize];
         b.paths += 1;
         b.back -= r.2.element_sum() * *dir;
@@ -489,7 +489,6 @@ pub fn build(
         b.back = b.back.normalize_or_zero();
         b.back_cell = cube_cell(b.back);
     }
-    let mut rows: Vec<(u32, u32, Vec3)> = kept.into_iter().map(|(r, _)| r).collect();
     rows.sort_unstable_by_key(|r| (r.0, r.1));
     let mut merged: Vec<(u32, u32, Vec3)> = Vec::with_capacity(rows.len());
     for r in rows {
