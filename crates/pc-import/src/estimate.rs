@@ -687,19 +687,33 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
         // spanning the cloud.
         let cap = 2 * (deepest as usize) * (fits[0].0.count as usize).max(1);
         let wider = knn.map_within(&reach2, cap, |i, inside, offsets| {
+            let noise = pooled_thin(fits, i, inside);
+            // The k-nearest fit's error with its patch's noise: within the tolerance, no wider
+            // fit is asked (an empty one stands for it).
+            let fit = fits[i].0;
+            let error = match fit.thin > 0.0 {
+                true => fit.error * (noise / fit.thin).sqrt(),
+                false => f32::INFINITY,
+            };
+            if error <= above {
+                return (Fit::NONE, noise, false);
+            }
             let all = offsets.iter().map(|&o| Vec3::from(o).as_dvec3());
-            // The same ball at half the radius, for the growth test.
+            let wide = Fit::of_offsets(all.clone());
+            if wide.thin <= WIDEN_FLAT * noise {
+                return (wide, noise, false); // flat as the noise: kept, growth not asked
+            }
+            // The same ball at half the radius, for the growth test. Range noise does not
+            // thicken a fit as its ball grows; a crease or a curve does (4 and 16 times the
+            // variance for twice the radius).
             let quarter = reach2[i] / 4.0;
             let half = all
-                .clone()
                 .zip(inside)
                 .filter(|&(_, &(_, d2))| d2 <= quarter)
                 .map(|(o, _)| o);
-            let (wide, half) = (Fit::of_offsets(all), Fit::of_offsets(half));
-            // Range noise does not thicken a fit as its ball grows; a crease or a curve does
-            // (4 and 16 times the variance for twice the radius).
-            let grows = half.count < 2 * fits[i].0.count || wide.thin > WIDEN_GROWTH * half.thin;
-            (wide, pooled_thin(fits, i, inside), grows)
+            let half = Fit::of_offsets(half);
+            let grows = half.count < 2 * fit.count || wide.thin > WIDEN_GROWTH * half.thin;
+            (wide, noise, grows)
         });
         (&mut *normals, fits, &mut reach2, &mut deepened, &wider)
             .into_par_iter()
@@ -708,12 +722,8 @@ fn widen(knn: &Knn, normals: &mut [Vec3], fits: &[(Fit, f32)], above: f32) {
                     *r2 = 0.0; // given up (or never asked): not asked again
                     return;
                 };
-                // The k-nearest fit's error with its patch's noise.
-                let error = match fit.thin > 0.0 {
-                    true => fit.error * (noise / fit.thin).sqrt(),
-                    false => f32::INFINITY,
-                };
-                if error <= above || f.count <= fit.count {
+                // An empty wide fit: the k-nearest one is within the tolerance.
+                if f.count <= fit.count {
                     *r2 = 0.0;
                 } else if f.thin <= WIDEN_FLAT * noise || !grows {
                     *n = f.normal;
