@@ -108,12 +108,13 @@ pub fn splat_areas(
     };
     // Both neighbourhood passes look around the same boxes (they depend on the radii only).
     let near_boxes = ctx.neighbour_boxes();
-    let slabs = dups.spread(ctx.slabs(&near_boxes));
+    let (slabs, sure): (Vec<f32>, Vec<bool>) = ctx.slabs(&near_boxes).into_iter().unzip();
+    let slabs = dups.spread(slabs);
     ctx.disks.set_slabs(&slabs);
     ctx.cover_halves = cover_halves(splats, &slabs);
     ctx.node_extents = ctx.node_extents();
     let unclipped = dups.spread(ctx.run(None));
-    let borders = dups.spread(ctx.borders(&unclipped, &near_boxes));
+    let borders = dups.spread(ctx.borders(&unclipped, &sure));
     let borders = dups.spread(ctx.align_borders(&borders, &unclipped, &near_boxes));
     // An interior splat's clipped pass is its unclipped one, sample for sample (its share
     // accepts every sample, and the cover counts never look at borders): only the border
@@ -429,7 +430,7 @@ impl AreaPass<'_> {
     /// every splat's neighbourhood. A leaf's reference list only holds the disks that reach
     /// that leaf's cell, which would cut neighbourhoods at cell walls. None without a
     /// representative.
-    fn neighbour_box(&self, run: std::ops::Range<usize>) -> Option<QueryBox> {
+    fn neighbour_box(&self, run: impl Iterator<Item = usize>) -> Option<QueryBox> {
         let (lo, hi) = run
             .filter(|&i| self.dups.is_rep(i as u32))
             .map(|i| self.query_box(i))
@@ -513,11 +514,21 @@ impl AreaPass<'_> {
     /// the union of their query boxes meets, which every splat's own neighbourhood filters.
     /// Every leaf a splat's box meets, the union meets, and the walk visits the leaves in the
     /// same order either way, so each neighbourhood is what a walk of its own would give.
-    fn borders(&self, unclipped: &[f32], near_boxes: &[Option<QueryBox>]) -> Vec<Border> {
-        self.per_leaf(Reach::Cells, near_boxes, |sc, run| {
+    ///
+    /// A splat its slab's pass found surely interior ([`Self::surely_interior`]) is not looked
+    /// at again; a leaf's query box holds only the others', and a leaf without them walks
+    /// nothing.
+    fn borders(&self, unclipped: &[f32], sure: &[bool]) -> Vec<Border> {
+        let boxes: Vec<Option<QueryBox>> = self
+            .runs
+            .par_iter()
+            .map(|run| self.neighbour_box(run.clone().filter(|&i| !sure[i])))
+            .collect();
+        self.per_leaf(Reach::Cells, &boxes, |sc, run| {
             run.map(|i| {
-                if !self.dups.is_rep(i as u32) {
-                    return Border::Interior; // the representative's, spread afterwards
+                if !self.dups.is_rep(i as u32) || sure[i] {
+                    // Non-representatives take the representative's, spread afterwards.
+                    return Border::Interior;
                 }
                 self.neighbourhood(i, sc);
                 self.border(i, &sc.near, unclipped, &mut sc.offsets)
@@ -539,27 +550,71 @@ impl AreaPass<'_> {
             .map(|&j| unclipped[j as usize])
             .fold(f32::INFINITY, f32::min);
         let g = 0.5 * least.max(0.0).sqrt();
-        let s = &self.splats[i];
-        let (u, v) = tangent_frame(s.normal);
-        let (u, v, c) = (Vec3::from(u), Vec3::from(v), Vec3::from(s.position));
+        let (u, v, c) = self.tangent_axes(i);
         offsets.clear();
         offsets.extend(near.iter().map(|&j| {
             let d = Vec3::from(self.splats[j as usize].position) - c;
             (d.dot(u), d.dot(v))
         }));
-        let (cos, sin) = &self.dirs;
-        let mut reach = [0.0f32; BORDER_DIRS];
-        for &(a, b) in offsets.iter() {
-            for k in 0..BORDER_DIRS {
-                reach[k] = reach[k].max(a * cos[k] + b * sin[k]);
-            }
-        }
+        let reach = self.directional_reach(offsets.iter().copied());
         let mask = reach
             .iter()
             .enumerate()
             .filter(|(_, &h)| h < g)
             .fold(0u32, |m, (k, _)| m | 1 << k);
         border_from_mask(mask, g, offsets)
+    }
+
+    /// Splat i's tangent axes and centre.
+    fn tangent_axes(&self, i: usize) -> (Vec3, Vec3, Vec3) {
+        let s = &self.splats[i];
+        let (u, v) = tangent_frame(s.normal);
+        (Vec3::from(u), Vec3::from(v), Vec3::from(s.position))
+    }
+
+    /// How far out along each of the [`BORDER_DIRS`] directions of a tangent plane these
+    /// offsets in it reach (0 at least: the splat's own place).
+    fn directional_reach(&self, offsets: impl Iterator<Item = (f32, f32)>) -> [f32; BORDER_DIRS] {
+        let (cos, sin) = &self.dirs;
+        let mut reach = [0.0f32; BORDER_DIRS];
+        for (a, b) in offsets {
+            for k in 0..BORDER_DIRS {
+                reach[k] = reach[k].max(a * cos[k] + b * sin[k]);
+            }
+        }
+        reach
+    }
+
+    /// Whether [`Self::border`] will surely find splat i interior whatever the unclipped areas,
+    /// from the lanes `sc.keep` marks within [`Self::reach`] of it ([`Self::slabs`]): those
+    /// within half of that off its plane are the border's neighbourhood. The border opens a
+    /// direction where no neighbour reaches past its half spacing, which is at most ½√ of
+    /// splat i's own disk's area (i is among its neighbours, and a share is at most its disk;
+    /// 0.1 % more for the rounding). So where every direction has a neighbour reaching past
+    /// that, none can open. A direction is settled by the first neighbour that reaches past
+    /// the gap in it, and the test ends once all are. False is only "look again": the
+    /// border's pass looks at the rest, 1.7 % of the 4M hall scan's splats and 1.4 % of the
+    /// 1M Cornell box's.
+    fn surely_interior(&self, i: usize, sc: &Scratch) -> bool {
+        let rise = 0.5 * self.reach(i);
+        let (u, v, c) = self.tangent_axes(i);
+        let (d, cands, heights) = (&sc.disks, &sc.cands, &sc.heights);
+        let r = self.splats[i].radius;
+        let most_gap = 0.5 * (std::f32::consts::PI * r * r * 1.001).sqrt();
+        let (cos, sin) = &self.dirs;
+        let mut own = false;
+        let mut reached = 0u32;
+        for_kept(&sc.keep, |l| {
+            own |= cands[l] as usize == i;
+            if heights[l] <= rise && reached != ALL_DIRS {
+                let o = Vec3::new(d.px[l], d.py[l], d.pz[l]) - c;
+                let (a, b) = (o.dot(u), o.dot(v));
+                for k in 0..BORDER_DIRS {
+                    reached |= u32::from(a * cos[k] + b * sin[k] >= most_gap) << k;
+                }
+            }
+        });
+        own && reached == ALL_DIRS
     }
 
     /// The border rows' splats clipped along one line: each border splat's gap moved to where
@@ -685,25 +740,31 @@ impl AreaPass<'_> {
     /// about √2 σ, and once the radius is not several σ (a dense scan: 5 mm disks on a ceiling
     /// with 2 mm of noise) half a radius misses a third of the neighbours: every sample seems
     /// covered by fewer disks than cover it, and the wall's splats stood for twice its area.
-    fn slabs(&self, near_boxes: &[Option<QueryBox>]) -> Vec<f32> {
+    ///
+    /// The same neighbourhood tells whether the splat is surely interior
+    /// ([`Self::surely_interior`]), returned beside its slab.
+    fn slabs(&self, near_boxes: &[Option<QueryBox>]) -> Vec<(f32, bool)> {
         self.per_leaf(Reach::Cells, near_boxes, |sc, run| {
             run.map(|i| {
                 if !self.dups.is_rep(i as u32) {
-                    return 0.0; // the representative's, spread afterwards
+                    return (0.0, false); // the representative's, spread afterwards
                 }
+                let reach = self.reach(i);
+                self.mark_neighbours(i, &sc.disks, reach, &mut sc.keep, &mut sc.heights);
+                let interior = self.surely_interior(i, sc);
                 let deviation = self.height_deviation(i, sc);
-                (0.5 * self.splats[i].radius).max(COVER_DEVIATIONS * deviation)
+                let slab = (0.5 * self.splats[i].radius).max(COVER_DEVIATIONS * deviation);
+                (slab, interior)
             })
             .collect()
         })
     }
 
     /// The robust deviation (median |h| / 0.6745) of the heights h above splat i's plane of its
-    /// same-surface neighbours within [`Self::reach`] (and as high), from `sc`
-    /// ([`Self::neighbour_box`]); 0 with fewer than [`MIN_HEIGHTS`] of them.
+    /// same-surface neighbours within [`Self::reach`] (and as high), from the lanes of `sc`
+    /// ([`Self::neighbour_box`]) that [`Self::mark_neighbours`] marked with that reach; 0 with
+    /// fewer than [`MIN_HEIGHTS`] of them.
     fn height_deviation(&self, i: usize, sc: &mut Scratch) -> f32 {
-        let reach = self.reach(i);
-        self.mark_neighbours(i, &sc.disks, reach, &mut sc.keep, &mut sc.heights);
         let mut k = 0;
         let (cands, heights) = (&sc.cands, &mut sc.heights);
         for_kept(&sc.keep, |l| {
