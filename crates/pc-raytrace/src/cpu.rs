@@ -78,8 +78,12 @@ pub fn trace_sample(
         pending: Branches::default(),
         splits: 0,
     };
-    path.pending
-        .push((Ray::new(Vec3::from(p.cam_origin), dir), Vec3::ONE, 0));
+    // The walk starts where a ray through this pixel can first meet a splat (the same hit).
+    let camera_ray = Ray {
+        t_min: sc.camera_near()[pixel as usize],
+        ..Ray::new(Vec3::from(p.cam_origin), dir)
+    };
+    path.pending.push((camera_ray, Vec3::ONE, 0));
     while let Some(branch) = path.pending.pop() {
         path.follow(sc, branch, &mut out, counts, blend);
     }

@@ -5,6 +5,7 @@
 //! test holds the two images together. See docs/raytrace.md.
 
 pub mod camera;
+pub mod camera_near;
 pub mod caustic;
 pub mod cpu;
 pub mod error;

@@ -147,6 +147,9 @@ pub struct RenderScene<'a> {
     pub rough: Vec<f32>,
     /// The second pass over high-contrast pixels ([`crate::refine`]).
     pub refine: crate::refine::Refine,
+    /// Where the CPU's camera rays through each pixel start ([`crate::camera_near`]): made on
+    /// first use for the camera of the moment, dropped when it moves.
+    camera_near: std::sync::OnceLock<Vec<f32>>,
 }
 
 impl<'a> RenderScene<'a> {
@@ -207,6 +210,7 @@ impl<'a> RenderScene<'a> {
                 spp: cfg.refine_spp(),
                 contrast: cfg.refine_contrast,
             },
+            camera_near: std::sync::OnceLock::new(),
         }
     }
 
@@ -221,6 +225,14 @@ impl<'a> RenderScene<'a> {
         p.width = camera.width;
         p.height = camera.height;
         p.rows = camera.height;
+        self.camera_near = std::sync::OnceLock::new();
+    }
+
+    /// The least distance at which a camera ray through each pixel (row-major) can meet a
+    /// splat ([`crate::camera_near::near_bounds`]), for the camera of the moment.
+    pub fn camera_near(&self) -> &[f32] {
+        self.camera_near
+            .get_or_init(|| crate::camera_near::near_bounds(&self.view, &self.params))
     }
 
     /// Show this per-splat radiance at diffuse hits (one RGB per data-pool splat).

@@ -10,6 +10,7 @@ use pc_raytrace::scene::RenderScene;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 
+mod camera_near;
 mod caustic;
 mod specular;
 

@@ -1,0 +1,167 @@
+//! Camera rays start their walk at their pixel's bound (`pc_raytrace::camera_near`): the same
+//! first hits as from the camera.
+
+use glam::Vec3;
+use pc_raytrace::scene::RenderScene;
+use pc_tree::{Ray, TraversalStats};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+use crate::{camera, diffuse, params, BuildSoa, Soa};
+use pc_config::ShadingMode;
+
+/// Every camera ray of `sc` (four random ones a pixel) hits from its pixel's bound exactly what
+/// it hits from the camera, never nearer than the bound. Returns the share of pixels with a
+/// bound above 0 and the cells walked from the camera and from the bounds.
+fn check(sc: &RenderScene, seed: u64) -> (f32, u64, u64) {
+    let near = sc.camera_near().to_vec();
+    let (w, h) = (sc.params.width, sc.params.height);
+    assert_eq!(near.len(), (w * h) as usize);
+    let origin = Vec3::from(sc.params.cam_origin);
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let (mut full, mut from) = (TraversalStats::default(), TraversalStats::default());
+    for py in 0..h {
+        for px in 0..w {
+            let i = (py * w + px) as usize;
+            for _ in 0..4 {
+                let (u, v): (f32, f32) = (rng.random(), rng.random());
+                let dir = sc.camera_dir((px as f32 + u) / w as f32, (py as f32 + v) / h as f32);
+                let ray = Ray::new(origin, dir);
+                let a = sc.intersect_in(&ray, &mut full);
+                let b = sc.intersect_in(
+                    &Ray {
+                        t_min: near[i],
+                        ..ray
+                    },
+                    &mut from,
+                );
+                assert_eq!(
+                    a, b,
+                    "pixel ({px}, {py}): from the camera and from {}",
+                    near[i]
+                );
+                if let Some((hit, _)) = a {
+                    assert!(
+                        hit.t >= near[i],
+                        "pixel ({px}, {py}): hit at {} before its bound {}",
+                        hit.t,
+                        near[i]
+                    );
+                }
+            }
+        }
+    }
+    let positive = near.iter().filter(|&&d| d > 0.0).count() as f32 / near.len() as f32;
+    (positive, full.cells, from.cells)
+}
+
+#[test]
+fn camera_rays_from_their_pixel_bound_hit_what_they_hit_from_the_camera() {
+    let mut rng = Pcg64::seed_from_u64(7);
+    let mut s = Soa::default();
+    // A floor running under and behind the camera, a box, a sphere half hidden behind it, and
+    // a wall beside the camera reaching past its plane.
+    s.rect(
+        Vec3::new(0.0, -0.5, 0.0),
+        Vec3::X * 3.0,
+        -Vec3::Z * 3.0,
+        0.03,
+        0,
+        &mut rng,
+    );
+    s.cube(
+        Vec3::new(0.2, -0.2, -1.0),
+        Vec3::splat(0.3),
+        0.02,
+        0,
+        &mut rng,
+    );
+    s.sphere(Vec3::new(-0.1, 0.0, -1.7), 0.35, 4000, 0);
+    s.rect(
+        Vec3::new(-0.8, 0.0, 0.5),
+        Vec3::Z * 2.0,
+        Vec3::Y * 0.6,
+        0.03,
+        0,
+        &mut rng,
+    );
+    let mats = vec![diffuse(0.5)];
+    let o = s.build(&mats);
+    let views = [
+        // Looking at the box and the sphere.
+        (Vec3::new(0.0, 0.2, 1.0), Vec3::new(0.0, -0.1, -1.0)),
+        // From 1 cm over the floor: its disks under the camera reach the camera's plane, so
+        // every pixel's bound is 0 (the walk from the camera).
+        (Vec3::new(0.3, -0.49, 0.8), Vec3::new(0.0, -0.45, -1.0)),
+    ];
+    for (k, (eye, target)) in views.into_iter().enumerate() {
+        let cam = camera(eye, target, Vec3::Y, 60.0, 64, 48);
+        let mut sc = RenderScene::new(
+            o.view(),
+            mats.clone(),
+            &[],
+            &cam,
+            &params(4, ShadingMode::Stored),
+        );
+        sc.prepare_cpu();
+        let (positive, cells_full, cells_from) = check(&sc, k as u64);
+        if k == 0 {
+            assert!(
+                positive > 0.9,
+                "only {positive} of the pixels start past the camera"
+            );
+            assert!(
+                (cells_from as f64) < 0.8 * cells_full as f64,
+                "cells walked: {cells_from} from the bounds, {cells_full} from the camera"
+            );
+        } else {
+            assert_eq!(positive, 0.0, "a disk reaches the camera's plane in view");
+        }
+    }
+}
+
+#[test]
+fn a_moved_camera_gets_new_bounds() {
+    let mut rng = Pcg64::seed_from_u64(3);
+    let mut s = Soa::default();
+    s.rect(
+        Vec3::new(0.0, 0.0, -2.0),
+        Vec3::X,
+        Vec3::Y,
+        0.05,
+        0,
+        &mut rng,
+    );
+    let mats = vec![diffuse(0.5)];
+    let o = s.build(&mats);
+    let near_cam = camera(
+        Vec3::new(0.0, 0.0, -1.0),
+        Vec3::new(0.0, 0.0, -2.0),
+        Vec3::Y,
+        40.0,
+        8,
+        8,
+    );
+    let far_cam = camera(
+        Vec3::new(0.0, 0.0, 2.0),
+        Vec3::new(0.0, 0.0, -2.0),
+        Vec3::Y,
+        40.0,
+        8,
+        8,
+    );
+    let mut sc = RenderScene::new(
+        o.view(),
+        mats,
+        &[],
+        &near_cam,
+        &params(1, ShadingMode::Stored),
+    );
+    let centre = |sc: &RenderScene| sc.camera_near()[4 * 8 + 4];
+    let d_near = centre(&sc);
+    sc.set_camera(&far_cam);
+    let d_far = centre(&sc);
+    // The wall is 1 m and 4 m away; the bounds lie within a disk's radius (5 cm) of it.
+    assert!((0.94..=1.0).contains(&d_near), "{d_near}");
+    assert!((3.94..=4.0).contains(&d_far), "{d_far}");
+}
