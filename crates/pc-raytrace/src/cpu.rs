@@ -80,7 +80,7 @@ pub fn trace_sample(
     };
     // The walk starts where a ray through this pixel can first meet a splat (the same hit).
     let camera_ray = Ray {
-        t_min: sc.camera_near()[pixel as usize],
+        t_min: sc.camera_near().map_or(0.0, |near| near[pixel as usize]),
         ..Ray::new(Vec3::from(p.cam_origin), dir)
     };
     path.pending.push((camera_ray, Vec3::ONE, 0));

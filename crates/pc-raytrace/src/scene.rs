@@ -148,8 +148,8 @@ pub struct RenderScene<'a> {
     /// The second pass over high-contrast pixels ([`crate::refine`]).
     pub refine: crate::refine::Refine,
     /// Where the CPU's camera rays through each pixel start ([`crate::camera_near`]): made on
-    /// first use for the camera of the moment, dropped when it moves.
-    camera_near: std::sync::OnceLock<Vec<f32>>,
+    /// first use for the camera of the moment where it pays, dropped when the camera moves.
+    camera_near: std::sync::OnceLock<Option<Vec<f32>>>,
 }
 
 impl<'a> RenderScene<'a> {
@@ -229,10 +229,32 @@ impl<'a> RenderScene<'a> {
     }
 
     /// The least distance at which a camera ray through each pixel (row-major) can meet a
-    /// splat ([`crate::camera_near::near_bounds`]), for the camera of the moment.
-    pub fn camera_near(&self) -> &[f32] {
+    /// splat ([`crate::camera_near::near_bounds`]), for the camera of the moment; None where
+    /// the frame has fewer camera samples than splats ([`crate::camera_near::pays`]), whose
+    /// rays start at the camera.
+    pub fn camera_near(&self) -> Option<&[f32]> {
         self.camera_near
-            .get_or_init(|| crate::camera_near::near_bounds(&self.view, &self.params))
+            .get_or_init(|| {
+                let p = &self.params;
+                let samples = u64::from(p.width) * u64::from(p.height) * u64::from(p.spp);
+                crate::camera_near::pays(self.view.splats.len(), samples)
+                    .then(|| crate::camera_near::near_bounds(&self.view, &self.camera()))
+            })
+            .as_deref()
+    }
+
+    /// The camera the parameters hold.
+    pub fn camera(&self) -> Camera {
+        let p = &self.params;
+        Camera {
+            origin: p.cam_origin.into(),
+            forward: p.cam_forward.into(),
+            right: p.cam_right.into(),
+            up: p.cam_up.into(),
+            tan_half: (p.tan_half[0], p.tan_half[1]),
+            width: p.width,
+            height: p.height,
+        }
     }
 
     /// Show this per-splat radiance at diffuse hits (one RGB per data-pool splat).

@@ -48,9 +48,10 @@ pub(super) fn build_harness() -> Result<Option<PathBuf>> {
 struct Row {
     splats: f64,
     threads: usize,
-    /// pcgi and Embree: primary, incoherent and shadow rays/s, build seconds.
-    pcgi: [f64; 4],
-    embree: [f64; 4],
+    /// pcgi and Embree: primary, incoherent and shadow rays/s, build seconds, and pcgi's
+    /// primary rays from their pixel's bound (Embree: its primary rays again).
+    pcgi: [f64; 5],
+    embree: [f64; 5],
 }
 
 /// Rows for every size on 1 and 2 threads, and the first-hit agreement line of each size.
@@ -80,6 +81,7 @@ pub(super) fn bench(
                     num(&v, "cpu_incoherent_rays_per_s"),
                     num(&v, "cpu_shadow_rays_per_s"),
                     num(&o, "build_seconds"),
+                    num(&v, "cpu_bounded_primary_rays_per_s"),
                 ]);
                 let v = embree(harness, &dump, threads)?;
                 peer = v["peer"].as_str().unwrap_or("Embree").to_string();
@@ -88,6 +90,7 @@ pub(super) fn bench(
                     num(&v, "incoherent_rays_per_s"),
                     num(&v, "shadow_rays_per_s"),
                     num(&v, "build_s"),
+                    num(&v, "primary_rays_per_s"),
                 ]);
             }
             let row = Row {
@@ -109,10 +112,13 @@ disks, `rtcIntersect1` on the same rays, threads handed chunks of 4096 rays; pcg
 (the renderer's). Primary rays: one per pixel centre of a 1024×1024 view from the scene camera; incoherent rays: \
 from random splats, cosine-distributed about their normals; shadow rays: segments between two random splats \
 facing each other, any hit (`rtcOccluded1`; pcgi: `Accel::visible`, the V-map's caster). Build: pc-octree's \
-build including the splat areas and border clips (import excluded) against Embree's scene commit. Each cell: \
+build including the splat areas and border clips (import excluded) against Embree's scene commit. Camera \
+rays: the primary rays as pcgi's CPU renderer casts them, each from its pixel's bound (docs/raytrace.md, \
+\"Camera rays start near their surface\"; the bounds' pass over every splat timed with them, the same hits), \
+against Embree's primary rays (which could be given such bounds too; its single-ray API has none). Each cell: \
 pcgi / Embree (ratio; above 1 pcgi is faster).\n\n\
-| splats | threads | primary rays | incoherent rays | shadow rays | build |\n\
-|---|---|---|---|---|---|\n{}\n\n{}\n",
+| splats | threads | primary rays | incoherent rays | shadow rays | build | camera rays from their pixel's bound |\n\
+|---|---|---|---|---|---|---|\n{}\n\n{}\n",
         machine(),
         today(),
         sizes_arg(sizes),
@@ -139,7 +145,7 @@ impl Row {
             )
         };
         format!(
-            "| {:.2}M | {} | {} | {} | {} | {:.2} / {:.2} s ({:.2}) |",
+            "| {:.2}M | {} | {} | {} | {} | {:.2} / {:.2} s ({:.2}) | {} |",
             self.splats / 1e6,
             self.threads,
             rate(0),
@@ -148,6 +154,7 @@ impl Row {
             p[3],
             e[3],
             e[3] / p[3],
+            rate(4),
         )
     }
 }
@@ -157,7 +164,7 @@ fn num(v: &Value, key: &str) -> f64 {
 }
 
 /// Per column, the median of the runs.
-fn medians(runs: &[[f64; 4]]) -> [f64; 4] {
+fn medians<const N: usize>(runs: &[[f64; N]]) -> [f64; N] {
     std::array::from_fn(|k| {
         let mut c: Vec<f64> = runs.iter().map(|r| r[k]).collect();
         c.sort_by(f64::total_cmp);

@@ -14,7 +14,7 @@ use pc_config::ShadingMode;
 /// it hits from the camera, never nearer than the bound. Returns the share of pixels with a
 /// bound above 0 and the cells walked from the camera and from the bounds.
 fn check(sc: &RenderScene, seed: u64) -> (f32, u64, u64) {
-    let near = sc.camera_near().to_vec();
+    let near = pc_raytrace::camera_near::near_bounds(&sc.view, &sc.camera());
     let (w, h) = (sc.params.width, sc.params.height);
     assert_eq!(near.len(), (w * h) as usize);
     let origin = Vec3::from(sc.params.cam_origin);
@@ -120,6 +120,8 @@ fn camera_rays_from_their_pixel_bound_hit_what_they_hit_from_the_camera() {
     }
 }
 
+/// The bounds are made for the camera of the moment, and only where the frame has at least as
+/// many camera samples as splats.
 #[test]
 fn a_moved_camera_gets_new_bounds() {
     let mut rng = Pcg64::seed_from_u64(3);
@@ -150,18 +152,93 @@ fn a_moved_camera_gets_new_bounds() {
         8,
         8,
     );
+    let splats = o.view().splats.len();
+    assert!(splats > 64 && splats <= 8 * 8 * 32, "{splats} splats");
+    let few = RenderScene::new(
+        o.view(),
+        mats.clone(),
+        &[],
+        &near_cam,
+        &params(1, ShadingMode::Stored),
+    );
+    assert!(
+        few.camera_near().is_none(),
+        "64 samples over {splats} splats"
+    );
     let mut sc = RenderScene::new(
         o.view(),
         mats,
         &[],
         &near_cam,
-        &params(1, ShadingMode::Stored),
+        &params(32, ShadingMode::Stored),
     );
-    let centre = |sc: &RenderScene| sc.camera_near()[4 * 8 + 4];
+    let centre = |sc: &RenderScene| sc.camera_near().expect("32 samples a pixel pay")[4 * 8 + 4];
     let d_near = centre(&sc);
     sc.set_camera(&far_cam);
     let d_far = centre(&sc);
     // The wall is 1 m and 4 m away; the bounds lie within a disk's radius (5 cm) of it.
     assert!((0.94..=1.0).contains(&d_near), "{d_near}");
     assert!((3.94..=4.0).contains(&d_far), "{d_far}");
+}
+
+/// The bounds against brute force: through every pixel (its corners, edges, centre and random
+/// points), no ray meets a splat's bounding sphere nearer than the pixel's bound. Isolated
+/// splats a few pixels wide, so each pixel's bound comes from one sphere, and a footprint cut
+/// short by a fraction of a pixel shows.
+#[test]
+fn no_ray_through_a_pixel_meets_a_splat_before_its_bound() {
+    let mut rng = Pcg64::seed_from_u64(11);
+    let mut s = Soa::default();
+    for _ in 0..400 {
+        let p = Vec3::new(
+            rng.random_range(-1.2..1.2),
+            rng.random_range(-0.9..0.9),
+            rng.random_range(-3.0..-1.0),
+        );
+        let n = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            1.0,
+        )
+        .normalize();
+        s.push(p, n, rng.random_range(0.01..0.03), 0);
+    }
+    let mats = vec![diffuse(0.5)];
+    let o = s.build(&mats);
+    let cam = camera(Vec3::ZERO, -Vec3::Z, Vec3::Y, 60.0, 96, 72);
+    let sc = RenderScene::new(o.view(), mats, &[], &cam, &params(1, ShadingMode::Stored));
+    let near = pc_raytrace::camera_near::near_bounds(&sc.view, &sc.camera());
+    let (w, h) = (96u32, 72u32);
+    let spheres: Vec<(Vec3, f32)> = o
+        .view()
+        .splats
+        .iter()
+        .map(|s| (Vec3::from(s.position), s.radius))
+        .collect();
+    let mut spots: Vec<(f32, f32)> = [0.0, 0.5, 0.9999]
+        .iter()
+        .flat_map(|&u| [0.0, 0.5, 0.9999].map(|v| (u, v)))
+        .collect();
+    spots.extend((0..8).map(|_| (rng.random::<f32>(), rng.random::<f32>())));
+    let mut met = 0;
+    for py in 0..h {
+        for px in 0..w {
+            let bound = near[(py * w + px) as usize];
+            for &(u, v) in &spots {
+                let d = sc.camera_dir((px as f32 + u) / w as f32, (py as f32 + v) / h as f32);
+                for &(c, r) in &spheres {
+                    let along = c.dot(d);
+                    if along > -r && (c - d * along).length() <= r {
+                        met += 1;
+                        let first = c.length() - r;
+                        assert!(
+                            bound <= first,
+                            "pixel ({px}, {py}) at ({u}, {v}): a sphere at {first}, the bound {bound}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    assert!(met > 5000, "only {met} ray-sphere meetings tested");
 }
