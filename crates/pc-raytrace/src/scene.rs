@@ -230,8 +230,8 @@ impl<'a> RenderScene<'a> {
 
     /// The least distance at which a camera ray through each pixel (row-major) can meet a
     /// splat ([`crate::camera_near::near_bounds`]), for the camera of the moment; None where
-    /// the frame has fewer camera samples than splats ([`crate::camera_near::pays`]), whose
-    /// rays start at the camera.
+    /// the frame has too few camera samples for its splats ([`crate::camera_near::pays`]),
+    /// whose rays start at the camera.
     pub fn camera_near(&self) -> Option<&[f32]> {
         self.camera_near
             .get_or_init(|| {

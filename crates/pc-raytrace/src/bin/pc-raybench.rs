@@ -174,7 +174,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
         view.splats.len(),
         match pays {
             true => "",
-            false => " (more splats than rays: the renderer would not make them)",
+            false => " (over four splats a ray: the renderer would not make them)",
         }
     );
     let (bounded_rate, _) = cpu_rate(&view, &accel, &bounded);
