@@ -408,6 +408,9 @@ pub fn render(
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx, ty)))
         .collect();
     let totals = Totals::default();
+    // The camera rays' bounds before the tiles: made inside them, the pass would run on the
+    // one worker that asked first while the others wait.
+    sc.camera_near();
     let results: Vec<Vec<(u32, SampleResult)>> = tiles
         .par_iter()
         .with_max_len(1)
@@ -472,6 +475,7 @@ fn pixel(
 /// second pass of [`crate::refine`], in parallel over runs of pixels.
 pub fn render_pixels(sc: &RenderScene, pixels: &[u32], spp: u32) -> (Vec<[f32; 3]>, RayCounts) {
     let totals = Totals::default();
+    sc.camera_near(); // before the workers, as in [`render`]
     let w = sc.params.width;
     let rgb = pixels
         .par_chunks(64)
