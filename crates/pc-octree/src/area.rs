@@ -429,17 +429,24 @@ impl AreaPass<'_> {
     /// in root coordinates: the own splats of the leaves it meets ([`Reach::Cells`]) hold
     /// every splat's neighbourhood. A leaf's reference list only holds the disks that reach
     /// that leaf's cell, which would cut neighbourhoods at cell walls. None without a
-    /// representative.
+    /// representative. Its `centres` are the same boxes' union in world units, a hair wider
+    /// than [`Self::reach`] against rounding: no centre outside it is any splat's neighbour.
     fn neighbour_box(&self, run: impl Iterator<Item = usize>) -> Option<QueryBox> {
-        let (lo, hi) = run
+        let ((lo, hi), centres) = run
             .filter(|&i| self.dups.is_rep(i as u32))
-            .map(|i| self.query_box(i))
-            .reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))?;
+            .map(|i| {
+                let (c, reach) = (Vec3::from(self.splats[i].position), self.reach(i));
+                let half = Vec3::splat(reach * (1.0 + 1e-5)) + c.abs() * 1e-6;
+                (self.query_box(i), (c - half, c + half))
+            })
+            .reduce(|((lo, hi), (a, b)), ((lo2, hi2), (a2, b2))| {
+                ((lo.min(lo2), hi.max(hi2)), (a.min(a2), b.max(b2)))
+            })?;
         Some(QueryBox {
             lo,
             hi,
             radius: 0.0,
-            centres: (lo, hi),
+            centres,
         })
     }
 
@@ -1101,20 +1108,33 @@ impl Disks {
         }
     }
 
-    /// Appends the disks `range` of `from`.
-    fn extend_range(&mut self, from: &Disks, range: std::ops::Range<u32>) {
-        let r = range.start as usize..range.end as usize;
-        self.px.extend_from_slice(&from.px[r.clone()]);
-        self.py.extend_from_slice(&from.py[r.clone()]);
-        self.pz.extend_from_slice(&from.pz[r.clone()]);
-        self.nx.extend_from_slice(&from.nx[r.clone()]);
-        self.ny.extend_from_slice(&from.ny[r.clone()]);
-        self.nz.extend_from_slice(&from.nz[r.clone()]);
-        self.radius.extend_from_slice(&from.radius[r.clone()]);
-        self.slab.extend_from_slice(&from.slab[r.clone()]);
-        self.extent.extend_from_slice(&from.extent[r.clone()]);
-        self.material.extend_from_slice(&from.material[r.clone()]);
-        self.weight.extend_from_slice(&from.weight[r]);
+    /// Appends the disks `range` of `from` whose centres lie in the box `lo..hi`, in order, and
+    /// their indices to `cands`.
+    fn extend_within(
+        &mut self,
+        cands: &mut Vec<u32>,
+        from: &Disks,
+        range: std::ops::Range<u32>,
+        (lo, hi): (Vec3, Vec3),
+    ) {
+        for j in range {
+            let k = j as usize;
+            let p = Vec3::new(from.px[k], from.py[k], from.pz[k]);
+            if (p.cmpge(lo) & p.cmple(hi)).all() {
+                cands.push(j);
+                self.px.push(p.x);
+                self.py.push(p.y);
+                self.pz.push(p.z);
+                self.nx.push(from.nx[k]);
+                self.ny.push(from.ny[k]);
+                self.nz.push(from.nz[k]);
+                self.radius.push(from.radius[k]);
+                self.slab.push(from.slab[k]);
+                self.extent.push(from.extent[k]);
+                self.material.push(from.material[k]);
+                self.weight.push(from.weight[k]);
+            }
+        }
     }
 }
 

@@ -32,8 +32,9 @@ pub(super) enum Reach {
     Extents,
 }
 
-/// The box a leaf's walk looks around: in root coordinates for the walk, and for
-/// [`Reach::Extents`] the box of the splats' centres in world units with their largest radius.
+/// The box a leaf's walk looks around: in root coordinates for the walk; for
+/// [`Reach::Extents`] the box of the splats' centres in world units with their largest radius,
+/// for [`Reach::Cells`] the box in world units that holds every neighbour's centre.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct QueryBox {
     pub lo: Vec3,
@@ -214,8 +215,8 @@ impl AreaPass<'_> {
             let (own, _) = self.leaf_list(self.nodes[cell.slot as usize]);
             match reach {
                 Reach::Cells => {
-                    sc.cands.extend(own.clone());
-                    sc.disks.extend_range(&self.disks, own);
+                    sc.disks
+                        .extend_within(&mut sc.cands, &self.disks, own, q.centres);
                 }
                 Reach::Extents => {
                     let halves = &self.cover_halves;
