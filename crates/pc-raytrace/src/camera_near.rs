@@ -28,9 +28,14 @@ pub fn near_bounds(view: &OctreeView, cam: &Camera) -> Vec<f32> {
     if w * h == 0 {
         return Vec::new();
     }
+    if view.splat_leaf.len() != view.splats.len() {
+        // (The artifact's reader refuses such a tree.) Without each splat's leaf, no runs:
+        // every ray starts at the camera.
+        return vec![0.0; w * h];
+    }
     let frame = Frame::of(cam);
-    // One image of bounds per worker, then their least. A run cut by a chunk's end makes two
-    // boxes, each holding its own disks.
+    // One image of bounds per worker, then their least. Any split of the pool into runs holds
+    // every disk in some box: a run cut by a chunk's end makes two boxes.
     let parts = rayon::current_num_threads().max(1);
     let per = view.splats.len().div_ceil(parts).max(1);
     view.splats
