@@ -1094,17 +1094,7 @@ impl Disks {
             if from.weight[j] == 0 || d.cmpgt(reach).any() {
                 continue;
             }
-            self.px.push(p.x);
-            self.py.push(p.y);
-            self.pz.push(p.z);
-            self.nx.push(from.nx[j]);
-            self.ny.push(from.ny[j]);
-            self.nz.push(from.nz[j]);
-            self.radius.push(from.radius[j]);
-            self.slab.push(from.slab[j]);
-            self.extent.push(from.extent[j]);
-            self.material.push(from.material[j]);
-            self.weight.push(from.weight[j]);
+            self.push_from(from, j);
         }
     }
 
@@ -1122,19 +1112,25 @@ impl Disks {
             let p = Vec3::new(from.px[k], from.py[k], from.pz[k]);
             if (p.cmpge(lo) & p.cmple(hi)).all() {
                 cands.push(j);
-                self.px.push(p.x);
-                self.py.push(p.y);
-                self.pz.push(p.z);
-                self.nx.push(from.nx[k]);
-                self.ny.push(from.ny[k]);
-                self.nz.push(from.nz[k]);
-                self.radius.push(from.radius[k]);
-                self.slab.push(from.slab[k]);
-                self.extent.push(from.extent[k]);
-                self.material.push(from.material[k]);
-                self.weight.push(from.weight[k]);
+                self.push_from(from, k);
             }
         }
+    }
+
+    /// Appends disk `j` of `from`, every field.
+    #[inline]
+    fn push_from(&mut self, from: &Disks, j: usize) {
+        self.px.push(from.px[j]);
+        self.py.push(from.py[j]);
+        self.pz.push(from.pz[j]);
+        self.nx.push(from.nx[j]);
+        self.ny.push(from.ny[j]);
+        self.nz.push(from.nz[j]);
+        self.radius.push(from.radius[j]);
+        self.slab.push(from.slab[j]);
+        self.extent.push(from.extent[j]);
+        self.material.push(from.material[j]);
+        self.weight.push(from.weight[j]);
     }
 }
 
