@@ -108,9 +108,13 @@ pub fn build(
     params: &OctreeParams,
     phase: &mut dyn FnMut(&str),
 ) -> Result<Octree, BuildError> {
-    let mut phases = Phases::new(phase);
-    let pooled = pool(input, params, &mut phases)?;
-    finish(pooled, params, &mut phases)
+    let tree = {
+        let mut phases = Phases::new(phase);
+        let pooled = pool(input, params, &mut phases)?;
+        tree(pooled, phases)?
+    };
+    let surfaces = tree.surfaces(params, phase);
+    Ok(tree.finish(surfaces))
 }
 
 /// [`build`] from an input that `owner` holds (`input` lends it), freed as soon as the splats
@@ -122,10 +126,23 @@ pub fn build_from<T>(
     params: &OctreeParams,
     phase: &mut dyn FnMut(&str),
 ) -> Result<Octree, BuildError> {
+    let tree = tree_from(owner, input, params, phase)?;
+    let surfaces = tree.surfaces(params, phase);
+    Ok(tree.finish(surfaces))
+}
+
+/// The first half of [`build_from`]: the [`Tree`], every section but those the splats' areas
+/// decide. pc-octree writes its sections while [`Tree::surfaces`] runs.
+pub fn tree_from<T>(
+    owner: T,
+    input: for<'a> fn(&'a T) -> BuildInput<'a>,
+    params: &OctreeParams,
+    phase: &mut dyn FnMut(&str),
+) -> Result<Tree, BuildError> {
     let mut phases = Phases::new(phase);
     let pooled = pool(&input(&owner), params, &mut phases)?;
     drop(owner);
-    finish(pooled, params, &mut phases)
+    tree(pooled, phases)
 }
 
 /// The build up to the data pool: what the rest of it reads.
@@ -170,70 +187,153 @@ fn pool(
     })
 }
 
-/// The build from the data pool on: leaf references, the begin/end table, splat areas and
-/// border clips, node statistics.
-fn finish(p: Pooled, params: &OctreeParams, phases: &mut Phases) -> Result<Octree, BuildError> {
+/// The octree before its splats' areas: the node pool, the begin/end table, the data pool
+/// (border clips not yet set) and each splat's leaf, which is all the walk's packed copy reads
+/// ([`Tree::walk_view`]). [`Tree::surfaces`] computes the rest without changing any of it, so
+/// these sections can be written while it runs.
+pub struct Tree {
+    pub frame: Frame,
+    split: Split,
+    pub begin_end: Vec<u32>,
+    /// Clips zero until [`Tree::finish`].
+    splats: Vec<Splat>,
+    pub splat_leaf: Vec<u32>,
+    material_class: Vec<u32>,
+    leaves: u64,
+    ref_leaves: u64,
+    extra_refs: u64,
+    timings: Vec<(String, f64)>,
+}
+
+/// What the splats' areas decide: the areas, the border clips and the node statistics.
+pub struct Surfaces {
+    splat_area: Vec<f32>,
+    clips: Vec<[f32; 4]>,
+    node_info: Vec<NodeInfo>,
+    timings: Vec<(String, f64)>,
+}
+
+/// Leaf references and the begin/end table: the [`Tree`] of the pooled splats.
+fn tree(p: Pooled, mut phases: Phases) -> Result<Tree, BuildError> {
     let Pooled {
         mut frame,
         mut split,
-        mut splats,
+        splats,
         splat_leaf,
         material_class,
     } = p;
-    let n = splats.len();
     phases.start("leaf references");
     let refs = leaf_references(&frame, &split.nodes, &splats, &splat_leaf);
     phases.start("begin/end table");
-    let table = begin_end_table(&mut split, &refs, n)?;
-    phases.start("splat areas");
-    let (splat_area, clips) = splat_areas(
-        &frame,
-        &split.nodes,
-        &table.begin_end,
-        &splats,
-        &splat_leaf,
-        params.area_samples,
-    );
-    for (s, clip) in splats.iter_mut().zip(clips) {
-        s.clip = clip;
-    }
-    phases.start("node statistics");
-    let node_info = node_statistics(
-        &split,
-        &table.begin_end,
-        &splats,
-        &splat_area,
-        &material_class,
-    );
-    let timings = phases.finish();
-
-    let nodes = split.nodes;
-    let depth = split.spans.iter().map(|s| s.depth).max().unwrap_or(0);
-    frame.depth = depth;
-    frame.node_count = nodes.len() as u32;
+    let table = begin_end_table(&mut split, &refs, splats.len())?;
+    frame.depth = split.spans.iter().map(|s| s.depth).max().unwrap_or(0);
+    frame.node_count = split.nodes.len() as u32;
     frame.leaf_count = table.leaves as u32;
     frame.ref_count = refs.len() as u32;
-    let stats = OctreeStats {
-        splats: n as u64,
-        nodes: nodes.len() as u64,
-        leaves: table.leaves,
-        empty_nodes: split.empties.len() as u64 - table.ref_leaves,
-        ref_leaves: table.ref_leaves,
-        extra_refs: refs.len() as u64,
-        depth,
-        leaves_at_max_depth: split.leaves_at_max_depth,
-        timings,
-    };
-    Ok(Octree {
+    Ok(Tree {
         frame,
-        nodes,
+        split,
         begin_end: table.begin_end,
         splats,
-        node_info,
-        splat_area,
         splat_leaf,
-        stats,
+        material_class,
+        leaves: table.leaves,
+        ref_leaves: table.ref_leaves,
+        extra_refs: refs.len() as u64,
+        timings: phases.finish(),
     })
+}
+
+impl Tree {
+    /// The node pool (leaf words point at their begin/end entries).
+    pub fn nodes(&self) -> &[u32] {
+        &self.split.nodes
+    }
+
+    /// The tree as a view for building the walk's packed copy
+    /// ([`pc_tree::accel::Accel::build`]), which reads the nodes, the table and the splats'
+    /// centres, normals and radii alone: the view has no node statistics and no areas yet, and
+    /// its splats no border clips.
+    pub fn walk_view(&self) -> OctreeView<'_> {
+        OctreeView {
+            frame: self.frame,
+            nodes: &self.split.nodes,
+            begin_end: &self.begin_end,
+            splats: &self.splats,
+            node_info: &[],
+            splat_area: &[],
+            splat_leaf: &self.splat_leaf,
+            walk: None,
+        }
+    }
+
+    /// The splats' areas and border clips, then the node statistics (docs/octree.md, "Splat
+    /// area"); `phase` hears of each.
+    pub fn surfaces(&self, params: &OctreeParams, phase: &mut dyn FnMut(&str)) -> Surfaces {
+        let mut phases = Phases::new(phase);
+        phases.start("splat areas");
+        let (splat_area, clips) = splat_areas(
+            &self.frame,
+            &self.split.nodes,
+            &self.begin_end,
+            &self.splats,
+            &self.splat_leaf,
+            params.area_samples,
+        );
+        phases.start("node statistics");
+        // The statistics read the splats' centres, normals, radii and areas, not their clips.
+        let node_info = node_statistics(
+            &self.split,
+            &self.begin_end,
+            &self.splats,
+            &splat_area,
+            &self.material_class,
+        );
+        Surfaces {
+            splat_area,
+            clips,
+            node_info,
+            timings: phases.finish(),
+        }
+    }
+
+    /// The octree: the tree with `surfaces` (made by [`Tree::surfaces`] of this tree).
+    pub fn finish(self, surfaces: Surfaces) -> Octree {
+        let Tree {
+            frame,
+            split,
+            begin_end,
+            mut splats,
+            splat_leaf,
+            mut timings,
+            ..
+        } = self;
+        for (s, clip) in splats.iter_mut().zip(surfaces.clips) {
+            s.clip = clip;
+        }
+        timings.extend(surfaces.timings);
+        let stats = OctreeStats {
+            splats: splats.len() as u64,
+            nodes: split.nodes.len() as u64,
+            leaves: self.leaves,
+            empty_nodes: split.empties.len() as u64 - self.ref_leaves,
+            ref_leaves: self.ref_leaves,
+            extra_refs: self.extra_refs,
+            depth: frame.depth,
+            leaves_at_max_depth: split.leaves_at_max_depth,
+            timings,
+        };
+        Octree {
+            frame,
+            nodes: split.nodes,
+            begin_end,
+            splats,
+            node_info: surfaces.node_info,
+            splat_area: surfaces.splat_area,
+            splat_leaf,
+            stats,
+        }
+    }
 }
 
 /// The build's phases: announces each as it starts and times it.

@@ -9,7 +9,9 @@ use pc_config::{material_table, LoadedConfig, MaterialConfig};
 use pc_import::load::{load_scene, model_path, LoadedScene, ModelReport, SceneSplats};
 use pc_stage::{Progress, Stage};
 
-use crate::build::{build_from, BuildInput, Octree};
+use pc_tree::accel::Accel;
+
+use crate::build::{tree_from, BuildInput, Octree, Tree};
 use crate::error::OctreeError;
 
 /// The producing stage's name and version, written into every artifact header.
@@ -72,18 +74,19 @@ pub struct Summary {
     pub origin: glam::DVec3,
 }
 
-/// Build the octree of a loaded scene with the config's parameters.
-pub fn build_scene(
+/// The tree of a loaded scene with the config's parameters, before its splats' areas
+/// ([`crate::build::Tree`]).
+pub fn build_tree(
     cfg: &LoadedConfig,
     scene: &mut LoadedScene,
     phase: &mut dyn FnMut(&str),
-) -> Result<Octree, OctreeError> {
+) -> Result<Tree, OctreeError> {
     let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let classes: Vec<u32> = records.iter().map(|m| m.class).collect();
     // The scene's splat arrays go to the build, which frees them once they are in its data
     // pool; the scene keeps its materials, models and origin for the artifact's metadata.
     let owned = (std::mem::take(&mut scene.splats), classes);
-    build_from(owned, scene_input, &cfg.config.octree.params, phase).map_err(|error| {
+    tree_from(owned, scene_input, &cfg.config.octree.params, phase).map_err(|error| {
         OctreeError::Build {
             config: cfg.path.clone(),
             error,
@@ -103,15 +106,56 @@ fn scene_input((s, classes): &(SceneSplats, Vec<u32>)) -> BuildInput<'_> {
     }
 }
 
-/// Write an octree artifact atomically.
-pub fn write(
-    path: &Path,
+/// The octree of `tree`, its artifact written on the way: the sections the splats' areas do
+/// not change (the tree, the materials and the walk's packed copy, `accel`) go to the disk
+/// from a thread of their own while [`Tree::surfaces`] computes the areas, the clips and the
+/// node statistics; then the rest. The areas take longer than the disk needs for those
+/// sections, so the stage no longer waits for it at the end (docs/octree.md, "Writing").
+/// Returns the octree and the seconds spent computing the surfaces.
+fn surfaces_and_write(
+    out: &Path,
     key: Key,
-    octree: &Octree,
-    scene: &LoadedScene,
-    cfg: &LoadedConfig,
-) -> Result<(), OctreeError> {
+    tree: Tree,
+    accel: Accel<'static>,
+    (cfg, scene): (&LoadedConfig, &LoadedScene),
+    progress: &dyn Progress,
+) -> Result<(Octree, f64), OctreeError> {
     let records = material_table(scene.materials.iter().map(|(_, m)| m));
+    let (surfaces, early, seconds) = std::thread::scope(|s| {
+        let early = s.spawn(|| -> Result<ArtifactWriter, OctreeError> {
+            let mut w =
+                ArtifactWriter::create(out, ArtifactKind::Octree, STAGE, STAGE_VERSION, key)?;
+            w.section(sections::FRAME, std::slice::from_ref(&tree.frame))?;
+            w.section(sections::NODES, tree.nodes())?;
+            w.section(sections::BEGIN_END, &tree.begin_end)?;
+            w.section(sections::SPLAT_LEAF, &tree.splat_leaf)?;
+            w.section(sections::MATERIALS, &records)?;
+            // The CPU walk's packed copy, mapped by every later stage instead of built by each.
+            pc_artifact::walk::write(&mut w, &accel.walk())?;
+            drop(accel);
+            w.sync_written()?;
+            Ok(w)
+        });
+        let t = Instant::now();
+        let mut phase = |name: &str| progress.phase(&format!("build: {name}"));
+        let surfaces = tree.surfaces(&cfg.config.octree.params, &mut phase);
+        let seconds = t.elapsed().as_secs_f64();
+        (surfaces, early.join(), seconds)
+    });
+    let mut w = early.unwrap_or_else(|panic| std::panic::resume_unwind(panic))?;
+    let octree = tree.finish(surfaces);
+    progress.phase("write");
+    w.section(sections::SPLATS, &octree.splats)?;
+    w.section(sections::NODE_INFO, &octree.node_info)?;
+    w.section(sections::SPLAT_AREA, &octree.splat_area)?;
+    w.metadata(&metadata(&octree, scene, cfg))?;
+    w.finish()?;
+    Ok((octree, seconds))
+}
+
+/// The octree artifact's metadata: the config, each model file's size and hash, the build's
+/// parameters and statistics, the material names, the points left out and the scene's origin.
+fn metadata(octree: &Octree, scene: &LoadedScene, cfg: &LoadedConfig) -> OctreeMeta {
     let inputs = cfg
         .config
         .models
@@ -128,7 +172,7 @@ pub fn write(
             }
         })
         .collect();
-    let meta = OctreeMeta {
+    OctreeMeta {
         config: cfg.text.clone(),
         inputs,
         params: cfg.config.octree.params,
@@ -136,26 +180,14 @@ pub fn write(
         material_names: scene.materials.iter().map(|(n, _)| n.clone()).collect(),
         dropped_points: scene.dropped() as u64,
         origin: scene.origin.to_array(),
-    };
-    let mut w = ArtifactWriter::create(path, ArtifactKind::Octree, STAGE, STAGE_VERSION, key)?;
-    w.section(sections::FRAME, std::slice::from_ref(&octree.frame))?;
-    w.section(sections::NODES, &octree.nodes)?;
-    w.section(sections::BEGIN_END, &octree.begin_end)?;
-    w.section(sections::SPLATS, &octree.splats)?;
-    w.section(sections::NODE_INFO, &octree.node_info)?;
-    w.section(sections::SPLAT_AREA, &octree.splat_area)?;
-    w.section(sections::SPLAT_LEAF, &octree.splat_leaf)?;
-    w.section(sections::MATERIALS, &records)?;
-    // The CPU walk's packed copy, mapped by every later stage instead of built by each.
-    let accel = pc_tree::accel::Accel::build(&octree.view());
-    pc_artifact::walk::write(&mut w, &accel.walk())?;
-    drop(accel);
-    w.metadata(&meta)?;
-    w.finish()?;
-    Ok(())
+    }
 }
 
 /// Run the whole stage: import, build, write; `progress` hears of each model and phase.
+///
+/// `build_seconds` counts the tree and its surfaces (areas, clips, node statistics), as the
+/// benchmarks' build rate does; `write_seconds` the walk's packed copy and what of the write
+/// was left after the surfaces.
 pub fn run(
     cfg: &LoadedConfig,
     out: &Path,
@@ -167,20 +199,23 @@ pub fn run(
     progress.total(cfg.config.models.len() as u64);
     let mut scene = load_scene(cfg, &mut |_, _| progress.advance(1))?;
     let import_seconds = t.elapsed().as_secs_f64();
+    let mut phase = |name: &str| progress.phase(&format!("build: {name}"));
     let t = Instant::now();
-    let octree = build_scene(cfg, &mut scene, &mut |name| {
-        progress.phase(&format!("build: {name}"))
-    })?;
-    let build_seconds = t.elapsed().as_secs_f64();
+    let tree = build_tree(cfg, &mut scene, &mut phase)?;
+    let tree_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    progress.phase("write");
-    write(out, key, &octree, &scene, cfg)?;
-    let write_seconds = t.elapsed().as_secs_f64();
+    phase("walk");
+    let accel = Accel::build(&tree.walk_view());
+    let walk_seconds = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let (octree, surfaces_seconds) =
+        surfaces_and_write(out, key, tree, accel, (cfg, &scene), progress)?;
+    let write_seconds = walk_seconds + t.elapsed().as_secs_f64() - surfaces_seconds;
     Ok(Summary {
         path: out.to_path_buf(),
         octree,
         import_seconds,
-        build_seconds,
+        build_seconds: tree_seconds + surfaces_seconds,
         write_seconds,
         dropped: scene.dropped(),
         models: scene.models,

@@ -86,6 +86,9 @@ fn stage_writes_an_artifact_that_maps_back_identically() {
     assert_eq!(view.begin_end, &o.begin_end[..]);
     assert_eq!(view.splats, &o.splats[..]);
     assert_eq!(view.node_info, &o.node_info[..]);
+    // Written in two halves (the tree while the areas are computed, then the rest).
+    assert_eq!(view.splat_area, &o.splat_area[..]);
+    assert_eq!(view.splat_leaf, &o.splat_leaf[..]);
     let meta: pc_artifact::octree::OctreeMeta = a.metadata().unwrap();
     assert_eq!(meta.stats.splats, o.splats.len() as u64);
     assert_eq!(meta.material_names, vec!["chrome", "glass", "white"]);
