@@ -93,58 +93,9 @@ fn run(args: &Args) -> anyhow::Result<()> {
     let art = OctreeFile::open(cfg.octree_path())?;
     let view = art.view();
     let cam = Camera::new(&cfg.config.camera);
-    let primary: Vec<Ray> = (0..args.width * args.width)
-        .map(|i| {
-            Ray::new(
-                cam.origin,
-                cam.pixel_direction(i % args.width, i / args.width, 0.5, 0.5),
-            )
-        })
-        .collect();
-    let n = view.splats.len() as u32;
-    let incoherent: Vec<Ray> = (0..args.incoherent as u32)
-        .map(|i| {
-            let s = &view.splats[((rand(1, i, 0, 0) * n as f32) as u32).min(n - 1) as usize];
-            let (u, v) = tangent_frame(s.normal);
-            let (r1, r2) = (rand(1, i, 0, 1), rand(1, i, 0, 2));
-            let (rr, phi) = (r1.sqrt(), std::f32::consts::TAU * r2);
-            let d = Vec3::from(u) * rr * phi.cos()
-                + Vec3::from(v) * rr * phi.sin()
-                + Vec3::from(s.normal) * (1.0 - r1).max(0.0).sqrt();
-            Ray {
-                origin: Vec3::from(s.position),
-                dir: d.normalize(),
-                t_min: 0.5 * s.radius,
-                t_max: f32::INFINITY,
-            }
-        })
-        .collect();
-    // Shadow rays: segments between two random splats that face each other (what the V-map's
-    // links and the emitters' shadow rays test).
-    let shadow: Vec<Ray> = (0..args.incoherent as u32)
-        .map(|i| {
-            let pick =
-                |d: u32| &view.splats[((rand(2, i, 0, d) * n as f32) as u32).min(n - 1) as usize];
-            let a = pick(0);
-            let pa = Vec3::from(a.position);
-            // The first of a few candidates in front of `a` and facing it (or the last).
-            let b = (1..64)
-                .map(pick)
-                .find(|b| {
-                    let d = Vec3::from(b.position) - pa;
-                    d.dot(Vec3::from(a.normal)) > 0.0 && d.dot(Vec3::from(b.normal)) < 0.0
-                })
-                .unwrap_or_else(|| pick(64));
-            let pb = Vec3::from(b.position);
-            let len = (pb - pa).length();
-            Ray {
-                origin: pa,
-                dir: (pb - pa) / len.max(1e-30),
-                t_min: 0.5 * a.radius,
-                t_max: (len - 0.5 * b.radius).max(0.0),
-            }
-        })
-        .collect();
+    let primary = primary_rays(&cam, args.width);
+    let incoherent = incoherent_rays(&view, args.incoherent);
+    let shadow = shadow_rays(&view, args.incoherent);
     // The renderer's packed leaf lists (built once per render, not timed here).
     let t = Instant::now();
     let accel = pc_tree::accel::Accel::new(&view);
@@ -156,44 +107,7 @@ fn run(args: &Args) -> anyhow::Result<()> {
     // Warm up (page in the mapped artifact), then measure.
     let _ = cpu_rate(&view, &accel, &primary[..primary.len().min(10_000)]);
     let (cpu_primary, primary_hits) = cpu_rate(&view, &accel, &primary);
-    // The renderer's camera rays: the same rays from their pixel's bound, the bounds' pass
-    // (once per frame) timed with them; where the pass would not pay, the renderer casts them
-    // from the camera, at the primary rays' rate.
-    let pays = pc_raytrace::camera_near::pays(view.splats.len(), primary.len() as u64);
-    let t = Instant::now();
-    let near = pc_raytrace::camera_near::near_bounds(&view, &cam);
-    let bounded: Vec<Ray> = primary
-        .iter()
-        .zip(&near)
-        .map(|(r, &d)| Ray { t_min: d, ..*r })
-        .collect();
-    let bounds_s = t.elapsed().as_secs_f64();
-    eprintln!(
-        "pc-raybench: the camera rays' bounds: {:.3} s over {} splats{}",
-        bounds_s,
-        view.splats.len(),
-        match pays {
-            true => "",
-            false => " (over four splats a ray: the renderer would not make them)",
-        }
-    );
-    let (bounded_rate, _) = cpu_rate(&view, &accel, &bounded);
-    let cpu_bounded = match pays {
-        true => bounded.len() as f64 / (bounds_s + bounded.len() as f64 / bounded_rate),
-        false => cpu_primary,
-    };
-    let differ = primary
-        .par_iter()
-        .zip(&bounded)
-        .filter(|(a, b)| {
-            let mut st = TraversalStats::default();
-            accel.intersect(&view, a, &mut st) != accel.intersect(&view, b, &mut st)
-        })
-        .count();
-    anyhow::ensure!(
-        differ == 0,
-        "{differ} camera rays hit elsewhere from their pixel's bound than from the camera"
-    );
+    let cpu_bounded = camera_rate(&view, &accel, &cam, &primary, cpu_primary)?;
     let (cpu_incoherent, incoherent_hits) = cpu_rate(&view, &accel, &incoherent);
     let t = Instant::now();
     let blocked = accel
@@ -202,70 +116,19 @@ fn run(args: &Args) -> anyhow::Result<()> {
         .filter(|v| !**v)
         .count();
     let cpu_shadow = shadow.len() as f64 / t.elapsed().as_secs_f64();
-    let threads = rayon::current_num_threads();
-    let (pc, pt) = work(&view, None, &primary);
-    let (ic, it) = work(&view, None, &incoherent);
-    let (apc, apt) = work(&view, Some(&accel), &primary);
-    let (aic, ait) = work(&view, Some(&accel), &incoherent);
-    let (sc, st) = work(&view, None, &shadow);
-    let (asc, ast) = work(&view, Some(&accel), &shadow);
-    eprintln!(
-        "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apc:.1} cells, {apt:.1} \
-         disk lanes tested by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed \
-         disks ({aic:.1}, {ait:.1}); per shadow ray {sc:.1} cells, {st:.1} listed disks ({asc:.1}, \
-         {ast:.1}, to the nearest hit)"
-    );
+    report_work(&view, &accel, [&primary, &incoherent, &shadow]);
     if let Some(dir) = &args.dump {
         dump(dir, &view, &accel, [&primary, &incoherent, &shadow])?;
     }
-    let caustic_json = if args.caustics {
-        caustic_lookups(&cfg, &art, &view, &accel, &primary)?
-    } else {
-        "null".to_string()
+    let caustic_json = match args.caustics {
+        true => caustic_lookups(&cfg, &art, &view, &accel, &primary)?,
+        false => "null".to_string(),
     };
-    let mut gpu = String::from("null");
-    let mut line = String::new();
-    if !args.cpu_only {
-        if let Ok(ctx) = pc_gpu::GpuContext::new() {
-            let measured = (|| -> anyhow::Result<[GpuRate; 2]> {
-                let caster = pc_tree::gpu::RayCaster::new(&ctx, &view)?;
-                let time = |rays: &[Ray]| -> anyhow::Result<GpuRate> {
-                    let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
-                    caster.cast(&ctx, &input[..input.len().min(4096)], false)?;
-                    let before = dispatch_seconds();
-                    let t = Instant::now();
-                    caster.cast(&ctx, &input, false)?;
-                    let n = rays.len() as f64;
-                    Ok(GpuRate {
-                        whole: n / t.elapsed().as_secs_f64(),
-                        kernel: n / (dispatch_seconds() - before).max(1e-9),
-                    })
-                };
-                Ok([time(&primary)?, time(&incoherent)?])
-            })();
-            let name = ctx.describe().replace('"', "'");
-            match measured {
-                Ok([p, i]) => {
-                    gpu = format!(
-                        "{{\"device\": \"{name}\", \"primary_rays_per_s\": {:.0}, \"incoherent_rays_per_s\": {:.0}, \"primary_kernel_rays_per_s\": {:.0}, \"incoherent_kernel_rays_per_s\": {:.0}}}",
-                        p.whole, i.whole, p.kernel, i.kernel
-                    );
-                    line = format!(
-                        ", GPU {name} primary {:.2} M/s incoherent {:.2} M/s (kernels alone: {:.1} and {:.1} M/s)",
-                        p.whole / 1e6,
-                        i.whole / 1e6,
-                        p.kernel / 1e6,
-                        i.kernel / 1e6
-                    );
-                }
-                Err(e) => {
-                    let msg = format!("{e:#}").replace('"', "'");
-                    eprintln!("pc-raybench: GPU not measured: {msg}");
-                    gpu = format!("{{\"device\": \"{name}\", \"error\": \"{msg}\"}}");
-                }
-            }
-        }
-    }
+    let (gpu, line) = match args.cpu_only {
+        true => ("null".to_string(), String::new()),
+        false => gpu_rates(&view, &primary, &incoherent),
+    };
+    let threads = rayon::current_num_threads();
     println!(
         "pc-raybench: {} splats, {} threads: CPU primary {:.2} M rays/s ({} of {} hit; from their pixel's bound {:.2} M rays/s with the bounds' pass, the same hits), incoherent {:.2} M rays/s ({} of {} hit), shadow {:.2} M rays/s ({blocked} of {} blocked){line}",
         view.splats.len(),
@@ -291,6 +154,186 @@ fn run(args: &Args) -> anyhow::Result<()> {
         std::fs::write(path, json).with_context(|| path.display().to_string())?;
     }
     Ok(())
+}
+
+/// One ray through each pixel centre of a `width`×`width` image from `cam`.
+fn primary_rays(cam: &Camera, width: u32) -> Vec<Ray> {
+    (0..width * width)
+        .map(|i| {
+            Ray::new(
+                cam.origin,
+                cam.pixel_direction(i % width, i / width, 0.5, 0.5),
+            )
+        })
+        .collect()
+}
+
+/// `count` bounce rays: each from a random splat, cosine-distributed about its normal.
+fn incoherent_rays(view: &OctreeView, count: usize) -> Vec<Ray> {
+    let n = view.splats.len() as u32;
+    (0..count as u32)
+        .map(|i| {
+            let s = &view.splats[((rand(1, i, 0, 0) * n as f32) as u32).min(n - 1) as usize];
+            let (u, v) = tangent_frame(s.normal);
+            let (r1, r2) = (rand(1, i, 0, 1), rand(1, i, 0, 2));
+            let (rr, phi) = (r1.sqrt(), std::f32::consts::TAU * r2);
+            let d = Vec3::from(u) * rr * phi.cos()
+                + Vec3::from(v) * rr * phi.sin()
+                + Vec3::from(s.normal) * (1.0 - r1).max(0.0).sqrt();
+            Ray {
+                origin: Vec3::from(s.position),
+                dir: d.normalize(),
+                t_min: 0.5 * s.radius,
+                t_max: f32::INFINITY,
+            }
+        })
+        .collect()
+}
+
+/// `count` shadow rays: segments between two random splats that face each other (what the
+/// V-map's links and the emitters' shadow rays test).
+fn shadow_rays(view: &OctreeView, count: usize) -> Vec<Ray> {
+    let n = view.splats.len() as u32;
+    (0..count as u32)
+        .map(|i| {
+            let pick =
+                |d: u32| &view.splats[((rand(2, i, 0, d) * n as f32) as u32).min(n - 1) as usize];
+            let a = pick(0);
+            let pa = Vec3::from(a.position);
+            // The first of a few candidates in front of `a` and facing it (or the last).
+            let b = (1..64)
+                .map(pick)
+                .find(|b| {
+                    let d = Vec3::from(b.position) - pa;
+                    d.dot(Vec3::from(a.normal)) > 0.0 && d.dot(Vec3::from(b.normal)) < 0.0
+                })
+                .unwrap_or_else(|| pick(64));
+            let pb = Vec3::from(b.position);
+            let len = (pb - pa).length();
+            Ray {
+                origin: pa,
+                dir: (pb - pa) / len.max(1e-30),
+                t_min: 0.5 * a.radius,
+                t_max: (len - 0.5 * b.radius).max(0.0),
+            }
+        })
+        .collect()
+}
+
+/// The renderer's camera rays per second: the `primary` rays from their pixel's bound, the
+/// bounds' pass (once per frame) timed with them; where the pass would not pay, the renderer
+/// casts them from the camera, at the primary rays' rate (`plain`). An error where any of them
+/// hits elsewhere than from the camera.
+fn camera_rate(
+    view: &OctreeView,
+    accel: &pc_tree::accel::Accel,
+    cam: &Camera,
+    primary: &[Ray],
+    plain: f64,
+) -> anyhow::Result<f64> {
+    let pays = pc_raytrace::camera_near::pays(view.splats.len(), primary.len() as u64);
+    let t = Instant::now();
+    let near = pc_raytrace::camera_near::near_bounds(view, cam);
+    let bounded: Vec<Ray> = primary
+        .iter()
+        .zip(&near)
+        .map(|(r, &d)| Ray { t_min: d, ..*r })
+        .collect();
+    let bounds_s = t.elapsed().as_secs_f64();
+    eprintln!(
+        "pc-raybench: the camera rays' bounds: {:.3} s over {} splats{}",
+        bounds_s,
+        view.splats.len(),
+        match pays {
+            true => "",
+            false => " (over four splats a ray: the renderer would not make them)",
+        }
+    );
+    let (bounded_rate, _) = cpu_rate(view, accel, &bounded);
+    let differ = primary
+        .par_iter()
+        .zip(&bounded)
+        .filter(|(a, b)| {
+            let mut st = TraversalStats::default();
+            accel.intersect(view, a, &mut st) != accel.intersect(view, b, &mut st)
+        })
+        .count();
+    anyhow::ensure!(
+        differ == 0,
+        "{differ} camera rays hit elsewhere from their pixel's bound than from the camera"
+    );
+    Ok(match pays {
+        true => bounded.len() as f64 / (bounds_s + bounded.len() as f64 / bounded_rate),
+        false => plain,
+    })
+}
+
+/// Prints the cells and disks per ray of each ray set, for the plain and the packed walk.
+fn report_work(
+    view: &OctreeView,
+    accel: &pc_tree::accel::Accel,
+    [primary, incoherent, shadow]: [&[Ray]; 3],
+) {
+    let (pc, pt) = work(view, None, primary);
+    let (ic, it) = work(view, None, incoherent);
+    let (apc, apt) = work(view, Some(accel), primary);
+    let (aic, ait) = work(view, Some(accel), incoherent);
+    let (sc, st) = work(view, None, shadow);
+    let (asc, ast) = work(view, Some(accel), shadow);
+    eprintln!(
+        "pc-raybench: per primary ray {pc:.1} cells, {pt:.1} listed disks ({apc:.1} cells, {apt:.1} \
+         disk lanes tested by the packed walk); per incoherent ray {ic:.1} cells, {it:.1} listed \
+         disks ({aic:.1}, {ait:.1}); per shadow ray {sc:.1} cells, {st:.1} listed disks ({asc:.1}, \
+         {ast:.1}, to the nearest hit)"
+    );
+}
+
+/// The GPU's primary and incoherent ray rates where wgpu finds an adapter: the JSON object
+/// (`null` without an adapter) and the summary line's part.
+fn gpu_rates(view: &OctreeView, primary: &[Ray], incoherent: &[Ray]) -> (String, String) {
+    let Ok(ctx) = pc_gpu::GpuContext::new() else {
+        return ("null".to_string(), String::new());
+    };
+    let measured = (|| -> anyhow::Result<[GpuRate; 2]> {
+        let caster = pc_tree::gpu::RayCaster::new(&ctx, view)?;
+        let time = |rays: &[Ray]| -> anyhow::Result<GpuRate> {
+            let input: Vec<pc_tree::gpu::RayIn> = rays.iter().map(Into::into).collect();
+            caster.cast(&ctx, &input[..input.len().min(4096)], false)?;
+            let before = dispatch_seconds();
+            let t = Instant::now();
+            caster.cast(&ctx, &input, false)?;
+            let n = rays.len() as f64;
+            Ok(GpuRate {
+                whole: n / t.elapsed().as_secs_f64(),
+                kernel: n / (dispatch_seconds() - before).max(1e-9),
+            })
+        };
+        Ok([time(primary)?, time(incoherent)?])
+    })();
+    let name = ctx.describe().replace('"', "'");
+    match measured {
+        Ok([p, i]) => (
+            format!(
+                "{{\"device\": \"{name}\", \"primary_rays_per_s\": {:.0}, \"incoherent_rays_per_s\": {:.0}, \"primary_kernel_rays_per_s\": {:.0}, \"incoherent_kernel_rays_per_s\": {:.0}}}",
+                p.whole, i.whole, p.kernel, i.kernel
+            ),
+            format!(
+                ", GPU {name} primary {:.2} M/s incoherent {:.2} M/s (kernels alone: {:.1} and {:.1} M/s)",
+                p.whole / 1e6,
+                i.whole / 1e6,
+                p.kernel / 1e6,
+                i.kernel / 1e6
+            ),
+        ),
+        Err(e) => {
+            let msg = format!("{e:#}").replace('"', "'");
+            eprintln!("pc-raybench: GPU not measured: {msg}");
+            (
+                format!("{{\"device\": \"{name}\", \"error\": \"{msg}\"}}"),
+                String::new(),
+            )
+        }
+    }
 }
 
 /// The peer's input and pcgi's answer (`--dump`): `disks.f32` (per splat x y z r nx ny nz
