@@ -213,95 +213,13 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
     if specular.part(&(0..leaves.leaves.len())).0 <= 0.0 {
         return Vec::new(); // no specular surface: no path to plan
     }
-    // Every V-map link from a node with diffuse splats to one with specular splats, in node
-    // order (rayon keeps it).
-    let mut plans: Vec<LinkPlan> = (0..v.node_range.len())
-        .into_par_iter()
-        .flat_map_iter(|x| {
-            let row = v.links_of(x);
-            let [xlo, xhi] = v.node_range[x];
-            let xr = leaves.within(xlo, xhi);
-            let (ax, cx, nx) = match row.is_empty() {
-                true => (0.0, Vec3::ZERO, Vec3::ZERO),
-                false => diffuse.part(&xr),
-            };
-            let links = row.iter().filter(move |k| ax > 0.0 && k.fraction > 0.0);
-            let specular = &specular;
-            links.filter_map(move |link| {
-                let y_splats = v.node_range[link.slot() as usize];
-                let yr = leaves.within(y_splats[0], y_splats[1]);
-                let (ay, cy, ny) = specular.part(&yr);
-                if ay <= 0.0 {
-                    return None;
-                }
-                let d = cy - cx;
-                let r2 = d.length_squared() as f64;
-                let dir = d.normalize_or_zero();
-                let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
-                let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
-                let bounded = r2 + (ax + ay) / std::f64::consts::PI;
-                let share = ax * ay * cos_x * cos_y / bounded;
-                Some(LinkPlan {
-                    x: xr.clone(),
-                    y: yr,
-                    y_splats,
-                    ax,
-                    ay,
-                    share,
-                    near: link.is_near(),
-                    direction: 0.0,
-                })
-            })
-        })
-        .collect();
-    // Near links: the centroids say little about parts that touch (from the floor beside a
-    // ball's contact, the ball's centroid lies at a grazing angle, yet it fills most of the
-    // sky). Their share and strategy mix follow a pilot estimate of the form factor instead.
-    plans.par_iter_mut().enumerate().for_each(|(i, l)| {
-        let mut form_factor = l.share / (std::f64::consts::PI * l.ax);
-        if l.near {
-            let pilot = pilot_form_factor(scene, leaves, &diffuse, l, seed, i as u32);
-            form_factor = form_factor.max(pilot);
-            l.share = l.share.max(std::f64::consts::PI * l.ax * pilot);
-        }
-        l.direction = direction_share(l.near, form_factor);
-    });
-    let total: f64 = plans.iter().map(|s| s.share).sum();
-    if total <= 0.0 || budget == 0 {
+    let plans = link_plans(scene, leaves, v, (&diffuse, &specular), seed);
+    let Some(counts) = path_counts(&plans, budget) else {
         return Vec::new();
-    }
-    // Expected paths by area and by direction. A near link draws at least enough paths by
-    // direction that none of its paths weighs more than MAX_WEIGHT times the mean; the counts
-    // are then scaled back to the budget.
-    let mean = total / budget as f64;
-    let mut counts: Vec<(f64, f64)> = plans
-        .iter()
-        .map(|l| {
-            let n = budget as f64 * l.share / total;
-            let mut n_dir = l.direction * n;
-            if l.near {
-                n_dir = n_dir.max(std::f64::consts::PI * l.ax / (MAX_WEIGHT * mean));
-            }
-            ((1.0 - l.direction) * n, n_dir)
-        })
-        .collect();
-    let drawn: f64 = counts.iter().map(|c| c.0 + c.1).sum();
-    for c in &mut counts {
-        *c = (c.0 * budget as f64 / drawn, c.1 * budget as f64 / drawn);
-    }
-    // Each link's paths by area and by direction (the expectations rounded stochastically), and
-    // the id of its first path: ids run over the links in order, as one loop would number them.
-    let rounded: Vec<[u32; 2]> = counts
-        .par_iter()
-        .enumerate()
-        .map(|(i, &(n_area, n_dir))| {
-            let round = |m: f64, d: u32| {
-                let u = rand(seed, 0x5bec_0001, i as u32, d) as f64;
-                (m.floor() + (u < m.fract()) as u32 as f64) as u32
-            };
-            [round(n_area, 0), round(n_dir, 1)]
-        })
-        .collect();
+    };
+    let rounded = rounded_counts(&counts, seed);
+    // The id of each link's first path: ids run over the links in order, as one loop would
+    // number them.
     let mut id = 0u32;
     let first_path: Vec<u32> = rounded
         .iter()
@@ -336,6 +254,112 @@ pub fn aims(scene: Scene, leaves: &Leaves, v: &VmapView, budget: u32, seed: u32)
         })
         .collect();
     crate::stage::concat(&blocks)
+}
+
+/// Every V-map link from a node with diffuse splats to one with specular splats, in node order
+/// (rayon keeps it), with its share of the paths and its strategies' mix ([`aims`]).
+fn link_plans(
+    scene: Scene,
+    leaves: &Leaves,
+    v: &VmapView,
+    (diffuse, specular): (&Prefix, &Prefix),
+    seed: u32,
+) -> Vec<LinkPlan> {
+    let mut plans: Vec<LinkPlan> = (0..v.node_range.len())
+        .into_par_iter()
+        .flat_map_iter(|x| {
+            let row = v.links_of(x);
+            let [xlo, xhi] = v.node_range[x];
+            let xr = leaves.within(xlo, xhi);
+            let (ax, cx, nx) = match row.is_empty() {
+                true => (0.0, Vec3::ZERO, Vec3::ZERO),
+                false => diffuse.part(&xr),
+            };
+            let links = row.iter().filter(move |k| ax > 0.0 && k.fraction > 0.0);
+            links.filter_map(move |link| {
+                let y_splats = v.node_range[link.slot() as usize];
+                let yr = leaves.within(y_splats[0], y_splats[1]);
+                let (ay, cy, ny) = specular.part(&yr);
+                if ay <= 0.0 {
+                    return None;
+                }
+                let d = cy - cx;
+                let r2 = d.length_squared() as f64;
+                let dir = d.normalize_or_zero();
+                let cos_x = nx.dot(dir).max(MIN_SHARE_COS) as f64;
+                let cos_y = ny.dot(dir).abs().max(MIN_SHARE_COS) as f64;
+                let bounded = r2 + (ax + ay) / std::f64::consts::PI;
+                let share = ax * ay * cos_x * cos_y / bounded;
+                Some(LinkPlan {
+                    x: xr.clone(),
+                    y: yr,
+                    y_splats,
+                    ax,
+                    ay,
+                    share,
+                    near: link.is_near(),
+                    direction: 0.0,
+                })
+            })
+        })
+        .collect();
+    // Near links: the centroids say little about parts that touch (from the floor beside a
+    // ball's contact, the ball's centroid lies at a grazing angle, yet it fills most of the
+    // sky). Their share and strategy mix follow a pilot estimate of the form factor instead.
+    plans.par_iter_mut().enumerate().for_each(|(i, l)| {
+        let mut form_factor = l.share / (std::f64::consts::PI * l.ax);
+        if l.near {
+            let pilot = pilot_form_factor(scene, leaves, diffuse, l, seed, i as u32);
+            form_factor = form_factor.max(pilot);
+            l.share = l.share.max(std::f64::consts::PI * l.ax * pilot);
+        }
+        l.direction = direction_share(l.near, form_factor);
+    });
+    plans
+}
+
+/// Each link's expected paths by area and by direction out of `budget`; `None` where no link
+/// has a share or the budget is 0. A near link draws at least enough paths by direction that
+/// none of its paths weighs more than [`MAX_WEIGHT`] times the mean; the counts are then
+/// scaled back to the budget.
+fn path_counts(plans: &[LinkPlan], budget: u32) -> Option<Vec<(f64, f64)>> {
+    let total: f64 = plans.iter().map(|s| s.share).sum();
+    if total <= 0.0 || budget == 0 {
+        return None;
+    }
+    let mean = total / budget as f64;
+    let mut counts: Vec<(f64, f64)> = plans
+        .iter()
+        .map(|l| {
+            let n = budget as f64 * l.share / total;
+            let mut n_dir = l.direction * n;
+            if l.near {
+                n_dir = n_dir.max(std::f64::consts::PI * l.ax / (MAX_WEIGHT * mean));
+            }
+            ((1.0 - l.direction) * n, n_dir)
+        })
+        .collect();
+    let drawn: f64 = counts.iter().map(|c| c.0 + c.1).sum();
+    for c in &mut counts {
+        *c = (c.0 * budget as f64 / drawn, c.1 * budget as f64 / drawn);
+    }
+    Some(counts)
+}
+
+/// Each link's paths by area and by direction: its expected counts rounded stochastically
+/// (unbiased), the random numbers keyed by the link's place.
+fn rounded_counts(counts: &[(f64, f64)], seed: u32) -> Vec<[u32; 2]> {
+    counts
+        .par_iter()
+        .enumerate()
+        .map(|(i, &(n_area, n_dir))| {
+            let round = |m: f64, d: u32| {
+                let u = rand(seed, 0x5bec_0001, i as u32, d) as f64;
+                (m.floor() + (u < m.fract()) as u32 as f64) as u32
+            };
+            [round(n_area, 0), round(n_dir, 1)]
+        })
+        .collect()
 }
 
 /// Links whose aims [`aims`] makes in one task.
