@@ -339,18 +339,46 @@ pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
         }
     };
     let n = w * h;
-    let channels = &layer.channel_data.list;
-    let find = |name: &str| channels.iter().find(|c| c.name.eq(name));
-    let names = || {
-        channels
-            .iter()
-            .map(|c| c.name.to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+    let channels = Channels {
+        path,
+        list: &layer.channel_data.list,
+        n,
     };
+    let (r, g, b) = (
+        channels.required("R")?,
+        channels.required("G")?,
+        channels.required("B")?,
+    );
+    let rgb = (0..n).map(|i| [r[i], g[i], b[i]]).collect();
+    Ok(Image {
+        width,
+        height,
+        rgb,
+        aovs: channels.aovs()?,
+    })
+}
 
-    let floats = |name: &str| -> Result<Option<Vec<f32>>, ImageError> {
-        let Some(channel) = find(name) else {
+/// The channels of an EXR file's first layer, `n` samples each, as [`read_exr`] reads them.
+struct Channels<'a> {
+    path: &'a Path,
+    list: &'a [AnyChannel<FlatSamples>],
+    n: usize,
+}
+
+impl Channels<'_> {
+    fn find(&self, name: &str) -> Option<&AnyChannel<FlatSamples>> {
+        self.list.iter().find(|c| c.name.eq(name))
+    }
+
+    /// The channels' names, for messages.
+    fn names(&self) -> String {
+        let names: Vec<String> = self.list.iter().map(|c| c.name.to_string()).collect();
+        names.join(", ")
+    }
+
+    /// The f16 or f32 samples of channel `name`, if it is there.
+    fn floats(&self, name: &str) -> Result<Option<Vec<f32>>, ImageError> {
+        let Some(channel) = self.find(name) else {
             return Ok(None);
         };
         let values: Vec<f32> = match &channel.sample_data {
@@ -358,60 +386,73 @@ pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
             FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
             FlatSamples::U32(_) => {
                 return Err(ImageError::format(
-                    path,
+                    self.path,
                     format!("channel {name} holds u32 samples, expected f16 or f32"),
                 ))
             }
         };
-        if values.len() != n {
+        if values.len() != self.n {
             return Err(ImageError::format(
-                path,
-                format!("channel {name} has {} samples, expected {n}", values.len()),
+                self.path,
+                format!(
+                    "channel {name} has {} samples, expected {}",
+                    values.len(),
+                    self.n
+                ),
             ));
         }
         Ok(Some(values))
-    };
-    let required = |name: &str| -> Result<Vec<f32>, ImageError> {
-        floats(name)?.ok_or_else(|| {
+    }
+
+    /// [`Self::floats`] of a channel that must be there.
+    fn required(&self, name: &str) -> Result<Vec<f32>, ImageError> {
+        self.floats(name)?.ok_or_else(|| {
             ImageError::format(
-                path,
+                self.path,
                 format!(
                     "no {name} channel in the first layer (channels: {})",
-                    names()
+                    self.names()
                 ),
             )
         })
-    };
-    let (r, g, b) = (required("R")?, required("G")?, required("B")?);
-    let rgb = (0..n).map(|i| [r[i], g[i], b[i]]).collect();
+    }
 
-    let present: Vec<&str> = AOV_FLOAT_CHANNELS
-        .iter()
-        .chain(std::iter::once(&AOV_SPLAT_CHANNEL))
-        .copied()
-        .filter(|name| find(name).is_some())
-        .collect();
-    let aovs = if present.is_empty() {
-        None
-    } else if present.len() < AOV_FLOAT_CHANNELS.len() + 1 {
-        return Err(ImageError::format(
-            path,
-            format!(
-                "incomplete AOV channels: has {}, expected all of {}, {AOV_SPLAT_CHANNEL}",
-                present.join(", "),
-                AOV_FLOAT_CHANNELS.join(", ")
-            ),
-        ));
-    } else {
+    /// The AOVs: none where no AOV channel is there, all of them, or an error naming the ones
+    /// there where only some are.
+    fn aovs(&self) -> Result<Option<Aovs>, ImageError> {
+        let present: Vec<&str> = AOV_FLOAT_CHANNELS
+            .iter()
+            .chain(std::iter::once(&AOV_SPLAT_CHANNEL))
+            .copied()
+            .filter(|name| self.find(name).is_some())
+            .collect();
+        if present.is_empty() {
+            return Ok(None);
+        }
+        if present.len() < AOV_FLOAT_CHANNELS.len() + 1 {
+            return Err(ImageError::format(
+                self.path,
+                format!(
+                    "incomplete AOV channels: has {}, expected all of {}, {AOV_SPLAT_CHANNEL}",
+                    present.join(", "),
+                    AOV_FLOAT_CHANNELS.join(", ")
+                ),
+            ));
+        }
         let f: Vec<Vec<f32>> = AOV_FLOAT_CHANNELS
             .iter()
-            .map(|name| required(name))
+            .map(|name| self.required(name))
             .collect::<Result<_, _>>()?;
-        let splat = match &find(AOV_SPLAT_CHANNEL).expect("checked above").sample_data {
+        let n = self.n;
+        let splat = match &self
+            .find(AOV_SPLAT_CHANNEL)
+            .expect("checked above")
+            .sample_data
+        {
             FlatSamples::U32(v) if v.len() == n => v.clone(),
             FlatSamples::U32(v) => {
                 return Err(ImageError::format(
-                    path,
+                    self.path,
                     format!(
                         "channel {AOV_SPLAT_CHANNEL} has {} samples, expected {n}",
                         v.len()
@@ -420,25 +461,18 @@ pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
             }
             _ => {
                 return Err(ImageError::format(
-                    path,
+                    self.path,
                     format!("channel {AOV_SPLAT_CHANNEL} must hold u32 samples"),
                 ))
             }
         };
-        Some(Aovs {
+        Ok(Some(Aovs {
             depth: f[0].clone(),
             normal: (0..n).map(|i| [f[1][i], f[2][i], f[3][i]]).collect(),
             albedo: (0..n).map(|i| [f[4][i], f[5][i], f[6][i]]).collect(),
             splat,
-        })
-    };
-
-    Ok(Image {
-        width,
-        height,
-        rgb,
-        aovs,
-    })
+        }))
+    }
 }
 
 /// Encodes 8-bit RGB pixels (row-major, top row first) as PNG, with the render's key in a
