@@ -5,7 +5,7 @@
 //! extra fields: PLY (`radiance_r/g/b` float properties) or LAS/LAZ (point format 2 with three
 //! float extra bytes described by an Extra Bytes VLR). docs/bake.md.
 //!
-//! [`lit::lit_points`] computes the values; [`write`] writes them; [`stage`] is the binary's
+//! [`lit::lit_points`] computes the values; [`write`](mod@write) writes them; [`stage`] is the binary's
 //! driver.
 
 pub mod error;

@@ -2,7 +2,7 @@
 //!
 //! Loading ([`load_config`]) merges `include`d files (their model paths resolved relative to the
 //! file that names them), applies `--set key=value` overrides on the TOML tree, then
-//! deserializes with unknown keys rejected, and validates values ([`validate`]). The parameter
+//! deserializes with unknown keys rejected, and validates values ([`validate()`]). The parameter
 //! blocks that shape artifacts (`[octree]`, `[vmap]`, `[caustics]`, `[fmm]`) are pc-artifact's
 //! [`pc_artifact::params`] structs, so the config, the artifact's metadata and the stage's key
 //! share one definition; each stage's table adds where it runs (`backend`) and its file name.
@@ -314,7 +314,7 @@ impl Default for ImportConfig {
 }
 
 /// Keys of a stage's table that no field took: an unknown (misspelt) key is an error
-/// ([`validate`]), not a silently ignored setting. (serde's `deny_unknown_fields` does not work
+/// ([`validate()`]), not a silently ignored setting. (serde's `deny_unknown_fields` does not work
 /// with the flattened parameter block, so the leftovers are collected here.)
 pub type UnknownKeys = BTreeMap<String, toml::Value>;
 

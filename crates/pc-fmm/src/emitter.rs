@@ -32,7 +32,7 @@ pub struct EmitterSampling {
     pub probes: u32,
     /// Shadow rays ignore hits within this many radii of either end.
     pub self_hit: f32,
-    /// Settle leaves whose shaft to the emitters is empty without rays ([`crate::shaft`]).
+    /// Settle leaves whose shaft to the emitters is empty without rays ([`pc_tree::shaft`]).
     pub shafts: bool,
 }
 
@@ -52,7 +52,7 @@ pub struct EmitterRays {
 ///
 /// Visibility (docs/fmm.md, "Direct light of the emitters"): first, an octree leaf whose shaft
 /// to the emitters no splat's disk enters sees them from every sample, without a ray
-/// ([`crate::shaft`], exact). Elsewhere it is tested adaptively: `probes` of
+/// ([`pc_tree::shaft`], exact). Elsewhere it is tested adaptively: `probes` of
 /// the samples, spread over the strata (and offset by receiver, so that a leaf's receivers
 /// together probe every stratum), cast their shadow rays first; in an octree leaf where
 /// every probe of every receiver agrees (all open, or all blocked) the other samples take that

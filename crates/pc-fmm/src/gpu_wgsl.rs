@@ -130,7 +130,7 @@ fn kernel_coeffs(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "}}");
 }
 
-/// `gen_p2m`: ex[α] += pw[α] q.
+/// `gen_p2m`: `ex[α] += pw[α] q`.
 fn p2m(w: &mut String, np: usize) {
     let _ = writeln!(w, "\nfn gen_p2m(q: mat3x3<f32>) {{");
     for i in 0..np {
@@ -162,7 +162,7 @@ fn m2m(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "}}");
 }
 
-/// `gen_m2l`: ex[β] += (c f) (g_{α+β} M[α]), per β by ascending α, grouped by α.
+/// `gen_m2l`: `ex[β] += (c f) (g_{α+β} M[α])`, per β by ascending α, grouped by α.
 fn m2l(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "\nfn gen_m2l(src: u32, f: f32) {{");
     for a in 0..basis.len() {
@@ -180,7 +180,7 @@ fn m2l(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "}}");
 }
 
-/// `gen_p2l`: ex[β] += ((−1)^{|β|} f) (g_β q).
+/// `gen_p2l`: `ex[β] += ((−1)^{|β|} f) (g_β q)`.
 fn p2l(w: &mut String, basis: &Basis) {
     let _ = writeln!(
         w,
@@ -193,7 +193,7 @@ fn p2l(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "}}");
 }
 
-/// `gen_l2l`: ex[small] += (c pw[d]) L[big], per small by ascending big (the CPU's loop order).
+/// `gen_l2l`: `ex[small] += (c pw[d]) L[big]`, per small by ascending big (the CPU's loop order).
 fn l2l(w: &mut String, basis: &Basis) {
     let _ = writeln!(w, "\nfn gen_l2l(src: u32) {{");
     for big in 0..basis.len() {

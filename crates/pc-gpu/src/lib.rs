@@ -43,7 +43,7 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     /// The device writes timestamps around each dispatch (the adapter has
-    /// `TIMESTAMP_QUERY`), so [`times`] holds the kernels' own time on the GPU's clock.
+    /// `TIMESTAMP_QUERY`), so [`times()`] holds the kernels' own time on the GPU's clock.
     timestamps: bool,
     /// A dispatch's timestamp buffers, kept for the next ([`Stamps`]).
     stamps: std::sync::Mutex<Option<Stamps>>,
@@ -655,7 +655,7 @@ impl Readback {
     }
 
     /// Copy the first `size` bytes of `buffer` (at most [`Readback::capacity`]) back and hand
-    /// them to `f` while mapped (blocking; counted as a read in [`times`]).
+    /// them to `f` while mapped (blocking; counted as a read in [`times()`]).
     pub fn read<R>(
         &self,
         ctx: &GpuContext,

@@ -70,7 +70,7 @@ enum Border {
 /// dropped).
 ///
 /// Speed: the splats of one leaf share one walk of the tree for their candidate disks
-/// ([`AreaPass::candidates`]), which each filters in one vector pass ([`AreaPass::near`]).
+/// ([`AreaPass::per_leaf`]), which each filters in one vector pass ([`AreaPass::near`]).
 ///
 /// Identical splats (the same position, normal, radius and material: duplicate points, as scans
 /// of overlapping stations hold thousands of) share a disk exactly, so each gets the same
@@ -290,7 +290,7 @@ impl AreaPass<'_> {
     }
 
     /// The disks of the same surface that can cover some point of disk i (i included), as
-    /// lanes ([`Lanes`]), from `cands` ([`Self::candidates`]). A disk j (radius r_j, slab t_j,
+    /// lanes ([`Lanes`]), from `cands` (its leaf's candidates, [`AreaPass::per_leaf`]). A disk j (radius r_j, slab t_j,
     /// normals at angle θ) covers points within r_j of its centre in its plane and t_j off it,
     /// so it can cover a point of disk i only when
     /// - its centre lies within r_i + √(r_j² + t_j²) of splat i's, and

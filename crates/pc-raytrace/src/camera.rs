@@ -1,6 +1,6 @@
 //! Pinhole camera: primary-ray generation with Mitsuba's conventions (pixel (0,0) top-left).
 //!
-//! For a film position (sx, sy) in [0,1]² (sx to the right, sy down) the world direction is
+//! For a film position (sx, sy) in `[0, 1]²` (sx to the right, sy down) the world direction is
 //! `normalize(forward + (2 sx - 1) tx · right + (1 - 2 sy) ty · up)` where `right =
 //! normalize(forward × up)`, `up = right × forward`, and (tx, ty) are the tangents of the half
 //! field of view along x and y (the configured axis gets tan(fov/2), the other scales by the
@@ -55,7 +55,7 @@ impl Camera {
         }
     }
 
-    /// Unit direction through film position (sx, sy) in [0,1]² (sx right, sy down).
+    /// Unit direction through film position (sx, sy) in `[0, 1]²` (sx right, sy down).
     #[inline]
     pub fn direction(&self, sx: f32, sy: f32) -> Vec3 {
         let x = (2.0 * sx - 1.0) * self.tan_half.0;

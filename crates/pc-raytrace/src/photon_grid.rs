@@ -238,7 +238,7 @@ enum Fate {
 impl PhotonGroup {
     /// The bounds' verdict (WGSL twin in `caustic`): the photons lie within `extent` of
     /// `position` and their directions within `dir_extent` of the mean, so the triangle
-    /// inequality bounds each test of [`accept`] and of the radius for all of them at once.
+    /// inequality bounds each test of [`accept_at`] and of the radius for all of them at once.
     fn fate(&self, x: Vec3, n: Vec3, r: f32) -> Fate {
         let d = Vec3::from(self.position) - x;
         let d2 = d.length_squared();

@@ -342,7 +342,7 @@ impl<'a> RenderScene<'a> {
         }
     }
 
-    /// The camera ray through film position (sx, sy) ∈ [0,1]² (sx right, sy down).
+    /// The camera ray through film position (sx, sy) ∈ `[0, 1]²` (sx right, sy down).
     #[inline]
     pub fn camera_dir(&self, sx: f32, sy: f32) -> Vec3 {
         let p = &self.params;

@@ -50,7 +50,7 @@ impl SampledShape {
         self.positions.is_empty()
     }
 
-    /// Borrowed view for [`write_ply`].
+    /// Borrowed view for [`pc_import::ply_write::write_ply`].
     pub fn ply_points(&self) -> PlyPoints<'_> {
         PlyPoints {
             positions: &self.positions,

@@ -9,7 +9,7 @@ use crate::geometry::{BoxShape, Geometry, Rect, Sphere};
 use crate::grid::{sample_shapes, SampledShape, ShapeSpec};
 use crate::SampleParams;
 
-/// A sampled scene, ready for [`write_scene`].
+/// A sampled scene, ready for [`crate::write::write_scene`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct SampledScene {
     /// Scene name: prefix of the PLY file names ("cornell", "sphere", "glass-box").

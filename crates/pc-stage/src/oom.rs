@@ -2,7 +2,7 @@
 //! allocation that fails is `memory allocation of N bytes failed` and SIGABRT, without the
 //! program's name or what to do (a 100M-point octree under `ulimit -v` ended so after 25
 //! minutes). Every stage binary installs [`ReportOom`] as its global allocator with
-//! [`report_oom!`]: it is the system allocator, except that an allocation the system refuses
+//! [`report_oom!`](crate::report_oom): it is the system allocator, except that an allocation the system refuses
 //! prints `NAME: error: out of memory: …` and exits with code 2, the code of every other
 //! error. Nothing half written is published: artifacts are written to a temporary file and
 //! renamed only when complete, the output folder's lock dies with the process, and the next

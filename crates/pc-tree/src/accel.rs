@@ -1,5 +1,5 @@
 //! A copy of the octree laid out for the CPU walk: the same cells, the same listed disks in the
-//! same order, the same arithmetic, so the hits are identical to [`OctreeView::intersect`]'s
+//! same order, the same arithmetic, so the hits are identical to [`crate::intersect`]'s
 //! (tested); only where the bytes lie changes. pc-octree builds it ([`Accel::build`]) and writes
 //! it into the octree artifact ([`pc_artifact::walk`]); the other stages map it
 //! ([`Accel::new`]), and build their own only from an octree without it.
@@ -403,7 +403,7 @@ impl<'a> Accel<'a> {
         best
     }
 
-    /// Same as [`OctreeView::intersect`].
+    /// Same as [`crate::intersect`].
     pub fn intersect(
         &self,
         view: &OctreeView,
@@ -483,7 +483,7 @@ impl<'a> Accel<'a> {
             .collect()
     }
 
-    /// Same as [`OctreeView::occluded`].
+    /// Same as [`crate::occluded`].
     pub fn occluded(&self, view: &OctreeView, ray: &Ray, stats: &mut TraversalStats) -> bool {
         self.walk_any(view, ray, None, stats)
     }

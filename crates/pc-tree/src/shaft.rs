@@ -16,7 +16,7 @@
 //! The test descends the octree with each node's box of its splats' disks (tight per normal:
 //! a disk of radius r and normal n reaches `r √(1 − n_k²)` along axis k) and collects the
 //! leaves whose box meets the shaft; the group's rays are then tested against those leaves'
-//! disks alone ([`crate::lanes::blocked`], the octree walk's ray-disk test, eight at a time),
+//! disks alone (pc-fmm's `lanes::blocked`, the octree walk's ray-disk test, eight at a time),
 //! a leaf's disks only when the ray's stretch in its box reaches the slab of its disks
 //! ([`Slab`]). No leaf: every ray is open without a test.
 

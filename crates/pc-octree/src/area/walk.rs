@@ -23,8 +23,8 @@ use crate::refs::push_children_in_box;
 /// Which leaves a walk reaches.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub(super) enum Reach {
-    /// Those whose cell meets the box: the own splats around a leaf's splats
-    /// ([`AreaPass::neighbours_of_run`]).
+    /// Those whose cell meets the box: the own splats around a leaf's splats (the
+    /// neighbourhood passes: the slabs, the borders, the rows' lines).
     Cells,
     /// Those whose cell, widened by the box's radius and the largest cover box half extents
     /// below the node ([`AreaPass::node_extents`]), meets the box: every disk that can cover a point of

@@ -31,7 +31,7 @@ struct Args {
     /// regions.
     #[arg(long, value_name = "DIR")]
     reference: Option<PathBuf>,
-    /// Where to write |ours − reference| × scale as a PNG (default: <image>.diff.png).
+    /// Where to write |ours − reference| × scale as a PNG (default: `<image>.diff.png`).
     #[arg(long)]
     diff: Option<PathBuf>,
     /// Scale of the difference image.

@@ -9,7 +9,7 @@
 //! at least its share of hits, the hits are counted row by row, and exactly the share is kept
 //! by thinning evenly. Rows are traced in parallel; each draws its noise from its own PCG
 //! stream (seed, station, row), so the output does not depend on the threads. Points are
-//! generated in batches of rows and handed to the writer in order ([`write`]: LAS, LAZ, E57):
+//! generated in batches of rows and handed to the writer in order ([`write`](mod@write): LAS, LAZ, E57):
 //! memory stays small whatever the count. docs/scan.md.
 
 pub mod room;
