@@ -3,7 +3,7 @@
 use std::fmt::Write as _;
 
 use glam::Vec3;
-use pc_artifact::octree::{node, OctreeFile};
+use pc_artifact::octree::{node, MaterialRecord, OctreeFile, OctreeView};
 use pc_artifact::photons::PhotonsFile;
 use pc_artifact::radiosity::RadiosityFile;
 use pc_artifact::vmap::VmapFile;
@@ -230,57 +230,21 @@ pub(crate) fn octree(file: &OctreeFile) -> String {
         f.max_leaf_points,
         f.max_depth
     );
-    let (mut leaves, mut empty, mut internal, mut ref_only) = (0u64, 0u64, 0u64, 0u64);
-    let mut per_depth = vec![0u64; f.max_depth as usize + 1];
-    let mut own_hist = [0u64; 6];
-    let (mut refs_total, mut refs_max) = (0u64, 0usize);
-    // Walk with depth to histogram leaves.
-    let mut stack = vec![(0u32, 0u32)];
-    while let Some((slot, d)) = stack.pop() {
-        let w = v.nodes[slot as usize];
-        if node::is_empty(w) {
-            empty += 1;
-        } else if node::is_leaf(w) {
-            leaves += 1;
-            let last = per_depth.len() - 1;
-            per_depth[(d as usize).min(last)] += 1;
-            let (r, refs) = v.leaf(w);
-            let own = (r.end - r.start) as u64;
-            if own == 0 {
-                ref_only += 1;
-            }
-            let bucket = match own {
-                0 => 0,
-                1..=4 => 1,
-                5..=8 => 2,
-                9..=16 => 3,
-                17..=32 => 4,
-                _ => 5,
-            };
-            own_hist[bucket] += 1;
-            refs_total += refs.len() as u64;
-            refs_max = refs_max.max(refs.len());
-        } else {
-            internal += 1;
-            for k in 0..8 {
-                stack.push((node::ptr(w) + k, d + 1));
-            }
-        }
-    }
+    let t = TreeCounts::of(&v);
     let _ = writeln!(
         s,
         "nodes       {} ({} internal, {} leaves of which {} reference-only, {} empty)",
         v.nodes.len(),
-        internal,
-        leaves,
-        ref_only,
-        empty
+        t.internal,
+        t.leaves,
+        t.ref_only,
+        t.empty
     );
     let _ = writeln!(
         s,
         "depth       {} (leaves per depth: {})",
         f.depth,
-        per_depth
+        t.per_depth
             .iter()
             .enumerate()
             .filter(|(_, &c)| c > 0)
@@ -288,17 +252,18 @@ pub(crate) fn octree(file: &OctreeFile) -> String {
             .collect::<Vec<_>>()
             .join(" ")
     );
+    let h = &t.own_hist;
     let _ = writeln!(
         s,
         "own splats  per leaf: 0:{} 1-4:{} 5-8:{} 9-16:{} 17-32:{} >32:{}",
-        own_hist[0], own_hist[1], own_hist[2], own_hist[3], own_hist[4], own_hist[5]
+        h[0], h[1], h[2], h[3], h[4], h[5]
     );
     let _ = writeln!(
         s,
         "references  {} extra (mean {:.2} per leaf, max {})",
-        refs_total,
-        refs_total as f64 / leaves.max(1) as f64,
-        refs_max
+        t.refs_total,
+        t.refs_total as f64 / t.leaves.max(1) as f64,
+        t.refs_max
     );
     let area: f64 = v.splat_area.iter().map(|&x| x as f64).sum();
     let disks: f64 = v
@@ -311,17 +276,11 @@ pub(crate) fn octree(file: &OctreeFile) -> String {
         "area        {area:.6} (sum of disk areas {disks:.6}, overlap {:.2}x)",
         disks / area.max(1e-30)
     );
-    let mut by_class = [0u64; 4];
-    let mats = file.materials();
-    for sp in v.splats {
-        if let Some(m) = mats.get(sp.material as usize) {
-            by_class[(m.class as usize).min(3)] += 1;
-        }
-    }
+    let c = class_counts(&v, file.materials());
     let _ = writeln!(
         s,
         "classes     diffuse {} emitter {} mirror {} dielectric {}",
-        by_class[0], by_class[1], by_class[2], by_class[3]
+        c[0], c[1], c[2], c[3]
     );
     let _ = writeln!(s, "materials   {}", meta.material_names.join(", "));
     for inp in &meta.inputs {
@@ -344,6 +303,77 @@ pub(crate) fn octree(file: &OctreeFile) -> String {
             .join(", ")
     );
     s
+}
+
+/// An octree's nodes counted by a walk from the root: internal, leaves (per depth, by their
+/// own splats, reference-only) and empty ones, and the leaves' references.
+struct TreeCounts {
+    leaves: u64,
+    empty: u64,
+    internal: u64,
+    ref_only: u64,
+    per_depth: Vec<u64>,
+    /// Leaves with 0, 1-4, 5-8, 9-16, 17-32 and more own splats.
+    own_hist: [u64; 6],
+    refs_total: u64,
+    refs_max: usize,
+}
+
+impl TreeCounts {
+    fn of(v: &OctreeView) -> TreeCounts {
+        let mut t = TreeCounts {
+            leaves: 0,
+            empty: 0,
+            internal: 0,
+            ref_only: 0,
+            per_depth: vec![0; v.frame.max_depth as usize + 1],
+            own_hist: [0; 6],
+            refs_total: 0,
+            refs_max: 0,
+        };
+        let mut stack = vec![(0u32, 0u32)];
+        while let Some((slot, d)) = stack.pop() {
+            let w = v.nodes[slot as usize];
+            if node::is_empty(w) {
+                t.empty += 1;
+            } else if node::is_leaf(w) {
+                t.leaves += 1;
+                let last = t.per_depth.len() - 1;
+                t.per_depth[(d as usize).min(last)] += 1;
+                let (r, refs) = v.leaf(w);
+                let own = (r.end - r.start) as u64;
+                t.ref_only += (own == 0) as u64;
+                let bucket = match own {
+                    0 => 0,
+                    1..=4 => 1,
+                    5..=8 => 2,
+                    9..=16 => 3,
+                    17..=32 => 4,
+                    _ => 5,
+                };
+                t.own_hist[bucket] += 1;
+                t.refs_total += refs.len() as u64;
+                t.refs_max = t.refs_max.max(refs.len());
+            } else {
+                t.internal += 1;
+                for k in 0..8 {
+                    stack.push((node::ptr(w) + k, d + 1));
+                }
+            }
+        }
+        t
+    }
+}
+
+/// Splats per material class (diffuse, emitter, mirror, dielectric).
+fn class_counts(v: &OctreeView, mats: &[MaterialRecord]) -> [u64; 4] {
+    let mut by_class = [0u64; 4];
+    for sp in v.splats {
+        if let Some(m) = mats.get(sp.material as usize) {
+            by_class[(m.class as usize).min(3)] += 1;
+        }
+    }
+    by_class
 }
 
 pub(crate) fn vmap(f: &VmapFile) -> String {
