@@ -308,6 +308,11 @@ impl Tree {
             mut timings,
             ..
         } = self;
+        assert_eq!(
+            (surfaces.clips.len(), surfaces.node_info.len()),
+            (splats.len(), split.nodes.len()),
+            "the surfaces of another tree"
+        );
         for (s, clip) in splats.iter_mut().zip(surfaces.clips) {
             s.clip = clip;
         }
