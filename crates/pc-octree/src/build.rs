@@ -108,13 +108,8 @@ pub fn build(
     params: &OctreeParams,
     phase: &mut dyn FnMut(&str),
 ) -> Result<Octree, BuildError> {
-    let tree = {
-        let mut phases = Phases::new(phase);
-        let pooled = pool(input, params, &mut phases)?;
-        tree(pooled, phases)?
-    };
-    let surfaces = tree.surfaces(params, phase);
-    Ok(tree.finish(surfaces))
+    // The input lends its arrays: nothing to free early.
+    build_from(*input, |i| *i, params, phase)
 }
 
 /// [`build`] from an input that `owner` holds (`input` lends it), freed as soon as the splats

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use pc_artifact::octree::{sections, InputFile, OctreeMeta};
+use pc_artifact::octree::{sections, InputFile, MaterialRecord, OctreeMeta};
 use pc_artifact::{ArtifactKind, ArtifactWriter, Key, KeyHasher};
 use pc_config::{material_table, LoadedConfig, MaterialConfig};
 use pc_import::load::{load_scene, model_path, LoadedScene, ModelReport, SceneSplats};
@@ -75,13 +75,13 @@ pub struct Summary {
 }
 
 /// The tree of a loaded scene with the config's parameters, before its splats' areas
-/// ([`crate::build::Tree`]).
+/// ([`crate::build::Tree`]); `records` is the scene's material table.
 pub fn build_tree(
     cfg: &LoadedConfig,
     scene: &mut LoadedScene,
+    records: &[MaterialRecord],
     phase: &mut dyn FnMut(&str),
 ) -> Result<Tree, OctreeError> {
-    let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let classes: Vec<u32> = records.iter().map(|m| m.class).collect();
     // The scene's splat arrays go to the build, which frees them once they are in its data
     // pool; the scene keeps its materials, models and origin for the artifact's metadata.
@@ -117,10 +117,9 @@ fn surfaces_and_write(
     key: Key,
     tree: Tree,
     accel: Accel<'static>,
-    (cfg, scene): (&LoadedConfig, &LoadedScene),
+    (cfg, scene, records): (&LoadedConfig, &LoadedScene, &[MaterialRecord]),
     progress: &dyn Progress,
 ) -> Result<(Octree, f64), OctreeError> {
-    let records = material_table(scene.materials.iter().map(|(_, m)| m));
     let (surfaces, early, seconds) = std::thread::scope(|s| {
         let early = s.spawn(|| -> Result<ArtifactWriter, OctreeError> {
             let mut w =
@@ -129,7 +128,7 @@ fn surfaces_and_write(
             w.section(sections::NODES, tree.nodes())?;
             w.section(sections::BEGIN_END, &tree.begin_end)?;
             w.section(sections::SPLAT_LEAF, &tree.splat_leaf)?;
-            w.section(sections::MATERIALS, &records)?;
+            w.section(sections::MATERIALS, records)?;
             // The CPU walk's packed copy, mapped by every later stage instead of built by each.
             pc_artifact::walk::write(&mut w, &accel.walk())?;
             drop(accel);
@@ -201,7 +200,8 @@ pub fn run(
     let import_seconds = t.elapsed().as_secs_f64();
     let mut phase = |name: &str| progress.phase(&format!("build: {name}"));
     let t = Instant::now();
-    let tree = build_tree(cfg, &mut scene, &mut phase)?;
+    let records = material_table(scene.materials.iter().map(|(_, m)| m));
+    let tree = build_tree(cfg, &mut scene, &records, &mut phase)?;
     let tree_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
     phase("walk");
@@ -209,7 +209,7 @@ pub fn run(
     let walk_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let (octree, surfaces_seconds) =
-        surfaces_and_write(out, key, tree, accel, (cfg, &scene), progress)?;
+        surfaces_and_write(out, key, tree, accel, (cfg, &scene, &records), progress)?;
     let write_seconds = walk_seconds + t.elapsed().as_secs_f64() - surfaces_seconds;
     Ok(Summary {
         path: out.to_path_buf(),
