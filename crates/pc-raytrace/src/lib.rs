@@ -13,6 +13,7 @@ pub mod gpu;
 pub mod image;
 pub mod per_pixel;
 pub mod photon_grid;
+pub mod photon_lanes;
 pub mod reference;
 pub mod refine;
 pub mod renderer;

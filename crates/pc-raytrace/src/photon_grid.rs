@@ -167,13 +167,12 @@ impl PhotonGrid {
         (out, n)
     }
 
-    /// The fixed-radius estimate of [`crate::caustic::Caustics::irradiance`] (CPU twin of the
-    /// WGSL `caustic`).
+    /// The fixed-radius estimate of [`crate::caustic::Caustics::irradiance`], photon by photon
+    /// (the WGSL `caustic`'s twin; the CPU renderer scans four photons at a time through
+    /// [`crate::photon_lanes::PhotonLanes`], the same photons and weights).
     pub fn irradiance(&self, x: Vec3, n: Vec3) -> Vec3 {
         let r = self.radius;
         let r2 = r * r;
-        let (buckets, count) = self.buckets(x);
-        let groups_at = self.mask as usize + 2;
         let scan = |photons: &[Photon]| {
             let mut e = Vec3::ZERO;
             for p in photons {
@@ -185,22 +184,57 @@ impl PhotonGrid {
             }
             e
         };
+        let e = self.estimate(
+            x,
+            n,
+            |b| scan(&self.photons[self.bucket_photons(b)]),
+            |g| {
+                let g = &self.groups[g];
+                scan(&self.photons[g.start as usize..(g.start + g.count) as usize])
+            },
+        );
+        e * (2.0 / (std::f32::consts::PI * r2))
+    }
+
+    /// The kernel-weighted power `Σ Φ (1 − d²/r²)` at `x` (normal `n`): the sparse photons of
+    /// each bucket a lookup reads (`scan_bucket(b)`), its groups whole where their bounds allow
+    /// and the photons of the others (`scan_group(g)`). The one loop of both CPU estimates.
+    #[inline]
+    pub(crate) fn estimate(
+        &self,
+        x: Vec3,
+        n: Vec3,
+        mut scan_bucket: impl FnMut(usize) -> Vec3,
+        mut scan_group: impl FnMut(usize) -> Vec3,
+    ) -> Vec3 {
+        let r = self.radius;
+        let (buckets, count) = self.buckets(x);
         let mut e = Vec3::ZERO;
         for &b in &buckets[..count] {
             let b = b as usize;
-            e += scan(&self.photons[self.offsets[b] as usize..self.offsets[b + 1] as usize]);
-            let (lo, hi) = (self.offsets[groups_at + b], self.offsets[groups_at + b + 1]);
-            for g in &self.groups[lo as usize..hi as usize] {
-                e += match g.fate(x, n, r) {
+            e += scan_bucket(b);
+            for g in self.bucket_groups(b) {
+                e += match self.groups[g].fate(x, n, r) {
                     Fate::None => Vec3::ZERO,
-                    Fate::All(d) => g.sum(d, r2),
-                    Fate::Open => {
-                        scan(&self.photons[g.start as usize..(g.start + g.count) as usize])
-                    }
+                    Fate::All(d) => self.groups[g].sum(d, r * r),
+                    Fate::Open => scan_group(g),
                 };
             }
         }
-        e * (2.0 / (std::f32::consts::PI * r2))
+        e
+    }
+
+    /// Bucket `b`'s sparse photons, as indices into [`PhotonGrid::photons`].
+    #[inline]
+    pub(crate) fn bucket_photons(&self, b: usize) -> std::ops::Range<usize> {
+        self.offsets[b] as usize..self.offsets[b + 1] as usize
+    }
+
+    /// Bucket `b`'s groups, as indices into [`PhotonGrid::groups`].
+    #[inline]
+    pub(crate) fn bucket_groups(&self, b: usize) -> std::ops::Range<usize> {
+        let at = self.mask as usize + 2;
+        self.offsets[at + b] as usize..self.offsets[at + b + 1] as usize
     }
 }
 
@@ -208,13 +242,11 @@ impl PhotonGrid {
     /// Photons and groups a lookup at `x` (normal `n`) reads: its cost.
     pub fn reads(&self, x: Vec3, n: Vec3) -> usize {
         let (buckets, count) = self.buckets(x);
-        let groups_at = self.mask as usize + 2;
         let mut reads = 0;
         for &b in &buckets[..count] {
             let b = b as usize;
-            reads += (self.offsets[b + 1] - self.offsets[b]) as usize;
-            let (lo, hi) = (self.offsets[groups_at + b], self.offsets[groups_at + b + 1]);
-            for g in &self.groups[lo as usize..hi as usize] {
+            reads += self.bucket_photons(b).len();
+            for g in &self.groups[self.bucket_groups(b)] {
                 reads += 1;
                 if let Fate::Open = g.fate(x, n, self.radius) {
                     reads += g.count as usize;

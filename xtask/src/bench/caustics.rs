@@ -163,7 +163,7 @@ fn lookup_row(bin: &Path, config: &Path, n: usize) -> Result<String> {
     let c = &v["caustic"];
     let f = |k: &str| c[k].as_f64().unwrap_or(f64::NAN);
     Ok(format!(
-        "| {:.2}M | {:.0}k | {:.4} | {:.0}k ({:.0} % near photons) | {:.0} ns | {:.0} ns (k {}) | {:.0} ns (built in {:.3} s; {:.0} groups; reads {:.1} a lookup, at most {:.0}) |",
+        "| {:.2}M | {:.0}k | {:.4} | {:.0}k ({:.0} % near photons) | {:.0} ns | {:.0} ns (k {}) | {:.0} ns (built in {:.3} s; {:.0} groups; reads {:.1} a lookup, at most {:.0}) | {:.0} ns |",
         n as f64 / 1e6,
         f("photons") / 1e3,
         f("radius"),
@@ -177,6 +177,7 @@ fn lookup_row(bin: &Path, config: &Path, n: usize) -> Result<String> {
         f("groups"),
         f("reads_mean"),
         f("reads_max"),
+        f("lanes_ns"),
     ))
 }
 
@@ -192,8 +193,9 @@ Caustic lookup per shaded hit (CPU, per thread): the diffuse hits of 512×512 pr
 camera, on the photon map above; fixed radius through a kd-tree (kiddo's, built before the timing: \
 the grid's predecessor), k-nearest through it (the renderers' `caustic_k` path), and the hashed grid both \
 renderers read for the fixed radius (dense buckets held as groups; a lookup's reads are its photons and \
-groups).\n\n\
-| splats | photons | radius | lookups | kd-tree, fixed radius | kd-tree, k-nearest | hashed grid (the renderers') |\n|---|---|---|---|---|---|---|\n{}\n",
+groups), photon by photon as the GPU reads it and four photons at a time as the CPU renderer does \
+(`photon_lanes`).\n\n\
+| splats | photons | radius | lookups | kd-tree, fixed radius | kd-tree, k-nearest | hashed grid, photon by photon (the GPU's) | the grid four at a time (the CPU's) |\n|---|---|---|---|---|---|---|---|\n{}\n",
         machine(),
         today(),
         sizes_arg(sizes),

@@ -7,6 +7,7 @@ use pc_artifact::PointLight;
 use pc_artifact::{Artifact, ArtifactKind, ArtifactWriter, Key};
 use pc_config::ShadingMode;
 use pc_raytrace::caustic::{Caustics, PhotonGrid};
+use pc_raytrace::photon_lanes::{scan, scan_scalar, PhotonLanes, Quad};
 use pc_raytrace::scene::RenderScene;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -194,6 +195,98 @@ fn groups_of_mixed_colours_and_directions_keep_the_estimate() {
         .sum();
     let reads = grid.reads(x, n);
     assert!(reads < all as usize, "{reads} of {all}");
+}
+
+/// The CPU renderer's lanes (four photons a record) give the grid's photon-by-photon estimate,
+/// groups and all, to float rounding: the same photons with the same weights, summed in four
+/// running sums.
+#[test]
+fn the_lanes_give_the_grid_s_estimate() {
+    let r = 0.03;
+    let photons = room_photons(40_000);
+    let grid = PhotonGrid::new(&photons, r);
+    assert!(!grid.groups.is_empty(), "the spot's buckets are dense");
+    let lanes = PhotonLanes::new(&grid);
+    let mut rng = Pcg64::seed_from_u64(21);
+    let (mut peak, mut pairs) = (0.0f32, Vec::new());
+    for i in 0..3000 {
+        let (x, n) = match i % 3 {
+            0 => (
+                Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    -1.0,
+                ),
+                Vec3::Z,
+            ),
+            _ => (
+                Vec3::new(
+                    0.3 + rng.random_range(-0.2..0.2),
+                    -1.0 + rng.random_range(-0.01..0.01),
+                    0.2 + rng.random_range(-0.2..0.2),
+                ),
+                Vec3::new(rng.random_range(-0.3..0.3), 1.0, 0.0).normalize(),
+            ),
+        };
+        let (want, got) = (grid.irradiance(x, n), lanes.irradiance(&grid, x, n));
+        peak = peak.max(want.max_element());
+        pairs.push((want, got));
+    }
+    assert!(peak > 0.0);
+    let worst = pairs
+        .iter()
+        .map(|(a, b)| (*a - *b).abs().max_element() / a.max_element().max(1e-3 * peak))
+        .fold(0.0, f32::max);
+    assert!(worst <= 1e-5, "worst relative error {worst}");
+    let lit = pairs.iter().filter(|(a, _)| a.x > 0.0).count();
+    assert!(lit > 1000, "{lit} lookups found photons");
+}
+
+/// The SSE scan is its portable twin lane for lane, to the bit: photons inside, outside and on
+/// the radius's rim, in front of and behind the surface, on and off its tangent plane, and the
+/// padding lanes of a partial record.
+#[test]
+fn the_sse_scan_is_its_scalar_twin() {
+    let mut rng = Pcg64::seed_from_u64(22);
+    let r = 0.05;
+    for trial in 0..200 {
+        let count = rng.random_range(0..40);
+        let photons: Vec<Photon> = (0..count)
+            .map(|i| {
+                let mut d = Vec3::new(
+                    rng.random_range(-1.5 * r..1.5 * r),
+                    rng.random_range(-0.5 * r..0.5 * r),
+                    rng.random_range(-1.5 * r..1.5 * r),
+                );
+                if i % 7 == 0 {
+                    d = Vec3::new(r, 0.0, 0.0);
+                }
+                Photon {
+                    position: (Vec3::new(0.1, 0.2, 0.3) + d).into(),
+                    splat: 0,
+                    dir: Vec3::new(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..0.5),
+                        0.2,
+                    )
+                    .normalize()
+                    .into(),
+                    bounces: 1,
+                    power: [0, 1, 2].map(|_| rng.random_range(0.0..1.0)),
+                    _pad: 0,
+                }
+            })
+            .collect();
+        let quads: Vec<Quad> = photons.chunks(4).map(Quad::of).collect();
+        let n = Vec3::new(rng.random_range(-0.2..0.2), 1.0, 0.1).normalize();
+        let x = Vec3::new(0.1, 0.2, 0.3);
+        let (a, b) = (scan(&quads, x, n, r), scan_scalar(&quads, x, n, r));
+        assert_eq!(
+            a.to_array().map(f32::to_bits),
+            b.to_array().map(f32::to_bits),
+            "trial {trial}"
+        );
+    }
 }
 
 /// The largest error of the grid's estimate (through [`Caustics`], as the renderers read it)
