@@ -87,11 +87,13 @@ pub struct PhotonGrid {
     pub radius: f32,
 }
 
+/// The hash's factor per axis ([`grid_hash`]).
+const HASH: [u32; 3] = [73_856_093, 19_349_663, 83_492_791];
+
 /// Bucket of cell (i, j, k) (WGSL twin `grid_hash`).
 #[inline]
 pub fn grid_hash(c: [u32; 3], mask: u32) -> u32 {
-    (c[0].wrapping_mul(73_856_093) ^ c[1].wrapping_mul(19_349_663) ^ c[2].wrapping_mul(83_492_791))
-        & mask
+    (c[0].wrapping_mul(HASH[0]) ^ c[1].wrapping_mul(HASH[1]) ^ c[2].wrapping_mul(HASH[2])) & mask
 }
 
 impl PhotonGrid {
@@ -142,23 +144,32 @@ impl PhotonGrid {
         }
     }
 
-    /// The buckets a query at `x` scans, each once (WGSL twin in `caustic`).
+    /// The buckets a query at `x` scans, each once (WGSL twin in `caustic`): those of the cells
+    /// `c` and `c + step` along each axis, `c` the cell of `x` and `step` towards the nearer
+    /// neighbour, in the order of the bits of `i` in `0..8` (bit `a` set: axis `a` steps); cells
+    /// outside `0..=u32::MAX` hold nothing and are left out.
+    #[inline]
     pub fn buckets(&self, x: Vec3) -> ([u32; 8], usize) {
         let q = (x - Vec3::from(self.origin)) / self.cell;
-        let c = q.floor();
-        let f = q - c;
+        // Each axis's two cells' terms of the hash, or `None` where the cell does not exist.
+        let terms: [[Option<u32>; 2]; 3] = std::array::from_fn(|a| {
+            let c = floor(q[a]);
+            let step = if q[a] - c < 0.5 { -1 } else { 1 };
+            let c = c as i64; // saturating, as the cell index of a huge `q` was
+            [c, c + step].map(|v| {
+                (0..=u32::MAX as i64)
+                    .contains(&v)
+                    .then(|| (v as u32).wrapping_mul(HASH[a]))
+            })
+        });
         let mut out = [0u32; 8];
         let mut n = 0;
-        for i in 0..8u32 {
-            let mut cc = [0i64; 3];
-            for a in 0..3 {
-                let step = if f[a] < 0.5 { -1 } else { 1 };
-                cc[a] = c[a] as i64 + if (i >> a) & 1 == 1 { step } else { 0 };
-            }
-            if cc.iter().any(|&v| v < 0 || v > u32::MAX as i64) {
+        for i in 0..8usize {
+            let pick = |a: usize| terms[a][(i >> a) & 1];
+            let (Some(hx), Some(hy), Some(hz)) = (pick(0), pick(1), pick(2)) else {
                 continue;
-            }
-            let h = grid_hash([cc[0] as u32, cc[1] as u32, cc[2] as u32], self.mask);
+            };
+            let h = (hx ^ hy ^ hz) & self.mask;
             if !out[..n].contains(&h) {
                 out[n] = h;
                 n += 1;
@@ -301,6 +312,21 @@ impl PhotonGroup {
         let power = Vec3::from(self.power);
         let spread = Vec3::from(self.second) + 2.0 * first + d.length_squared() * power;
         power - spread / r2
+    }
+}
+
+/// `x.floor()` without the C library's call (x86-64's baseline has no rounding instruction):
+/// exact wherever the float has a fractional part (|x| < 2²³), and `x` itself (or NaN) beyond.
+#[inline(always)]
+fn floor(x: f32) -> f32 {
+    if !(x.abs() < 8_388_608.0) {
+        return x;
+    }
+    let t = x as i32 as f32;
+    if t > x {
+        t - 1.0
+    } else {
+        t
     }
 }
 

@@ -197,6 +197,59 @@ fn groups_of_mixed_colours_and_directions_keep_the_estimate() {
     assert!(reads < all as usize, "{reads} of {all}");
 }
 
+/// The buckets a lookup reads are those of the plain statement, in its order: the 2 × 2 × 2
+/// cells nearest the point (each axis's own cell and its nearer neighbour), each bucket once,
+/// cells below zero left out; at points inside, beside, far outside and on cell faces.
+#[test]
+fn a_lookup_reads_the_buckets_of_its_eight_nearest_cells() {
+    use pc_raytrace::photon_grid::grid_hash;
+    let grid = PhotonGrid::new(&room_photons(3000), 0.03);
+    let plain = |x: Vec3| {
+        let q = (x - Vec3::from(grid.origin)) / grid.cell;
+        let (c, f) = (q.floor(), q - q.floor());
+        let mut out = Vec::new();
+        for i in 0..8u32 {
+            let cc: [i64; 3] = std::array::from_fn(|a| {
+                let step = if f[a] < 0.5 { -1 } else { 1 };
+                c[a] as i64 + if (i >> a) & 1 == 1 { step } else { 0 }
+            });
+            if cc.iter().any(|&v| v < 0 || v > u32::MAX as i64) {
+                continue;
+            }
+            let h = grid_hash(cc.map(|v| v as u32), grid.mask);
+            if !out.contains(&h) {
+                out.push(h);
+            }
+        }
+        out
+    };
+    let mut rng = Pcg64::seed_from_u64(23);
+    let o = Vec3::from(grid.origin);
+    for k in 0..20_000 {
+        let x = match k % 4 {
+            0 => Vec3::new(
+                rng.random_range(-1.2..1.2),
+                rng.random_range(-1.2..1.2),
+                rng.random_range(-1.2..1.2),
+            ),
+            // On cell faces and half-cells.
+            1 => {
+                o + grid.cell
+                    * 0.5
+                    * Vec3::new(
+                        rng.random_range(-4..60) as f32,
+                        rng.random_range(-4..60) as f32,
+                        rng.random_range(-4..60) as f32,
+                    )
+            }
+            2 => Vec3::splat(rng.random_range(-1e9..1e9)),
+            _ => o - Vec3::splat(rng.random_range(0.0..0.1)),
+        };
+        let (got, n) = grid.buckets(x);
+        assert_eq!(got[..n], plain(x)[..], "point {x}");
+    }
+}
+
 /// The CPU renderer's lanes (four photons a record) give the grid's photon-by-photon estimate,
 /// groups and all, to float rounding: the same photons with the same weights, summed in four
 /// running sums.
