@@ -22,12 +22,17 @@ pub mod sections {
     pub const BLOCKS: &str = "walk_blocks";
     pub const LEAVES: &str = "walk_leaves";
     pub const CHUNKS: &str = "walk_chunks";
-    pub const COLD: &str = "walk_cold";
+    pub const CLIPPED: &str = "walk_clipped";
 }
 
 /// Version of the records below and of what they mean; a reader of another layout builds its
-/// own copy instead.
-pub const LAYOUT: u32 = 1;
+/// own copy instead. 2: each chunk carries its lanes' data-pool indices, and `walk_clipped`
+/// flags the splats with a border clip (1 kept the indices in a `walk_cold` section and had no
+/// flags).
+pub const LAYOUT: u32 = 2;
+
+/// The [`WalkChunk::cold`] index of a padding lane.
+pub const PADDING: u32 = u32::MAX;
 
 /// Disks per [`WalkChunk`].
 pub const LANES: usize = 4;
@@ -74,8 +79,9 @@ pub struct WalkLeaf {
     pub slab: [f32; 5],
 }
 
-/// The hot part of [`LANES`] listed disks, lane by lane: centre, normal, squared radius. A
-/// padding lane has a zero normal and a negative squared radius (no ray hits it).
+/// [`LANES`] listed disks, lane by lane: centre, normal, squared radius, and the data-pool
+/// index of each (128 bytes, two cache lines). A padding lane has a zero normal, a negative
+/// squared radius (no ray hits it) and the index [`PADDING`].
 #[repr(C, align(16))]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct WalkChunk {
@@ -86,6 +92,27 @@ pub struct WalkChunk {
     pub ny: [f32; LANES],
     pub nz: [f32; LANES],
     pub r2: [f32; LANES],
+    pub cold: [u32; LANES],
+}
+
+/// One bit per data-pool splat, set where the splat has a border clip (its record's `clip` is
+/// not all zero; `walk_clipped`): a hit reads the splat's record to test the clip only where it
+/// is set. Written after the splats' areas, which decide the clips.
+pub fn clipped_bits(splats: &[crate::octree::Splat]) -> Vec<u64> {
+    splats
+        .chunks(64)
+        .map(|run| {
+            run.iter()
+                .enumerate()
+                .fold(0u64, |w, (k, s)| w | u64::from(s.clip != [0.0; 4]) << k)
+        })
+        .collect()
+}
+
+/// Whether data-pool splat `i` is flagged in `bits` ([`clipped_bits`]).
+#[inline(always)]
+pub fn is_clipped(bits: &[u64], i: u32) -> bool {
+    bits[i as usize / 64] >> (i % 64) & 1 != 0
 }
 
 /// The packed walk's sections, cast (checked by [`WalkView::check`] before any walk).
@@ -95,8 +122,8 @@ pub struct WalkView<'a> {
     pub blocks: &'a [WalkBlock],
     pub leaves: &'a [WalkLeaf],
     pub chunks: &'a [WalkChunk],
-    /// Each chunk lane's data-pool index (`chunk · LANES + lane`; `u32::MAX` for padding).
-    pub cold: &'a [u32],
+    /// [`clipped_bits`] of the data pool.
+    pub clipped: &'a [u64],
 }
 
 impl<'a> WalkView<'a> {
@@ -118,7 +145,7 @@ impl<'a> WalkView<'a> {
             blocks: a.section(sections::BLOCKS)?,
             leaves: a.section(sections::LEAVES)?,
             chunks: a.section(sections::CHUNKS)?,
-            cold: a.section(sections::COLD)?,
+            clipped: a.section(sections::CLIPPED)?,
         }))
     }
 
@@ -162,23 +189,23 @@ impl<'a> WalkView<'a> {
         }) {
             return Err(format!("walk leaf {i}'s run lies outside walk_chunks"));
         }
-        if self.cold.len() != self.chunks.len() * LANES {
+        let splats = view.splats.len();
+        // Padding must be a lane no ray hits (a negative squared radius).
+        let lane_ok = |c: &WalkChunk, l: usize| {
+            (c.cold[l] as usize) < splats || (c.cold[l] == PADDING && c.r2[l] < 0.0)
+        };
+        if let Some(i) = first_where(self.chunks, |_, c| (0..LANES).any(|l| !lane_ok(c, l))) {
+            let c = &self.chunks[i];
+            let l = (0..LANES).find(|&l| !lane_ok(c, l)).unwrap_or(0);
             return Err(format!(
-                "walk_cold has {} entries for {} chunks of {LANES}",
-                self.cold.len(),
-                self.chunks.len()
+                "walk_chunks: chunk {i}, lane {l} names splat {} of {splats}",
+                c.cold[l]
             ));
         }
-        let splats = view.splats.len();
-        let lane_ok = |i: usize, &s: &u32| {
-            let r2 = self.chunks[i / LANES].r2[i % LANES];
-            // Padding must be a lane no ray hits (a negative squared radius).
-            (s as usize) < splats || (s == u32::MAX && r2 < 0.0)
-        };
-        if let Some(i) = first_where(self.cold, |i, s| !lane_ok(i, s)) {
+        if self.clipped.len() != splats.div_ceil(64) {
             return Err(format!(
-                "walk_cold entry {i} names splat {} of {splats}",
-                self.cold[i]
+                "walk_clipped has {} words for {splats} splats",
+                self.clipped.len()
             ));
         }
         self.check_words()
@@ -227,12 +254,24 @@ impl<'a> WalkView<'a> {
     }
 }
 
-/// Write `walk`'s sections into an octree artifact being written.
+/// Write `walk`'s sections into an octree artifact being written: [`write_tree`], then
+/// [`write_clipped`].
 pub fn write(w: &mut crate::ArtifactWriter, walk: &WalkView) -> Result<(), ArtifactError> {
+    write_tree(w, walk)?;
+    write_clipped(w, walk.clipped)
+}
+
+/// The sections the tree alone decides (all but `walk_clipped`): pc-octree writes them while
+/// it computes the splats' areas and clips.
+pub fn write_tree(w: &mut crate::ArtifactWriter, walk: &WalkView) -> Result<(), ArtifactError> {
     w.section(sections::INFO, &[walk.info()])?;
     w.section(sections::BLOCKS, walk.blocks)?;
     w.section(sections::LEAVES, walk.leaves)?;
     w.section(sections::CHUNKS, walk.chunks)?;
-    w.section(sections::COLD, walk.cold)?;
     Ok(())
+}
+
+/// The `walk_clipped` section ([`clipped_bits`] of the finished splats).
+pub fn write_clipped(w: &mut crate::ArtifactWriter, bits: &[u64]) -> Result<(), ArtifactError> {
+    w.section(sections::CLIPPED, bits)
 }

@@ -130,7 +130,8 @@ fn surfaces_and_write(
             w.section(sections::SPLAT_LEAF, &tree.splat_leaf)?;
             w.section(sections::MATERIALS, records)?;
             // The CPU walk's packed copy, mapped by every later stage instead of built by each.
-            pc_artifact::walk::write(&mut w, &accel.walk())?;
+            // (Its flags of the clipped splats wait for the clips: below.)
+            pc_artifact::walk::write_tree(&mut w, &accel.walk())?;
             drop(accel);
             w.sync_written()?;
             Ok(w)
@@ -147,6 +148,7 @@ fn surfaces_and_write(
     w.section(sections::SPLATS, &octree.splats)?;
     w.section(sections::NODE_INFO, &octree.node_info)?;
     w.section(sections::SPLAT_AREA, &octree.splat_area)?;
+    pc_artifact::walk::write_clipped(&mut w, &pc_artifact::walk::clipped_bits(&octree.splats))?;
     w.metadata(&metadata(&octree, scene, cfg))?;
     w.finish()?;
     Ok((octree, seconds))

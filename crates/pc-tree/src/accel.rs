@@ -29,7 +29,9 @@
 use std::borrow::Cow;
 
 use pc_artifact::octree::{node, within_clip, BeginEnd, Splat};
-use pc_artifact::walk::{WalkBlock, WalkChunk, WalkLeaf, WalkView, BLOCK_WORDS};
+use pc_artifact::walk::{
+    clipped_bits, is_clipped, WalkBlock, WalkChunk, WalkLeaf, WalkView, BLOCK_WORDS, PADDING,
+};
 use rayon::prelude::*;
 
 use crate::between::{Between, Own, OWN_COS};
@@ -39,8 +41,8 @@ use crate::OctreeView;
 /// Disks per chunk.
 pub use pc_artifact::walk::LANES;
 
-/// The hot part of [`LANES`] listed disks: centre, normal, squared radius, lane by lane (the
-/// artifact's record, so a mapped walk is read in place).
+/// [`LANES`] listed disks: centre, normal, squared radius, lane by lane, and their data-pool
+/// indices (the artifact's record, so a mapped walk is read in place).
 type Chunk = WalkChunk;
 
 /// A lane that no ray hits: its normal is zero, so every ray counts as parallel to it.
@@ -52,6 +54,7 @@ const PAD: Chunk = Chunk {
     ny: [0.0; LANES],
     nz: [0.0; LANES],
     r2: [-1.0; LANES],
+    cold: [PADDING; LANES],
 };
 
 /// What a leaf's test looks for: the nearest hit, or any hit (passing over those a [`Between`]
@@ -85,8 +88,11 @@ pub struct Accel<'a> {
     slabs: bool,
     leaves: Cow<'a, [Leaf]>,
     chunks: Cow<'a, [Chunk]>,
-    /// Each chunk lane's data-pool index (at `chunk · LANES + lane`; `u32::MAX` for padding).
-    cold: Cow<'a, [u32]>,
+    /// A bit per data-pool splat, set where it has a border clip
+    /// ([`pc_artifact::walk::clipped_bits`]). A hit reads the splat's record only for a flagged
+    /// splat (or for a segment's test of its material near an end): on the 1M box the records'
+    /// cache misses were a fifth of an incoherent ray's time.
+    clipped: Cow<'a, [u64]>,
     /// Each leaf's disks as one surface, where asked for ([`Accel::with_own_surfaces`]).
     surfaces: Option<Vec<LeafSurface>>,
 }
@@ -107,14 +113,15 @@ impl LeafSurface {
         material: u32::MAX,
     };
 
-    /// The disks of chunks `run` (their lanes' normals, and through `cold` their records).
-    fn of(chunks: &[Chunk], cold: &[u32], run: std::ops::Range<usize>, splats: &[Splat]) -> Self {
+    /// The disks of chunks `run` (their lanes' normals, and through their indices their
+    /// records).
+    fn of(chunks: &[Chunk], run: std::ops::Range<usize>, splats: &[Splat]) -> Self {
         let lanes = || {
             run.clone().flat_map(move |ci| {
                 (0..LANES).filter_map(move |l| {
                     let c = &chunks[ci];
-                    let s = cold[ci * LANES + l];
-                    (s != u32::MAX).then(|| (glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]), s))
+                    (c.cold[l] != PADDING)
+                        .then(|| (glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]), c.cold[l]))
                 })
             })
         };
@@ -173,7 +180,7 @@ impl<'a> Accel<'a> {
                 slabs: w.slabs,
                 leaves: Cow::Borrowed(w.leaves),
                 chunks: Cow::Borrowed(w.chunks),
-                cold: Cow::Borrowed(w.cold),
+                clipped: Cow::Borrowed(w.clipped),
                 surfaces: None,
             },
             None => Accel::build(view),
@@ -192,7 +199,7 @@ impl<'a> Accel<'a> {
             blocks: &self.nodes,
             leaves: &self.leaves,
             chunks: &self.chunks,
-            cold: &self.cold,
+            clipped: &self.clipped,
         }
     }
 
@@ -222,21 +229,17 @@ impl<'a> Accel<'a> {
         // Padded in parallel too (2 GB at 20M points: one core's fill and page faults).
         let mut chunks = Vec::with_capacity(acc as usize);
         chunks.par_extend(rayon::iter::repeat_n(PAD, acc as usize));
-        let mut cold = Vec::with_capacity(acc as usize * LANES);
-        cold.par_extend(rayon::iter::repeat_n(u32::MAX, acc as usize * LANES));
         // Fill each leaf's run in parallel: runs are disjoint.
         let mut runs = Vec::with_capacity(offsets.len());
-        let (mut rest, mut rest_cold) = (&mut chunks[..], &mut cold[..]);
+        let mut rest = &mut chunks[..];
         for l in &leaves {
-            let c = (l.end - l.first) as usize;
-            let (a, b) = rest.split_at_mut(c);
-            let (ac, bc) = rest_cold.split_at_mut(c * LANES);
-            runs.push((a, ac));
-            (rest, rest_cold) = (b, bc);
+            let (a, b) = rest.split_at_mut((l.end - l.first) as usize);
+            runs.push(a);
+            rest = b;
         }
         runs.into_par_iter()
             .zip(offsets.par_iter())
-            .for_each(|((run, run_cold), &o)| {
+            .for_each(|(run, &o)| {
                 let (r, refs) = view.leaf(node::leaf(o));
                 for (k, i) in r.chain(refs.iter().copied()).enumerate() {
                     let s = &view.splats[i as usize];
@@ -244,7 +247,7 @@ impl<'a> Accel<'a> {
                     [c.px[l], c.py[l], c.pz[l]] = s.position;
                     [c.nx[l], c.ny[l], c.nz[l]] = s.normal;
                     c.r2[l] = s.radius * s.radius;
-                    run_cold[k] = i;
+                    c.cold[l] = i;
                 }
             });
         let (nodes, slabs) = blocks(view, &offsets, &leaves, &chunks);
@@ -253,7 +256,7 @@ impl<'a> Accel<'a> {
             slabs,
             leaves: Cow::Owned(leaves),
             chunks: Cow::Owned(chunks),
-            cold: Cow::Owned(cold),
+            clipped: Cow::Owned(clipped_bits(view.splats)),
             surfaces: None,
         }
     }
@@ -263,13 +266,13 @@ impl<'a> Accel<'a> {
     /// ([`Own::is`]): every hit there is one [`Between::ignores`] would pass over, one disk at
     /// a time. Costs 20 bytes a leaf and one pass over the disks.
     pub fn with_own_surfaces(mut self, view: &OctreeView) -> Accel<'a> {
-        let (chunks, cold) = (&self.chunks[..], &self.cold[..]);
+        let chunks = &self.chunks[..];
         let surfaces = self
             .leaves
             .par_iter()
             .map(|leaf| {
                 let run = leaf.first as usize..leaf.end as usize;
-                LeafSurface::of(chunks, cold, run, view.splats)
+                LeafSurface::of(chunks, run, view.splats)
             })
             .collect();
         self.surfaces = Some(surfaces);
@@ -332,7 +335,7 @@ impl<'a> Accel<'a> {
     /// Bytes held.
     pub fn memory(&self) -> usize {
         self.chunks.len() * std::mem::size_of::<Chunk>()
-            + self.cold.len() * std::mem::size_of::<u32>()
+            + self.clipped.len() * std::mem::size_of::<u64>()
             + self.leaves.len() * std::mem::size_of::<Leaf>()
             + self.nodes.len() * std::mem::size_of::<Block>()
     }
@@ -362,16 +365,21 @@ impl<'a> Accel<'a> {
         }
         // Nor one that is not passed over, where the ray leaves the leaf within its origin's own
         // zone and every disk is the origin's own surface.
+        // The one material of all its disks where it has one (a leaf of one surface), so that
+        // a segment's test of a hit's material reads no record.
+        let mut material = u32::MAX;
         if let (Some(b), Some(surfaces)) = (between, &self.surfaces) {
-            if limit < b.zones[0] && surfaces[node::ptr(w) as usize].all_own(&b.ends[0]) {
+            let surface = &surfaces[node::ptr(w) as usize];
+            if limit < b.zones[0] && surface.all_own(&b.ends[0]) {
                 return None;
             }
+            material = surface.material;
         }
         let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
         let (a, b) = (leaf.first as usize, leaf.end as usize);
         stats.splat_tests += ((b - a) * LANES) as u64;
         let mut best: Option<Hit> = None;
-        for (ci, c) in self.chunks[a..b].iter().enumerate() {
+        for c in &self.chunks[a..b] {
             let (t, mut candidates) = lanes(c, [ox, oy, oz], [dx, dy, dz], ray.t_min, limit);
             while candidates != 0 {
                 let l = candidates.trailing_zeros() as usize;
@@ -379,16 +387,21 @@ impl<'a> Accel<'a> {
                 if best.is_some_and(|h| t[l] >= h.t) {
                     continue;
                 }
-                let splat = self.cold[(a + ci) * LANES + l];
-                let record = &splats[splat as usize];
+                let splat = c.cold[l];
                 let (p, n) = ([c.px[l], c.py[l], c.pz[l]], [c.nx[l], c.ny[l], c.nz[l]]);
                 if let Some(b) = between {
-                    if b.ignores(t[l], n, record.material) {
+                    let m = || match material {
+                        u32::MAX => splats[splat as usize].material,
+                        one => one,
+                    };
+                    if b.ignores_with(t[l], n, m) {
                         continue;
                     }
                 }
                 let x = [ox + dx * t[l], oy + dy * t[l], oz + dz * t[l]];
-                if within_clip(p, n, record.clip, x) {
+                if !is_clipped(&self.clipped, splat)
+                    || within_clip(p, n, splats[splat as usize].clip, x)
+                {
                     best = Some(Hit {
                         t: t[l],
                         splat,
@@ -455,12 +468,12 @@ impl<'a> Accel<'a> {
         out.clear();
         let leaf = &self.leaves[leaf.0 as usize];
         let (a, b) = (leaf.first as usize, leaf.end as usize);
-        for (ci, c) in self.chunks[a..b].iter().enumerate() {
+        for c in &self.chunks[a..b] {
             let (h, rho2, mut inside) = cover_lanes(c, x.to_array(), n.to_array());
             while inside != 0 {
                 let l = inside.trailing_zeros() as usize;
                 inside &= inside - 1;
-                let splat = self.cold[(a + ci) * LANES + l];
+                let splat = c.cold[l];
                 let record = &view.splats[splat as usize];
                 let (p, sn) = (
                     glam::Vec3::new(c.px[l], c.py[l], c.pz[l]),

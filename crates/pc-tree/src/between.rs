@@ -444,7 +444,15 @@ impl Between {
     /// end's surface is its own.
     #[inline(always)]
     pub fn ignores(&self, t: f32, n: [f32; 3], m: u32) -> bool {
-        (t < self.zones[0] && self.ends[0].is(n, m)) || (t > self.zones[1] && self.ends[1].is(n, m))
+        self.ignores_with(t, n, || m)
+    }
+
+    /// [`Self::ignores`] with the material read only for a hit within an end's zone (the
+    /// splat's record, a cache miss, is not read for the hits between the zones).
+    #[inline(always)]
+    pub fn ignores_with(&self, t: f32, n: [f32; 3], material: impl Fn() -> u32) -> bool {
+        (t < self.zones[0] && self.ends[0].is(n, material()))
+            || (t > self.zones[1] && self.ends[1].is(n, material()))
     }
 }
 

@@ -230,7 +230,28 @@ fn the_packed_walk_is_written_once_and_mapped_by_every_reader() {
     assert_eq!(walk.blocks, b.blocks);
     assert_eq!(walk.leaves, b.leaves);
     assert_eq!(walk.chunks, b.chunks);
-    assert_eq!(walk.cold, b.cold);
+    // Each lane names its splat; the flags mark exactly the splats with a border clip,
+    // though the tree's sections were written before the clips were made.
+    for c in walk.chunks {
+        for l in 0..pc_artifact::walk::LANES {
+            if c.cold[l] == pc_artifact::walk::PADDING {
+                assert!(c.r2[l] < 0.0);
+                continue;
+            }
+            let s = &view.splats[c.cold[l] as usize];
+            assert_eq!(c.r2[l], s.radius * s.radius);
+        }
+    }
+    assert_eq!(walk.clipped, b.clipped);
+    let clipped = (0..view.splats.len() as u32)
+        .filter(|&i| pc_artifact::walk::is_clipped(walk.clipped, i))
+        .count();
+    let with_clip = view.splats.iter().filter(|s| s.clip != [0.0; 4]).count();
+    assert_eq!(clipped, with_clip);
+    assert!(
+        with_clip > 0 && with_clip < view.splats.len(),
+        "{with_clip} clipped"
+    );
     // A reader that casts no rays opens the tree alone.
     let lean = pc_artifact::octree::OctreeFile::open_without_walk(&summary.path).unwrap();
     assert!(lean.view().walk.is_none());
@@ -274,8 +295,9 @@ fn a_packed_walk_that_points_outside_is_rejected_when_opened() {
             pc_artifact::octree::node::internal(1 << 20),
             "walk_blocks",
         ),
-        // A lane naming a splat that does not exist.
-        ("walk_cold", 0, 1 << 29, "walk_cold"),
+        // A lane naming a splat that does not exist (chunk 0's first index, after its 28
+        // floats).
+        ("walk_chunks", 28, 1 << 29, "walk_chunks: chunk 0, lane 0"),
         // A leaf's run ending past the chunks.
         ("walk_leaves", 1, u32::MAX, "walk_chunks"),
     ];
