@@ -99,8 +99,9 @@ pub struct WalkChunk {
 /// not all zero; `walk_clipped`): a hit reads the splat's record to test the clip only where it
 /// is set. Written after the splats' areas, which decide the clips.
 pub fn clipped_bits(splats: &[crate::octree::Splat]) -> Vec<u64> {
+    use rayon::prelude::*;
     splats
-        .chunks(64)
+        .par_chunks(64)
         .map(|run| {
             run.iter()
                 .enumerate()
