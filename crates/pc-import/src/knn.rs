@@ -305,6 +305,9 @@ struct Search {
     /// many or the reach is unbounded.
     list: Vec<u32>,
     listed: bool,
+    /// Each query of the current run: its `k` nearest within the run, as `near` holds them
+    /// (made by [`Self::gather`] on the way to the run's reach; empty where it made none).
+    own: Vec<(u32, f32)>,
 }
 
 impl Search {
@@ -314,6 +317,7 @@ impl Search {
     /// run then serves all its queries, where a walk for each would repeat the same descent.
     fn gather(&mut self, t: &Knn, r: usize, k: usize) {
         self.listed = false;
+        self.own.clear();
         let (lo, hi) = (r * RUN, ((r + 1) * RUN).min(t.len()));
         if k == 0 || hi - lo <= k {
             return; // a run of at most k points bounds nothing
@@ -321,15 +325,25 @@ impl Search {
         let mut reach = 0.0f32;
         for slot in lo..hi {
             let q = [t.xs[slot], t.ys[slot], t.zs[slot]];
-            let mut d = [f32::INFINITY; RUN];
-            for (d, s) in d.iter_mut().zip(lo..hi) {
+            // The others' squared distances with their places in the run.
+            let mut d = [(f32::INFINITY, u32::MAX); RUN];
+            for ((d, s), j) in d.iter_mut().zip(lo..hi).zip(0u32..) {
                 let (dx, dy, dz) = (t.xs[s] - q[0], t.ys[s] - q[1], t.zs[s] - q[2]);
-                *d = dx * dx + dy * dy + dz * dz;
+                *d = (dx * dx + dy * dy + dz * dz, j);
             }
-            d[slot - lo] = f32::INFINITY;
-            // The k-th smallest of the others (index k − 1).
-            let (_, kth, _) = d.select_nth_unstable_by(k - 1, f32::total_cmp);
-            reach = reach.max(*kth);
+            d[slot - lo] = (f32::INFINITY, u32::MAX);
+            // The k nearest, nearer first and among equal distances the earlier in the run:
+            // what [`Self::scan`] of the run keeps, met in run order.
+            let by = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+            let (near, kth, _) = d.select_nth_unstable_by(k - 1, by);
+            reach = reach.max(kth.0);
+            let mut nearest = [(0.0f32, 0u32); RUN];
+            nearest[..k - 1].copy_from_slice(near);
+            nearest[k - 1] = *kth;
+            nearest[..k].sort_unstable_by(by);
+            let index = |j: u32| t.index[lo + j as usize];
+            self.own
+                .extend(nearest[..k].iter().map(|&(d2, j)| (index(j), d2)));
         }
         if !reach.is_finite() {
             return; // distances past f32's range: no box prunes, each query walks
@@ -437,7 +451,14 @@ impl Search {
         }
         let q = [t.xs[slot], t.ys[slot], t.zs[slot]];
         let own = slot / RUN;
-        self.scan(t, own, slot, q, k);
+        match self.own.is_empty() {
+            // Its own run's k nearest, as the run's gather found them.
+            false => {
+                let at = (slot - own * RUN) * k;
+                self.near.extend_from_slice(&self.own[at..at + k]);
+            }
+            true => self.scan(t, own, slot, q, k),
+        }
         if self.listed {
             for c in 0..self.list.len() {
                 let r = self.list[c] as usize;
