@@ -365,16 +365,20 @@ impl<'a> Accel<'a> {
         }
         // Nor one that is not passed over, where the ray leaves the leaf within its origin's own
         // zone and every disk is the origin's own surface.
-        // The one material of all its disks where it has one (a leaf of one surface), so that
-        // a segment's test of a hit's material reads no record.
-        let mut material = u32::MAX;
         if let (Some(b), Some(surfaces)) = (between, &self.surfaces) {
-            let surface = &surfaces[node::ptr(w) as usize];
-            if limit < b.zones[0] && surface.all_own(&b.ends[0]) {
+            if limit < b.zones[0] && surfaces[node::ptr(w) as usize].all_own(&b.ends[0]) {
                 return None;
             }
-            material = surface.material;
         }
+        // A hit's material, for a segment's test near one of its ends: the one material of
+        // all the leaf's disks where it has one (20 bytes a leaf), else the splat's record.
+        let material = |splat: u32| {
+            let surface = self.surfaces.as_ref().map(|s| &s[node::ptr(w) as usize]);
+            match surface.map_or(u32::MAX, |s| s.material) {
+                u32::MAX => splats[splat as usize].material,
+                one => one,
+            }
+        };
         let ([ox, oy, oz], [dx, dy, dz]) = (ray.origin.to_array(), ray.dir.to_array());
         let (a, b) = (leaf.first as usize, leaf.end as usize);
         stats.splat_tests += ((b - a) * LANES) as u64;
@@ -390,11 +394,7 @@ impl<'a> Accel<'a> {
                 let splat = c.cold[l];
                 let (p, n) = ([c.px[l], c.py[l], c.pz[l]], [c.nx[l], c.ny[l], c.nz[l]]);
                 if let Some(b) = between {
-                    let m = || match material {
-                        u32::MAX => splats[splat as usize].material,
-                        one => one,
-                    };
-                    if b.ignores_with(t[l], n, m) {
+                    if b.ignores_with(t[l], n, || material(splat)) {
                         continue;
                     }
                 }
