@@ -177,6 +177,9 @@ pub fn run(
         None => links::aims(scene, &leaves, &vmap.view(), p.specular_paths, p.seed),
     };
     let spec_total: u64 = spec_aims.iter().map(|a| a.photons as u64).sum();
+    // Apart from the tracing, so that its rate counts the paths' time alone.
+    timings.push(("setup".to_string(), t.elapsed().as_secs_f64()));
+    let t = Instant::now();
     let start_tracing = || {
         progress.phase("photons and specular links");
         progress.total(total + spec_total);
