@@ -18,7 +18,7 @@ struct Leaf {
 // `sampling` is emit::Sampling: SAMPLING_WHOLE and SAMPLING_AREA aim at a splat of specular leaf
 // `target_leaf` (SAMPLING_AREA scales the power by link_weight of the two points);
 // SAMPLING_DIRECTION draws a direction by cosine and keeps the photon if its first hit is a
-// specular splat of [lo, hi), scaled by link_weight there.
+// specular splat of [lo, hi) (the subtree of node-pool slot `node`), scaled by link_weight there.
 struct Aim {
     origin: vec3<f32>,
     source_leaf: u32,
@@ -29,7 +29,7 @@ struct Aim {
     k: f32,
     lo: u32,
     hi: u32,
-    _pad1: u32,
+    node: u32,
     _pad2: u32,
     _pad3: u32,
 }
@@ -118,6 +118,18 @@ fn link_weight(cos_s: f32, cos_t: f32, d: f32, k: f32) -> f32 {
     return g / (d * d + k * g);
 }
 
+// Whether the ray from `ro` along `rd` (from t_min on) can meet a disk of the node at node-pool
+// slot `node`: it passes within the node's average-disk radius of its centroid, padded. Twin of
+// trace::may_meet in crates/pc-caustics/src/trace.rs.
+fn may_meet(node: u32, ro: vec3<f32>, rd: vec3<f32>, t_min: f32) -> bool {
+    let info = node_info[node];
+    let to = info.centroid - ro;
+    let reach = info.disk_radius * (1.0 + 1e-4) + length(to) * 1e-5;
+    let t = max(dot(to, rd), t_min);
+    let off = to - rd * t;
+    return dot(off, off) <= reach * reach;
+}
+
 fn fate(f: u32) -> PhotonOut {
     return PhotonOut(vec3<f32>(0.0), INVALID, vec3<f32>(0.0), 0u, vec3<f32>(0.0), f);
 }
@@ -161,6 +173,10 @@ fn photon(id: u32) -> PhotonOut {
         }
         rd = cosine_dir(emitter_normal, r(id, 3u), r(id, 4u));
         cos_s = dot(emitter_normal, rd);
+        if !may_meet(aim.node, origin, rd, t_min) {
+            // Its first hit cannot be the node's: what the walk would conclude.
+            return fate(FATE_OCCLUDED);
+        }
     } else {
         // Aim: a point on a splat of the target leaf, drawn by area.
         let target_splat = splats[pick(aim.target_leaf, r(id, 3u))];
@@ -188,6 +204,10 @@ fn photon(id: u32) -> PhotonOut {
         // Leaving a surface (an emitter splat or a specular bounce): past its own zone.
         let hit = trace_from(ro, rd, t_min, leaving_splat);
         if !hit.found {
+            // A path drawn by direction that meets nothing missed its target.
+            if bounces == 0u && aim.sampling == SAMPLING_DIRECTION {
+                return fate(FATE_OCCLUDED);
+            }
             return fate(FATE_LOST);
         }
         let s = splats[hit.splat];

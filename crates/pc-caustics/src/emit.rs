@@ -59,9 +59,10 @@ pub enum Sampling {
     /// [`link_weight`] of its two points (a specular link's area strategy, [`crate::links`]).
     Area { k: f32 },
     /// Direction by cosine about the source splat's normal; the photon counts only if its first
-    /// hit is a specular splat of the data-pool range `[lo, hi)` (the link's target node), and
-    /// carries `power` times [`link_weight`] of its two points (the link's direction strategy).
-    Direction { k: f32, lo: u32, hi: u32 },
+    /// hit is a specular splat of the data-pool range `[lo, hi)` (the link's target node, at
+    /// node-pool slot `node`), and carries `power` times [`link_weight`] of its two points (the
+    /// link's direction strategy).
+    Direction { k: f32, lo: u32, hi: u32, node: u32 },
 }
 
 /// A specular-link path's geometry under the two strategies' balance heuristic:

@@ -48,7 +48,8 @@ struct GpuAim {
     k: f32,
     lo: u32,
     hi: u32,
-    _pad: [u32; 3],
+    node: u32,
+    _pad: [u32; 2],
 }
 
 /// WGSL `PhotonParams`.
@@ -186,10 +187,10 @@ impl GpuTracer {
                 Source::Point(p) => (p.into(), u32::MAX),
                 Source::Area(e) => ([0.0; 3], e),
             };
-            let (sampling, k, lo, hi) = match a.sampling {
-                Sampling::Whole => (0, 0.0, 0, 0),
-                Sampling::Area { k } => (1, k, 0, 0),
-                Sampling::Direction { k, lo, hi } => (2, k, lo, hi),
+            let (sampling, k, lo, hi, node) = match a.sampling {
+                Sampling::Whole => (0, 0.0, 0, 0, 0),
+                Sampling::Area { k } => (1, k, 0, 0, 0),
+                Sampling::Direction { k, lo, hi, node } => (2, k, lo, hi, node),
             };
             ga.push(GpuAim {
                 origin,
@@ -201,7 +202,8 @@ impl GpuTracer {
                 k,
                 lo,
                 hi,
-                _pad: [0; 3],
+                node,
+                _pad: [0; 2],
             });
             total += a.photons as u64;
         }

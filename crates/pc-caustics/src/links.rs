@@ -155,6 +155,9 @@ fn pilot_form_factor(
             t_min: LEAVE_EPS * s.radius,
             t_max: f32::INFINITY,
         };
+        if !crate::trace::may_meet(view, l.y_node, &ray) {
+            continue; // its first hit cannot be the node's
+        }
         let seg = Between::leaving(ray, pc_tree::between::surface(view, rough, j));
         if let Some(hit) = accel.intersect_between(view, &seg, &mut stats) {
             let within = (l.y_splats[0]..l.y_splats[1]).contains(&hit.splat);
@@ -179,8 +182,9 @@ pub struct Scene<'a> {
 struct LinkPlan {
     x: std::ops::Range<usize>,
     y: std::ops::Range<usize>,
-    /// The target node's data-pool range.
+    /// The target node's data-pool range, and its node-pool slot.
     y_splats: [u32; 2],
+    y_node: u32,
     ax: f64,
     ay: f64,
     share: f64,
@@ -294,6 +298,7 @@ fn link_plans(
                     x: xr.clone(),
                     y: yr,
                     y_splats,
+                    y_node: link.slot(),
                     ax,
                     ay,
                     share,
@@ -417,6 +422,7 @@ fn link_aims(
                 k,
                 lo: l.y_splats[0],
                 hi: l.y_splats[1],
+                node: l.y_node,
             },
         });
     }

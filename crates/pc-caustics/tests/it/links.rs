@@ -127,3 +127,90 @@ fn floor_to_ball_flux(noise: f32) {
         );
     });
 }
+
+/// A path drawn by direction skips its walk where it misses its target node's ball
+/// (`pc_caustics::trace::may_meet`): no ray that misses the ball meets one of the node's disks.
+/// Rays aimed at points around each target node's centroid (up to 1.3 times its ball's radius
+/// off), from anywhere in the box, against every disk of the node by brute force; the ball's
+/// edge is crossed both ways, and most rays are ruled out.
+#[test]
+fn a_ray_that_misses_a_node_s_ball_meets_none_of_its_disks() {
+    use pc_caustics::emit::Sampling;
+    use pc_caustics::trace::may_meet;
+    use pc_tree::{intersect_splat, Ray};
+    use rand::Rng;
+
+    let mut rng = Pcg64::seed_from_u64(8);
+    let mut s = Soa::default();
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    s.rect(Vec3::ZERO, x, y, 0.05, 0, &mut rng); // floor
+    s.rect(2.0 * z, y, x, 0.05, 0, &mut rng); // ceiling
+    s.sphere(Vec3::new(-0.4, 0.0, 0.3), 0.3, 6_000, 1); // mirror ball
+    s.rect(
+        Vec3::new(0.6, 0.0, 0.8),
+        0.4 * (x + z).normalize(),
+        0.4 * y,
+        0.04,
+        1,
+        &mut rng,
+    ); // tilted mirror
+    let light = (Vec3::new(0.0, 0.0, 1.8), Vec3::splat(1.0));
+    let materials = [diffuse(0.5), mirror(1.0)];
+    with_setup(&s, &materials, light, 200_000, |su| {
+        let mut targets: Vec<(u32, u32, u32)> = su
+            .link_aims
+            .iter()
+            .filter_map(|a| match a.sampling {
+                Sampling::Direction { lo, hi, node, .. } => Some((node, lo, hi)),
+                _ => None,
+            })
+            .collect();
+        targets.sort_unstable();
+        targets.dedup();
+        assert!(targets.len() >= 20, "{} target nodes", targets.len());
+        let (mut cast, mut ruled_out, mut hits, mut hits_near_edge) = (0, 0, 0, 0);
+        for &(node, lo, hi) in &targets {
+            let info = su.view.node_info[node as usize];
+            let (c, reach) = (Vec3::from(info.centroid), info.disk_radius);
+            for _ in 0..200 {
+                let origin = Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(0.0..2.0),
+                );
+                let off = Vec3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                let dir = (c + off.normalize_or_zero() * rng.random_range(0.0..1.3) * reach
+                    - origin)
+                    .normalize();
+                let ray = Ray::new(origin, dir);
+                let met = (lo..hi).any(|j| {
+                    intersect_splat(origin, dir, &su.view.splats[j as usize])
+                        .is_some_and(|t| t >= 0.0)
+                });
+                let may = may_meet(su.view, node, &ray);
+                assert!(
+                    may || !met,
+                    "a ray from {origin} along {dir} meets a disk of node {node} outside its ball"
+                );
+                cast += 1;
+                ruled_out += usize::from(!may);
+                hits += usize::from(met);
+                // A hit whose ray passes the centroid at more than 0.7 of the ball's radius.
+                let to = c - origin;
+                let miss = (to - dir * to.dot(dir)).length();
+                hits_near_edge += usize::from(met && miss > 0.7 * reach);
+            }
+        }
+        eprintln!(
+            "{cast} rays at {} nodes: {ruled_out} ruled out, {hits} meet a disk of theirs \
+             ({hits_near_edge} past 0.7 of the ball's radius)",
+            targets.len()
+        );
+        assert!(hits_near_edge > 0, "no hit tests the ball's edge");
+        assert!(ruled_out > cast / 10, "{ruled_out} of {cast} ruled out");
+    });
+}
