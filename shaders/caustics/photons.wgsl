@@ -1,6 +1,6 @@
 // requires: common/octree.wgsl common/traverse.wgsl common/optics.wgsl
 // Photon tracing kernel (seed §8.5.4 to §8.5.7): one thread per photon id. Line-by-line twin of
-// crates/pc-caustics/src/trace.rs (Tracer::photon, Tracer::trace) and of Leaves::pick in
+// crates/pc-caustics/src/trace.rs (Tracer::start, Tracer::step) and of Leaves::pick in
 // crates/pc-caustics/src/emit.rs; draws the same counter-based random numbers, so a photon
 // follows the same path on both sides up to floating-point rounding. Driven by
 // crates/pc-caustics/src/gpu.rs, which compacts the stored photons in id order.

@@ -487,7 +487,7 @@ pub fn build(
     let view = scene.view;
     let diffuse = |j: usize| !class::is_specular(materials[view.splats[j].material as usize].class);
     let mut bins = bins(view, leaves, &diffuse);
-    // The splat each kept path left: the tracer's own draw (`Tracer::photon`, random number 0 of
+    // The splat each kept path left: the tracer's own draw (`Tracer::start`, random number 0 of
     // its id), so that the sender's radiance is the splat's, not its leaf's mean (a ball lens
     // images a bright spot on the floor; a leaf's mean would spread it first).
     let first = emit::first_ids(aims);

@@ -63,6 +63,28 @@ pub enum Fate {
     Absorbed,
 }
 
+/// A photon between two walks ([`Tracer::start`], [`Tracer::step`]).
+#[derive(Clone, Copy, Debug)]
+pub struct InFlight {
+    /// Its next walk.
+    pub ray: Ray,
+    /// The splat it leaves (a data-pool index), whose own zone the walk passes over.
+    pub leaving: Option<u32>,
+    pub power: Vec3,
+    pub id: u32,
+    /// Specular bounces so far.
+    pub bounces: u32,
+    /// What its first hit must be (read at bounce 0).
+    pub first: First,
+}
+
+/// What one walk made of a photon.
+#[derive(Clone, Copy, Debug)]
+pub enum Step {
+    Done(Fate),
+    Next(InFlight),
+}
+
 /// The tracer's fixed inputs.
 pub struct Tracer<'a> {
     pub view: &'a OctreeView<'a>,
@@ -82,8 +104,24 @@ pub use pc_tree::between::LEAVE_EPS;
 const DIM_BOUNCE: u32 = 8;
 
 impl Tracer<'_> {
-    /// Trace photon `id`, the `k`-th of `aim`.
+    /// Trace photon `id`, the `k`-th of `aim`: [`Self::start`], then [`Self::step`] until
+    /// it ends.
     pub fn photon(&self, aim: &Aim, id: u32, stats: &mut TraversalStats) -> Fate {
+        let mut f = match self.start(aim, id) {
+            Ok(f) => f,
+            Err(fate) => return fate,
+        };
+        loop {
+            match self.step(f, stats) {
+                Step::Done(fate) => return fate,
+                Step::Next(next) => f = next,
+            }
+        }
+    }
+
+    /// Photon `id` of `aim` before its first walk: where it starts, which way, with what power
+    /// and what its first hit must be; or its fate where it ends without a walk.
+    pub fn start(&self, aim: &Aim, id: u32) -> Result<InFlight, Fate> {
         let view = self.view;
         let r = |d: u32| rand(self.seed, id, 0, d);
         // Start: the light's position, or a point on an emitter splat drawn by area.
@@ -102,7 +140,7 @@ impl Tracer<'_> {
                 // A direction by cosine about the source splat; its first hit decides. (The
                 // links give this strategy area sources only.)
                 let Some(n) = emitter_normal else {
-                    return Fate::Lost;
+                    return Err(Fate::Lost);
                 };
                 let dir = cosine_dir(n.into(), r(3), r(4));
                 let ray = Ray {
@@ -113,7 +151,7 @@ impl Tracer<'_> {
                 };
                 if !may_meet(view, node, &ray) {
                     // Its first hit cannot be the node's: what the walk would conclude.
-                    return Fate::Occluded;
+                    return Err(Fate::Occluded);
                 }
                 let cos_s = n.dot(dir);
                 let first = First::Within { lo, hi, cos_s, k };
@@ -126,12 +164,12 @@ impl Tracer<'_> {
                 let to = disk_point(target, r(4), r(5)) - origin;
                 let dist = to.length();
                 if dist <= t_min {
-                    return Fate::Occluded;
+                    return Err(Fate::Occluded);
                 }
                 let dir = to / dist;
                 if emitter_normal.is_some_and(|n| n.dot(dir) <= 0.0) {
                     // Behind the emitting splat: it sends nothing this way.
-                    return Fate::Occluded;
+                    return Err(Fate::Occluded);
                 }
                 let mut power = Vec3::from(aim.power);
                 if let Sampling::Area { k } = aim.sampling {
@@ -144,95 +182,102 @@ impl Tracer<'_> {
                 (dir, First::Beyond(dist - 2.0 * target.radius), power)
             }
         };
-        let ray = Ray {
-            origin,
-            dir,
-            t_min,
-            t_max: f32::INFINITY,
-        };
-        self.trace(ray, emitter, power, id, first, stats)
+        Ok(InFlight {
+            ray: Ray {
+                origin,
+                dir,
+                t_min,
+                t_max: f32::INFINITY,
+            },
+            leaving: emitter,
+            power,
+            id,
+            bounces: 0,
+            first,
+        })
     }
 
-    /// Follow a photon from `ray` with `power`, leaving the splat `leaving` (a data-pool index)
-    /// if any, past its own zone ([`Between::leaving`]); a first hit that breaks `first` drops
-    /// it ([`Fate::Occluded`]).
-    pub fn trace(
-        &self,
-        mut ray: Ray,
-        mut leaving: Option<u32>,
-        mut power: Vec3,
-        id: u32,
-        first: First,
-        stats: &mut TraversalStats,
-    ) -> Fate {
+    /// One walk of photon `f` and what it makes of it: its fate, or the photon after one more
+    /// specular bounce. The walk leaves the splat `f.leaving` (a data-pool index) if any, past
+    /// its own zone ([`Between::leaving`]); a first hit that breaks `f.first` drops it
+    /// ([`Fate::Occluded`]).
+    pub fn step(&self, f: InFlight, stats: &mut TraversalStats) -> Step {
         let view = self.view;
-        let mut bounces = 0u32;
-        loop {
-            let found = match leaving {
-                Some(j) => {
-                    let seg = Between::leaving(ray, surface(view, self.rough, j));
-                    self.accel.intersect_between(view, &seg, stats)
-                }
-                None => self.accel.intersect(view, &ray, stats),
-            };
-            let Some(hit) = found else {
-                // A path drawn by direction that meets nothing missed its target, as one that
-                // meets something else first did ([`may_meet`] tells them apart no better).
-                return match (bounces, first) {
-                    (0, First::Within { .. }) => Fate::Occluded,
-                    _ => Fate::Lost,
-                };
-            };
-            let s = &view.splats[hit.splat as usize];
-            let m = &self.materials[s.material as usize];
-            let specular = class::is_specular(m.class);
-            if bounces == 0 {
-                match first {
-                    First::Beyond(t) if hit.t < t => return Fate::Occluded,
-                    First::Beyond(_) => {}
-                    First::Within { lo, hi, cos_s, k } => {
-                        if hit.splat < lo || hit.splat >= hi || !specular {
-                            return Fate::Occluded;
-                        }
-                        let cos_t = ray.dir.dot(Vec3::from(s.normal)).abs();
-                        power *= link_weight(cos_s, cos_t, hit.t, k);
+        let InFlight {
+            ray,
+            leaving,
+            mut power,
+            id,
+            bounces,
+            first,
+        } = f;
+        let found = match leaving {
+            Some(j) => {
+                let seg = Between::leaving(ray, surface(view, self.rough, j));
+                self.accel.intersect_between(view, &seg, stats)
+            }
+            None => self.accel.intersect(view, &ray, stats),
+        };
+        let Some(hit) = found else {
+            // A path drawn by direction that meets nothing missed its target, as one that
+            // meets something else first did ([`may_meet`] tells them apart no better).
+            return Step::Done(match (bounces, first) {
+                (0, First::Within { .. }) => Fate::Occluded,
+                _ => Fate::Lost,
+            });
+        };
+        let s = &view.splats[hit.splat as usize];
+        let m = &self.materials[s.material as usize];
+        let specular = class::is_specular(m.class);
+        if bounces == 0 {
+            match first {
+                First::Beyond(t) if hit.t < t => return Step::Done(Fate::Occluded),
+                First::Beyond(_) => {}
+                First::Within { lo, hi, cos_s, k } => {
+                    if hit.splat < lo || hit.splat >= hi || !specular {
+                        return Step::Done(Fate::Occluded);
                     }
+                    let cos_t = ray.dir.dot(Vec3::from(s.normal)).abs();
+                    power *= link_weight(cos_s, cos_t, hit.t, k);
                 }
             }
-            let x = ray.origin + ray.dir * hit.t;
-            if specular {
-                if bounces == self.max_bounces {
-                    return Fate::Lost;
-                }
-                let u = rand(self.seed, id, 0, DIM_BOUNCE + bounces);
-                let n = shading_normal(view, hit.splat, x);
-                let b = specular_bounce(view, m, (hit.splat, n), ray.dir, u);
-                power *= b.tint;
-                bounces += 1;
-                ray = Ray {
+        }
+        let x = ray.origin + ray.dir * hit.t;
+        if specular {
+            if bounces == self.max_bounces {
+                return Step::Done(Fate::Lost);
+            }
+            let u = rand(self.seed, id, 0, DIM_BOUNCE + bounces);
+            let n = shading_normal(view, hit.splat, x);
+            let b = specular_bounce(view, m, (hit.splat, n), ray.dir, u);
+            return Step::Next(InFlight {
+                ray: Ray {
                     origin: x,
                     dir: b.dir,
                     t_min: LEAVE_EPS * s.radius,
                     t_max: f32::INFINITY,
-                };
-                leaving = Some(hit.splat);
-                continue;
-            }
-            if bounces == 0 {
-                // Aimed at a specular leaf, landed on a diffuse surface in front of it.
-                return Fate::Occluded;
-            }
-            if ray.dir.dot(Vec3::from(s.normal)) >= 0.0 {
-                return Fate::Absorbed;
-            }
-            return Fate::Stored(Photon {
-                position: x.into(),
-                splat: hit.splat,
-                dir: ray.dir.into(),
-                bounces,
-                power: power.into(),
-                _pad: 0,
+                },
+                leaving: Some(hit.splat),
+                power: power * b.tint,
+                id,
+                bounces: bounces + 1,
+                first,
             });
         }
+        if bounces == 0 {
+            // Aimed at a specular leaf, landed on a diffuse surface in front of it.
+            return Step::Done(Fate::Occluded);
+        }
+        if ray.dir.dot(Vec3::from(s.normal)) >= 0.0 {
+            return Step::Done(Fate::Absorbed);
+        }
+        Step::Done(Fate::Stored(Photon {
+            position: x.into(),
+            splat: hit.splat,
+            dir: ray.dir.into(),
+            bounces,
+            power: power.into(),
+            _pad: 0,
+        }))
     }
 }

@@ -187,7 +187,7 @@ fn table(sizes: &[usize], runs: usize, rows: &[String], lookup_rows: &[String]) 
         "Machine: {}. Date: {}. Command: `cargo xtask bench --only caustics --sizes {} --runs {runs}` \
 (best of {runs}). Scene: `pc-sample cornell --with-specular` (glass and mirror spheres); the budget is \
 scaled so that about 1M photons are traced (the budget covers the lights' whole sphere, only photons \
-aimed at light-visible specular leaves are traced). Trace time: emission plan excluded, tracing only.\n\n\
+aimed at light-visible specular leaves are traced). Trace time: the tracing alone (the emission plan and the tracers' setup, the leaves' roughness and surfaces, are timed apart since 2026-11-29, session 61; they were in it before).\n\n\
 | splats | device | budget | traced | stored | trace | photons/s |\n|---|---|---|---|---|---|---|\n{}\n\n\
 Caustic lookup per shaded hit (CPU, per thread): the diffuse hits of 512×512 primary rays from the scene \
 camera, on the photon map above; fixed radius through a kd-tree (kiddo's, built before the timing: \
