@@ -20,9 +20,10 @@ use crate::emit::{link_weight, Aim, Leaves, Sampling, Source};
 /// it passes within the node's average-disk radius of its centroid ([`NodeInfo`]), a ball that
 /// holds every disk of the node (each lies within its radius of its centre, and each centre
 /// within the rest of that radius of the centroid). Padded by 10⁻⁴ of the radius and 10⁻⁵ of
-/// the distance, far above the rounding of this test and of the walk's hit points. A path drawn by direction toward a link's node that misses the ball
-/// cannot first land on the node: most do (85 % of them on the 1M bench box), and each walk
-/// they skip is one across the scene. WGSL twin: `may_meet`, shaders/caustics/photons.wgsl.
+/// the distance, far above the rounding of this test and of the walk's hit points. A path
+/// drawn by direction toward a link's node that misses the ball cannot first land on the node:
+/// most do (85 % of them on the 1M bench box), and each walk they skip is one across the
+/// scene. WGSL twin: `may_meet`, shaders/caustics/photons.wgsl.
 ///
 /// [`NodeInfo`]: pc_artifact::octree::NodeInfo
 pub fn may_meet(view: &OctreeView, node: u32, ray: &Ray) -> bool {
