@@ -319,7 +319,7 @@ impl PhotonGroup {
 /// exact wherever the float has a fractional part (|x| < 2²³), and `x` itself (or NaN) beyond.
 #[inline(always)]
 fn floor(x: f32) -> f32 {
-    if !(x.abs() < 8_388_608.0) {
+    if x.is_nan() || x.abs() >= 8_388_608.0 {
         return x;
     }
     let t = x as i32 as f32;

@@ -110,6 +110,7 @@ pub fn scan(quads: &[Quad], x: Vec3, n: Vec3, r: f32) -> Vec3 {
 
 /// The portable twin of the SSE scan: four running sums, one per lane, added at the end in the
 /// same order.
+#[allow(clippy::needless_range_loop)] // lane l of a quad's ten arrays and of the sums
 pub fn scan_scalar(quads: &[Quad], x: Vec3, n: Vec3, r: f32) -> Vec3 {
     let r2 = r * r;
     let plane = 0.25 * r;
