@@ -95,6 +95,8 @@ pub struct Accel<'a> {
     clipped: Cow<'a, [u64]>,
     /// Each leaf's disks as one surface, where asked for ([`Accel::with_own_surfaces`]).
     surfaces: Option<Vec<LeafSurface>>,
+    /// Whether the walk tests two chunks at a time with AVX2 ([`lanes8`]; [`has_avx2`]).
+    wide: bool,
 }
 
 /// One packed leaf's disks as a surface: their mean normal, the least cosine of any of their
@@ -182,9 +184,17 @@ impl<'a> Accel<'a> {
                 chunks: Cow::Borrowed(w.chunks),
                 clipped: Cow::Borrowed(w.clipped),
                 surfaces: None,
+                wide: has_avx2(),
             },
             None => Accel::build(view),
         }
+    }
+
+    /// This walk without its AVX2 build: every leaf tested a chunk at a time with SSE (the
+    /// same hits bit for bit; for tests and comparisons).
+    pub fn portable(mut self) -> Accel<'a> {
+        self.wide = false;
+        self
     }
 
     /// Whether this walk is the artifact's, mapped (not built in memory).
@@ -258,6 +268,7 @@ impl<'a> Accel<'a> {
             chunks: Cow::Owned(chunks),
             clipped: Cow::Owned(clipped_bits(view.splats)),
             surfaces: None,
+            wide: has_avx2(),
         }
     }
 
@@ -345,8 +356,11 @@ impl<'a> Accel<'a> {
     /// ignores (`Find::Nearest(Some(_))`, `Find::Any(Some(_))`). The arithmetic is
     /// [`crate::ray::intersect_splat`]'s, operation for operation, lane by lane; lanes are taken
     /// in listing order, so ties resolve as there.
+    ///
+    /// `WIDE` tests two chunks at a time with [`lanes8`] (the same lanes, the same results):
+    /// only [`Self::cast_wide`], which runs where the CPU has AVX2, instantiates it.
     #[inline(always)]
-    fn test(
+    fn test<const WIDE: bool>(
         &self,
         ray: &Ray,
         w: u32,
@@ -383,27 +397,47 @@ impl<'a> Accel<'a> {
         let (a, b) = (leaf.first as usize, leaf.end as usize);
         stats.splat_tests += ((b - a) * LANES) as u64;
         let mut best: Option<Hit> = None;
-        for c in &self.chunks[a..b] {
-            let (t, mut candidates) = lanes(c, [ox, oy, oz], [dx, dy, dz], ray.t_min, limit);
+        let (o, d) = ([ox, oy, oz], [dx, dy, dz]);
+        let mut run = &self.chunks[a..b];
+        while !run.is_empty() {
+            // A group of one chunk, or of two where `WIDE`: lane k of the group is lane
+            // k % LANES of its chunk k / LANES.
+            let (group, t, mut candidates) = match run {
+                [c0, c1, ..] if WIDE => {
+                    // SAFETY: `WIDE` is instantiated only by `cast_wide`, which runs only
+                    // where the CPU has AVX2 (`self.wide`, from `has_avx2`).
+                    let (t, m) = unsafe { lanes8(c0, c1, o, d, ray.t_min, limit) };
+                    (&run[..2], t, m)
+                }
+                [c, ..] => {
+                    let (t4, m) = lanes(c, o, d, ray.t_min, limit);
+                    let mut t = [0.0; 2 * LANES];
+                    t[..LANES].copy_from_slice(&t4);
+                    (&run[..1], t, m)
+                }
+                [] => unreachable!(),
+            };
+            run = &run[group.len()..];
             while candidates != 0 {
-                let l = candidates.trailing_zeros() as usize;
+                let k = candidates.trailing_zeros() as usize;
                 candidates &= candidates - 1;
-                if best.is_some_and(|h| t[l] >= h.t) {
+                if best.is_some_and(|h| t[k] >= h.t) {
                     continue;
                 }
+                let (c, l) = (&group[k / LANES], k % LANES);
                 let splat = c.cold[l];
                 let (p, n) = ([c.px[l], c.py[l], c.pz[l]], [c.nx[l], c.ny[l], c.nz[l]]);
                 if let Some(b) = between {
-                    if b.ignores_with(t[l], n, || material(splat)) {
+                    if b.ignores_with(t[k], n, || material(splat)) {
                         continue;
                     }
                 }
-                let x = [ox + dx * t[l], oy + dy * t[l], oz + dz * t[l]];
+                let x = [ox + dx * t[k], oy + dy * t[k], oz + dz * t[k]];
                 if !is_clipped(&self.clipped, splat)
                     || within_clip(p, n, splats[splat as usize].clip, x)
                 {
                     best = Some(Hit {
-                        t: t[l],
+                        t: t[k],
                         splat,
                         leaf: leaf.word,
                     });
@@ -547,6 +581,49 @@ impl<'a> Accel<'a> {
         find: Find,
         stats: &mut TraversalStats,
     ) -> Option<(Hit, PackedLeaf)> {
+        if self.wide && matches!(find, Find::Nearest(_)) {
+            // SAFETY: `self.wide` is set only where the CPU has AVX2 (`has_avx2`).
+            return unsafe { self.cast_wide(view, ray, find, stats) };
+        }
+        self.cast_in::<false>(view, ray, find, stats)
+    }
+
+    /// [`Self::cast`] built for AVX2, its leaves tested two chunks at a time ([`lanes8`]).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn cast_wide(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        find: Find,
+        stats: &mut TraversalStats,
+    ) -> Option<(Hit, PackedLeaf)> {
+        self.cast_in::<true>(view, ray, find, stats)
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    unsafe fn cast_wide(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        find: Find,
+        stats: &mut TraversalStats,
+    ) -> Option<(Hit, PackedLeaf)> {
+        self.cast_in::<false>(view, ray, find, stats)
+    }
+
+    /// [`Self::cast`]'s walk, its leaves tested by [`Self::test`]`::<WIDE>`.
+    #[inline(always)]
+    fn cast_in<const WIDE: bool>(
+        &self,
+        view: &OctreeView,
+        ray: &Ray,
+        find: Find,
+        stats: &mut TraversalStats,
+    ) -> Option<(Hit, PackedLeaf)> {
         let nodes: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
         let slab = |w| match self.slabs {
             true => node_slab(nodes, w),
@@ -555,7 +632,7 @@ impl<'a> Accel<'a> {
         let mut leaf = PackedLeaf(0);
         let hit = crate::ray::walk_with(view, nodes, ray, stats, slab, |w, limit, st| {
             leaf = PackedLeaf(node::ptr(w));
-            self.test(ray, w, limit, (view.splats, find), st)
+            self.test::<WIDE>(ray, w, limit, (view.splats, find), st)
         })?;
         Some((hit, leaf))
     }
@@ -953,6 +1030,92 @@ fn lanes(c: &Chunk, o: [f32; 3], d: [f32; 3], t_min: f32, limit: f32) -> ([f32; 
     }
 }
 
+/// [`lanes`] of two chunks at once (lanes 0-3 the first's, 4-7 the second's) with AVX2's
+/// eight-lane registers: the same operations in the same order on each lane, so `t` and the
+/// mask are bit for bit two [`lanes`] calls' (`lanes8_are_two_lanes_calls`).
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn lanes8(
+    c0: &Chunk,
+    c1: &Chunk,
+    o: [f32; 3],
+    d: [f32; 3],
+    t_min: f32,
+    limit: f32,
+) -> ([f32; 2 * LANES], u32) {
+    use std::arch::x86_64::*;
+    let (add, sub, mul) = (_mm256_add_ps, _mm256_sub_ps, _mm256_mul_ps);
+    // SAFETY (the loads): each field is a 16-byte-aligned `[f32; 4]` of a `#[repr(C,
+    // align(16))]` struct whose fields are all 16 bytes.
+    let ld = |a: &[f32; LANES], b: &[f32; LANES]| {
+        _mm256_insertf128_ps::<1>(
+            _mm256_castps128_ps256(_mm_load_ps(a.as_ptr())),
+            _mm_load_ps(b.as_ptr()),
+        )
+    };
+    let (nx, ny, nz) = (ld(&c0.nx, &c1.nx), ld(&c0.ny, &c1.ny), ld(&c0.nz, &c1.nz));
+    let (px, py, pz) = (ld(&c0.px, &c1.px), ld(&c0.py, &c1.py), ld(&c0.pz, &c1.pz));
+    let [ox, oy, oz] = o.map(|x| _mm256_set1_ps(x));
+    let [dx, dy, dz] = d.map(|x| _mm256_set1_ps(x));
+    let denom = add(add(mul(dx, nx), mul(dy, ny)), mul(dz, nz));
+    let num = add(
+        add(mul(sub(px, ox), nx), mul(sub(py, oy), ny)),
+        mul(sub(pz, oz), nz),
+    );
+    let th = _mm256_div_ps(num, denom);
+    let ex = sub(add(ox, mul(dx, th)), px);
+    let ey = sub(add(oy, mul(dy, th)), py);
+    let ez = sub(add(oz, mul(dz, th)), pz);
+    let d2 = add(add(mul(ex, ex), mul(ey, ey)), mul(ez, ez));
+    let abs = _mm256_andnot_ps(_mm256_set1_ps(-0.0), denom);
+    // Ordered comparisons (false on NaN), as SSE's cmpge/cmple.
+    let ok = _mm256_and_ps(
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(abs, _mm256_set1_ps(1e-8)),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(th, _mm256_set1_ps(t_min)),
+        ),
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_LE_OQ>(th, _mm256_set1_ps(limit)),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(d2, ld(&c0.r2, &c1.r2)),
+        ),
+    );
+    let mut t = [0.0f32; 2 * LANES];
+    _mm256_storeu_ps(t.as_mut_ptr(), th);
+    (t, _mm256_movemask_ps(ok) as u32)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn lanes8(
+    c0: &Chunk,
+    c1: &Chunk,
+    o: [f32; 3],
+    d: [f32; 3],
+    t_min: f32,
+    limit: f32,
+) -> ([f32; 2 * LANES], u32) {
+    let ((t0, m0), (t1, m1)) = (lanes(c0, o, d, t_min, limit), lanes(c1, o, d, t_min, limit));
+    let mut t = [0.0f32; 2 * LANES];
+    t[..LANES].copy_from_slice(&t0);
+    t[LANES..].copy_from_slice(&t1);
+    (t, m0 | m1 << LANES)
+}
+
+/// Whether this CPU runs the walk's AVX2 build ([`lanes8`]).
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 #[cfg(not(target_arch = "x86_64"))]
 #[inline(always)]
 fn lanes(c: &Chunk, o: [f32; 3], d: [f32; 3], t_min: f32, limit: f32) -> ([f32; LANES], u32) {
@@ -1051,7 +1214,8 @@ fn cover_lanes_scalar(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f3
 mod tests {
     use super::*;
 
-    /// The SSE lanes and the scalar ones agree bit for bit, on random disks and rays including
+    /// The SSE lanes and the scalar ones agree bit for bit, and AVX2's eight lanes with two SSE
+    /// calls where the CPU has AVX2, on random disks and rays including
     /// parallel rays, padding lanes and ties at the interval's ends (the cover lanes on the
     /// same disks, the ray's origin and direction standing for a point and a normal; the node
     /// slabs' extents about the ray's direction).
@@ -1102,6 +1266,30 @@ mod tests {
                     a[l].to_bits() == b[l].to_bits() || (a[l].is_nan() && b[l].is_nan()),
                     "case {k} lane {l}"
                 );
+            }
+            if has_avx2() {
+                // Two chunks at once: this one and one with its lanes reversed.
+                let mut e = c;
+                for f in [
+                    &mut e.px, &mut e.py, &mut e.pz, &mut e.nx, &mut e.ny, &mut e.nz,
+                ] {
+                    f.reverse();
+                }
+                e.r2.reverse();
+                // The stretch as drawn, and one that ends and starts exactly on two lanes' t.
+                for (t_min, limit) in [(t_min, limit), (a[1].min(a[0]), a[0].max(a[1]))] {
+                    let (a, ma) = lanes(&c, o, d, t_min, limit);
+                    let (b, mb) = lanes(&e, o, d, t_min, limit);
+                    // SAFETY: the CPU has AVX2.
+                    let (w, mw) = unsafe { lanes8(&c, &e, o, d, t_min, limit) };
+                    assert_eq!(mw, ma | mb << LANES, "case {k}");
+                    for (l, (x, y)) in w.iter().zip(a.iter().chain(&b)).enumerate() {
+                        assert!(
+                            x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()),
+                            "case {k} lane {l}"
+                        );
+                    }
+                }
             }
         }
     }
