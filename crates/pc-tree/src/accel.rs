@@ -502,24 +502,77 @@ impl<'a> Accel<'a> {
         thickness: f32,
         out: &mut Vec<(u32, f32)>,
     ) {
+        if self.wide {
+            // SAFETY: `self.wide` is set only where the CPU has AVX2 (`has_avx2`).
+            return unsafe { self.covering_wide(view, leaf, x, n, thickness, out) };
+        }
+        self.covering_in::<false>(view, leaf, x, n, thickness, out)
+    }
+
+    /// [`Self::covering`] built for AVX2, two chunks at a time ([`cover_lanes8`]).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
+    unsafe fn covering_wide(
+        &self,
+        view: &OctreeView,
+        leaf: PackedLeaf,
+        x: glam::Vec3,
+        n: glam::Vec3,
+        thickness: f32,
+        out: &mut Vec<(u32, f32)>,
+    ) {
+        self.covering_in::<true>(view, leaf, x, n, thickness, out)
+    }
+
+    /// [`Self::covering`]'s loop, two chunks at a time where `WIDE` (instantiated only by
+    /// [`Self::covering_wide`]).
+    #[inline(always)]
+    fn covering_in<const WIDE: bool>(
+        &self,
+        view: &OctreeView,
+        leaf: PackedLeaf,
+        x: glam::Vec3,
+        n: glam::Vec3,
+        thickness: f32,
+        out: &mut Vec<(u32, f32)>,
+    ) {
         out.clear();
         let leaf = &self.leaves[leaf.0 as usize];
         let (a, b) = (leaf.first as usize, leaf.end as usize);
-        for c in &self.chunks[a..b] {
-            let (h, rho2, mut inside) = cover_lanes(c, x.to_array(), n.to_array());
+        let (xa, na) = (x.to_array(), n.to_array());
+        let mut run = &self.chunks[a..b];
+        while !run.is_empty() {
+            // A group of one chunk, or of two where `WIDE`, as in `test`.
+            let (group, (h, rho2, mut inside)) = match run {
+                // SAFETY: `WIDE` is instantiated only by `covering_wide`, which runs only
+                // where the CPU has AVX2.
+                [c0, c1, ..] if WIDE => (&run[..2], unsafe { cover_lanes8(c0, c1, xa, na) }),
+                [c, ..] => {
+                    let (h4, rho4, m) = cover_lanes(c, xa, na);
+                    let (mut h, mut rho2) = ([0.0; 2 * LANES], [0.0; 2 * LANES]);
+                    h[..LANES].copy_from_slice(&h4);
+                    rho2[..LANES].copy_from_slice(&rho4);
+                    (&run[..1], (h, rho2, m))
+                }
+                [] => unreachable!(),
+            };
+            run = &run[group.len()..];
             while inside != 0 {
-                let l = inside.trailing_zeros() as usize;
+                let k = inside.trailing_zeros() as usize;
                 inside &= inside - 1;
+                let (c, l) = (&group[k / LANES], k % LANES);
                 let splat = c.cold[l];
                 let record = &view.splats[splat as usize];
                 let (p, sn) = (
                     glam::Vec3::new(c.px[l], c.py[l], c.pz[l]),
                     glam::Vec3::new(c.nx[l], c.ny[l], c.nz[l]),
                 );
-                if h[l].abs() <= thickness * record.radius
-                    && within_clip(p.into(), sn.into(), record.clip, (x - sn * h[l]).into())
+                if h[k].abs() <= thickness * record.radius
+                    && within_clip(p.into(), sn.into(), record.clip, (x - sn * h[k]).into())
                 {
-                    let u = 1.0 - rho2[l] / c.r2[l];
+                    let u = 1.0 - rho2[k] / c.r2[l];
                     out.push((splat, u * u));
                 }
             }
@@ -592,8 +645,7 @@ impl<'a> Accel<'a> {
     ///
     /// # Safety
     /// The CPU must have AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
+    #[cfg_attr(target_arch = "x86_64", target_feature(enable = "avx2"))]
     unsafe fn cast_wide(
         &self,
         view: &OctreeView,
@@ -602,17 +654,6 @@ impl<'a> Accel<'a> {
         stats: &mut TraversalStats,
     ) -> Option<(Hit, PackedLeaf)> {
         self.cast_in::<true>(view, ray, find, stats)
-    }
-
-    #[cfg(not(target_arch = "x86_64"))]
-    unsafe fn cast_wide(
-        &self,
-        view: &OctreeView,
-        ray: &Ray,
-        find: Find,
-        stats: &mut TraversalStats,
-    ) -> Option<(Hit, PackedLeaf)> {
-        self.cast_in::<false>(view, ray, find, stats)
     }
 
     /// [`Self::cast`]'s walk, its leaves tested by [`Self::test`]`::<WIDE>`.
@@ -1188,6 +1229,69 @@ fn cover_lanes(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANE
     }
 }
 
+/// [`cover_lanes`] of two chunks at once with AVX2 (lanes 0-3 the first's, 4-7 the second's):
+/// the same operations lane for lane, so bit for bit two [`cover_lanes`] calls.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn cover_lanes8(
+    c0: &Chunk,
+    c1: &Chunk,
+    x: [f32; 3],
+    n: [f32; 3],
+) -> ([f32; 2 * LANES], [f32; 2 * LANES], u32) {
+    use std::arch::x86_64::*;
+    let (add, sub, mul) = (_mm256_add_ps, _mm256_sub_ps, _mm256_mul_ps);
+    // SAFETY (the loads): as in `lanes8`.
+    let ld = |a: &[f32; LANES], b: &[f32; LANES]| {
+        _mm256_insertf128_ps::<1>(
+            _mm256_castps128_ps256(_mm_load_ps(a.as_ptr())),
+            _mm_load_ps(b.as_ptr()),
+        )
+    };
+    let (nx, ny, nz) = (ld(&c0.nx, &c1.nx), ld(&c0.ny, &c1.ny), ld(&c0.nz, &c1.nz));
+    let [sx, sy, sz] = n.map(|v| _mm256_set1_ps(v));
+    let facing = add(add(mul(nx, sx), mul(ny, sy)), mul(nz, sz));
+    let dx = sub(_mm256_set1_ps(x[0]), ld(&c0.px, &c1.px));
+    let dy = sub(_mm256_set1_ps(x[1]), ld(&c0.py, &c1.py));
+    let dz = sub(_mm256_set1_ps(x[2]), ld(&c0.pz, &c1.pz));
+    let h = add(add(mul(dx, nx), mul(dy, ny)), mul(dz, nz));
+    let d2 = add(add(mul(dx, dx), mul(dy, dy)), mul(dz, dz));
+    let rho2 = sub(d2, mul(h, h));
+    // Ordered comparisons (false on NaN), as SSE's cmpgt/cmplt.
+    let ok = _mm256_and_ps(
+        _mm256_cmp_ps::<_CMP_GT_OQ>(facing, _mm256_set1_ps(crate::ray::BLEND_MIN_COS)),
+        _mm256_cmp_ps::<_CMP_LT_OQ>(rho2, ld(&c0.r2, &c1.r2)),
+    );
+    let (mut ho, mut ro) = ([0.0f32; 2 * LANES], [0.0f32; 2 * LANES]);
+    _mm256_storeu_ps(ho.as_mut_ptr(), h);
+    _mm256_storeu_ps(ro.as_mut_ptr(), rho2);
+    (ho, ro, _mm256_movemask_ps(ok) as u32)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn cover_lanes8(
+    c0: &Chunk,
+    c1: &Chunk,
+    x: [f32; 3],
+    n: [f32; 3],
+) -> ([f32; 2 * LANES], [f32; 2 * LANES], u32) {
+    let ((h0, r0, m0), (h1, r1, m1)) = (cover_lanes(c0, x, n), cover_lanes(c1, x, n));
+    let (mut h, mut rho2) = ([0.0f32; 2 * LANES], [0.0f32; 2 * LANES]);
+    (
+        h[..LANES].copy_from_slice(&h0),
+        h[LANES..].copy_from_slice(&h1),
+    );
+    (
+        rho2[..LANES].copy_from_slice(&r0),
+        rho2[LANES..].copy_from_slice(&r1),
+    );
+    (h, rho2, m0 | m1 << LANES)
+}
+
 #[cfg(not(target_arch = "x86_64"))]
 #[inline(always)]
 fn cover_lanes(c: &Chunk, x: [f32; 3], n: [f32; 3]) -> ([f32; LANES], [f32; LANES], u32) {
@@ -1276,6 +1380,13 @@ mod tests {
                     f.reverse();
                 }
                 e.r2.reverse();
+                // SAFETY: the CPU has AVX2.
+                let (wh, wr, wm) = unsafe { cover_lanes8(&c, &e, o, d) };
+                let ((h0, r0, m0), (h1, r1, m1)) = (cover_lanes(&c, o, d), cover_lanes(&e, o, d));
+                assert_eq!(wm, m0 | m1 << LANES, "case {k}");
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&wh), bits(&[h0, h1].concat()), "case {k}");
+                assert_eq!(bits(&wr), bits(&[r0, r1].concat()), "case {k}");
                 // The stretch as drawn, and one that ends and starts exactly on two lanes' t.
                 for (t_min, limit) in [(t_min, limit), (a[1].min(a[0]), a[0].max(a[1]))] {
                     let (a, ma) = lanes(&c, o, d, t_min, limit);
