@@ -96,8 +96,42 @@ fn ignored(e: Ends, t: f32, s: Splat) -> bool {
     return (t < e.zones.x && is_own(e.own0, s)) || (t > e.zones.y && is_own(e.own1, s));
 }
 
+// Words of a node-pool slot's slab past the pool in `octree_nodes` (twin of
+// pc_tree::accel::POOL_SLAB_WORDS): axis xyz, lo, hi as bits, and 1 where the walk tests it.
+const SLAB_WORDS: u32 = 6u;
+
+struct SlabEntry {
+    t: f32,
+    meets: bool,
+}
+
+// Where the stretch [t_min, limit] of the ray enters the slab of the words at `at`, and whether
+// it meets it (twin of pc_tree::ray::Slab::entry). A ray parallel to the slab meets it where
+// its origin lies in it, from t_min on.
+fn slab_entry(at: u32, o: vec3<f32>, dir: vec3<f32>, t_min: f32, limit: f32) -> SlabEntry {
+    let axis = bitcast<vec3<f32>>(vec3<u32>(octree_nodes[at], octree_nodes[at + 1u], octree_nodes[at + 2u]));
+    let lo = bitcast<f32>(octree_nodes[at + 3u]);
+    let hi = bitcast<f32>(octree_nodes[at + 4u]);
+    let s0 = dot(axis, o);
+    let ds = dot(axis, dir);
+    if ds == 0.0 {
+        return SlabEntry(t_min, s0 >= lo && s0 <= hi);
+    }
+    let ta = (lo - s0) / ds;
+    let tb = (hi - s0) / ds;
+    let enter = max(min(ta, tb), t_min);
+    let leave = min(max(ta, tb), limit);
+    return SlabEntry(enter, enter <= leave);
+}
+
 // `trace`, passing over the hits `ignored` names. Twin of pc_tree::accel::Accel's walk with a
-// Between (visible_between).
+// Between (visible_between), and like it, by the slabs of pc_tree::accel::Accel::pool_slabs
+// that follow the pool in `octree_nodes` (every walk kernel's upload has them): where the ray's
+// stretch from t_min to the exit of a node's cell misses the node's slab, the node is passed
+// whole; where it meets it, the walk jumps to where it enters the slab; a leaf whose slab the
+// stretch misses is not tested (pc_tree::ray::walk_with). No disk below a node lies outside its
+// slab, and the slabs are padded far above the rounding, so the hits are the walk's without
+// them.
 fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: bool, ends: Ends) -> Hit {
     var none = Hit(0.0, 0u, 0u, false);
     let qo = (o - octree_frame.origin) * octree_frame.inv_size;
@@ -115,20 +149,51 @@ fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
     if t_start > t_end {
         return none;
     }
+    // The pool (node_count words, as the upload sets it), then SLAB_WORDS a slot.
+    let slabs = octree_frame.node_count;
     let q = clamp(qo + qd * t_start, vec3<f32>(0.0), vec3<f32>(below(1.0)));
     var qi = min(vec3<u32>(q * f32(ROOT)), vec3<u32>(ROOT - 1u));
+    // The node words from the root to the current cell.
     var path: array<u32, 22>;
     path[0] = octree_nodes[0];
     var depth = 0u;
+    // The ray's parameter at qi: where it entered qi's cell, or the slab it jumped to.
+    var t_at = t_start;
     for (var step = 0u; step < 1000000u; step = step + 1u) {
         var w = path[depth];
+        // The pool slot of w: the root's, or its parent's pointer and qi's child bits there.
+        var slot = 0u;
+        if depth > 0u {
+            let up = (qi >> vec3<u32>(MAX_LEVELS - depth)) & vec3<u32>(1u);
+            slot = (path[depth - 1u] & NODE_PTR) + (up.x | (up.y << 1u) | (up.z << 2u));
+        }
         loop {
             if (w & (NODE_LEAF | NODE_EMPTY)) != 0u || depth >= MAX_LEVELS {
                 break;
             }
+            let at = slabs + SLAB_WORDS * slot;
+            if octree_nodes[at + 5u] != 0u {
+                let sh0 = MAX_LEVELS - depth;
+                let lo0 = (qi >> vec3<u32>(sh0)) << vec3<u32>(sh0);
+                let size0 = 1u << sh0;
+                let far0 = select(vec3<f32>(lo0) * CELL, vec3<f32>(lo0 + vec3<u32>(size0)) * CELL, qd >= vec3<f32>(0.0));
+                let ta0 = (far0 - qo) * inv;
+                let e = slab_entry(at, o, dir, t_min, min(min(min(ta0.x, ta0.y), ta0.z), t_end));
+                if !e.meets {
+                    // No leaf below can accept a hit: pass the node whole.
+                    break;
+                }
+                if e.t > t_at {
+                    // Straight to the cell where the ray enters the slab, within the node.
+                    let qe = qo + qd * e.t;
+                    qi = clamp(min(vec3<u32>(max(qe, vec3<f32>(0.0)) * f32(ROOT)), vec3<u32>(ROOT - 1u)), lo0, lo0 + vec3<u32>(size0 - 1u));
+                    t_at = e.t;
+                }
+            }
             let sh = MAX_LEVELS - 1u - depth;
             let bits = (qi >> vec3<u32>(sh)) & vec3<u32>(1u);
-            w = octree_nodes[(w & NODE_PTR) + (bits.x | (bits.y << 1u) | (bits.z << 2u))];
+            slot = (w & NODE_PTR) + (bits.x | (bits.y << 1u) | (bits.z << 2u));
+            w = octree_nodes[slot];
             depth = depth + 1u;
             path[depth] = w;
         }
@@ -140,8 +205,9 @@ fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         let far = select(lo, hi, qd >= vec3<f32>(0.0));
         let ta = (far - qo) * inv;
         let t_exit = min(min(ta.x, ta.y), ta.z);
-        if (w & NODE_LEAF) != 0u {
-            let limit = min(t_exit, t_end);
+        let at = slabs + SLAB_WORDS * slot;
+        let limit = min(t_exit, t_end);
+        if (w & NODE_LEAF) != 0u && (octree_nodes[at + 5u] == 0u || slab_entry(at, o, dir, t_min, limit).meets) {
             let off = w & NODE_PTR;
             let begin = begin_end[off];
             let extra = begin_end[off + 1u];
@@ -195,6 +261,8 @@ fn trace_between(o: vec3<f32>, dir: vec3<f32>, t_min: f32, t_max: f32, any_hit: 
         let diff = (qi.x ^ ni.x) | (qi.y ^ ni.y) | (qi.z ^ ni.z);
         depth = min(depth, countLeadingZeros(diff) - (32u - MAX_LEVELS));
         qi = ni;
+        // Not below a jump's parameter: a jump can land one cell short of its point.
+        t_at = max(t_at, t_exit);
     }
     return none;
 }

@@ -81,6 +81,9 @@ type Leaf = WalkLeaf;
 /// word alone.
 type Block = WalkBlock;
 
+/// Words of a node-pool slot's slab for the GPU ([`Accel::pool_slabs`]).
+pub const POOL_SLAB_WORDS: usize = 6;
+
 /// A leaf's number in an [`Accel`] (its packed lists), as [`Accel::intersect_in`] reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PackedLeaf(u32);
@@ -236,6 +239,39 @@ impl<'a> Accel<'a> {
             .collect();
         self.surfaces = Some(surfaces);
         self
+    }
+
+    /// This walk's slabs by the view's node-pool slot, for the GPU's walk of the pool
+    /// (`trace_between`, shaders/common/traverse.wgsl), which skips and jumps by them as
+    /// [`crate::ray::walk_with`] does: per slot the slab's axis xyz, lo and hi as bits and a flag,
+    /// 1 where the walk tests it (an internal node with a slab; a leaf whose slab is finite:
+    /// the shader has no infinities), else 0 (an empty node, or one it never skips).
+    pub fn pool_slabs(&self, view: &OctreeView) -> Vec<[u32; POOL_SLAB_WORDS]> {
+        let words: &[u32] = bytemuck::cast_slice(&self.nodes[..]);
+        let mut out = vec![[0u32; POOL_SLAB_WORDS]; view.nodes.len()];
+        let with_flag = |s: [f32; 5]| {
+            let [x, y, z, lo, hi] = s.map(f32::to_bits);
+            [x, y, z, lo, hi, 1]
+        };
+        // (pool slot, the walk's word for the same node): the walk's children of an internal
+        // word lie at its pointer, in the pool's order, blocks or plain words alike.
+        let mut stack = vec![(0usize, words[0])];
+        while let Some((slot, walk_word)) = stack.pop() {
+            let word = view.nodes[slot];
+            if node::is_leaf(word) {
+                let slab = self.leaves[node::ptr(walk_word) as usize].slab;
+                if slab.iter().all(|x| x.is_finite()) {
+                    out[slot] = with_flag(slab);
+                }
+            } else if !node::is_empty(word) {
+                if let Some(s) = self.slabs.then(|| node_slab(words, walk_word)).flatten() {
+                    out[slot] = with_flag(s.to_array());
+                }
+                let (pool, walk) = (node::ptr(word) as usize, node::ptr(walk_word) as usize);
+                stack.extend((0..8).map(|c| (pool + c, words[walk + c])));
+            }
+        }
+        out
     }
 
     /// Bytes held.

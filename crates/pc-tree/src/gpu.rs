@@ -6,11 +6,13 @@ use bytemuck::{Pod, Zeroable};
 use pc_gpu::{grid, Binding, GpuContext, GpuError, Kernel};
 use rayon::prelude::*;
 
+use crate::accel::POOL_SLAB_WORDS;
 use crate::{OctreeView, Ray};
 
 /// How much of the octree a kernel binds. The sections go into bindings 0, 1, 2, … in the
 /// order of `shaders/common/octree.wgsl`: frame (uniform), nodes, begin/end table, splats,
-/// node info, splat areas, splat leaves; each part includes the ones before it.
+/// node info, splat areas, splat leaves; each part includes the ones before it. For the walk
+/// the nodes' buffer holds after the pool each slot's slab ([`crate::accel::Accel::pool_slabs`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum OctreeParts {
     /// Frame and nodes: point location.
@@ -33,10 +35,39 @@ impl GpuOctree {
         view: &OctreeView,
         parts: OctreeParts,
     ) -> Result<GpuOctree, GpuError> {
-        let mut buffers = vec![
-            ctx.uniform("frame", bytemuck::bytes_of(&view.frame)),
-            ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
-        ];
+        GpuOctree::upload_with(ctx, view, parts, true)
+    }
+
+    /// [`Self::upload`], the walk's slabs all switched off where `slabs` is false: the walk
+    /// then visits every cell of the pool (the same hits; for comparisons).
+    pub fn upload_with(
+        ctx: &GpuContext,
+        view: &OctreeView,
+        parts: OctreeParts,
+        slabs: bool,
+    ) -> Result<GpuOctree, GpuError> {
+        let nodes = match parts {
+            OctreeParts::Locate => ctx.storage("nodes", bytemuck::cast_slice(view.nodes))?,
+            // The walk's slabs by slot follow the pool (`trace_between` finds them past
+            // `node_count`): the GPU skips and jumps by them as the CPU walk does.
+            _ => {
+                let slabs = match slabs {
+                    true => crate::accel::Accel::new(view).pool_slabs(view),
+                    false => vec![[0; POOL_SLAB_WORDS]; view.nodes.len()],
+                };
+                let mut words = Vec::with_capacity(view.nodes.len() * (1 + POOL_SLAB_WORDS));
+                words.extend_from_slice(view.nodes);
+                words.extend(slabs.iter().flatten());
+                ctx.storage("nodes", bytemuck::cast_slice(&words))?
+            }
+        };
+        // The pool's length as the walk finds its slabs by it (the artifact's frame says so
+        // too, written by pc-octree, but the shader must not trust a file for an offset).
+        let frame = pc_artifact::octree::Frame {
+            node_count: view.nodes.len() as u32,
+            ..view.frame
+        };
+        let mut buffers = vec![ctx.uniform("frame", bytemuck::bytes_of(&frame)), nodes];
         if parts != OctreeParts::Locate {
             buffers.push(ctx.storage("begin_end", bytemuck::cast_slice(view.begin_end))?);
             buffers.push(ctx.storage("splats", bytemuck::cast_slice(view.splats))?);
@@ -129,6 +160,16 @@ const RAYS_PER_DISPATCH: usize = 1 << 22;
 
 impl RayCaster {
     pub fn new(ctx: &GpuContext, view: &OctreeView) -> Result<RayCaster, GpuError> {
+        RayCaster::with_slabs(ctx, view, true)
+    }
+
+    /// [`Self::new`], its walk without the slabs where `slabs` is false
+    /// ([`GpuOctree::upload_with`]).
+    pub fn with_slabs(
+        ctx: &GpuContext,
+        view: &OctreeView,
+        slabs: bool,
+    ) -> Result<RayCaster, GpuError> {
         let b = [
             Binding::Uniform,
             Binding::ReadOnly,
@@ -139,7 +180,7 @@ impl RayCaster {
             Binding::ReadWrite,
         ];
         let kernel = ctx.kernel("tree/cast", &cast_source()?, "main", &b)?;
-        let tree = GpuOctree::upload(ctx, view, OctreeParts::Walk)?;
+        let tree = GpuOctree::upload_with(ctx, view, OctreeParts::Walk, slabs)?;
         Ok(RayCaster { kernel, tree })
     }
 

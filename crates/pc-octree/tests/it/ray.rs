@@ -143,6 +143,57 @@ fn tiny_cells_at_max_depth_are_not_skipped() {
     check_scene(&o, &rays);
 }
 
+/// The GPU's walk by the slabs (a node whose slab the ray misses passed whole, a jump to where
+/// it enters one it meets, a leaf whose slab it misses not tested) finds the hits of its walk
+/// through every cell, bit for bit: plain rays, bounce rays leaving a splat and segments,
+/// nearest and any hit.
+#[test]
+fn the_gpu_walk_by_the_slabs_finds_the_hits_of_every_cell() {
+    let Some(ctx) = pc_gpu::test_context() else {
+        return;
+    };
+    let (s, classes) = mixed_scene(0.06);
+    let o = fine_octree(&s, &classes);
+    let view = o.view();
+    assert!(pc_tree::accel::Accel::new(&view).slabbed_nodes() > 0);
+    let mut rng = Pcg64::seed_from_u64(34);
+    let rays: Vec<pc_tree::gpu::RayIn> = (0..6000)
+        .map(|k| {
+            let origin = Vec3::new(
+                rng.random_range(-0.9..0.9),
+                rng.random_range(-0.9..0.9),
+                rng.random_range(-0.9..0.9),
+            );
+            let mut r = Ray::new(origin, random_dir(&mut rng));
+            if k % 3 == 0 {
+                r.t_min = 0.03;
+                r.t_max = rng.random_range(0.1..2.0);
+            }
+            if k % 3 == 1 {
+                let sp = &view.splats[rng.random_range(0..view.splats.len())];
+                let n = Vec3::from(sp.normal);
+                let d = random_dir(&mut rng);
+                r = Ray::new(Vec3::from(sp.position), if d.dot(n) < 0.0 { -d } else { d });
+                r.t_min = 0.5 * sp.radius;
+            }
+            (&r).into()
+        })
+        .collect();
+    let slabbed = pc_tree::gpu::RayCaster::new(&ctx, &view).unwrap();
+    let plain = pc_tree::gpu::RayCaster::with_slabs(&ctx, &view, false).unwrap();
+    for any in [false, true] {
+        let (a, b) = (
+            slabbed.cast(&ctx, &rays, any).unwrap(),
+            plain.cast(&ctx, &rays, any).unwrap(),
+        );
+        let bits = |h: &[Option<(f32, u32)>]| -> Vec<_> {
+            h.iter().map(|h| h.map(|(t, j)| (t.to_bits(), j))).collect()
+        };
+        assert_eq!(bits(&a), bits(&b), "any hit: {any}");
+        assert!(a.iter().flatten().count() > 2000);
+    }
+}
+
 #[test]
 fn gpu_ray_casting_matches_the_cpu_walk() {
     let Some(ctx) = pc_gpu::test_context() else {
