@@ -33,7 +33,9 @@
 use std::borrow::Cow;
 
 use pc_artifact::octree::{node, within_clip, Splat};
-use pc_artifact::walk::{is_clipped, WalkBlock, WalkChunk, WalkLeaf, WalkView, PADDING};
+use pc_artifact::walk::{
+    is_clipped, WalkBlock, WalkChunk, WalkLeaf, WalkView, BLOCK_WORDS, PADDING,
+};
 use rayon::prelude::*;
 
 use crate::between::{Between, Own, OWN_COS};
@@ -254,20 +256,28 @@ impl<'a> Accel<'a> {
             [x, y, z, lo, hi, 1]
         };
         // (pool slot, the walk's word for the same node): the walk's children of an internal
-        // word lie at its pointer, in the pool's order, blocks or plain words alike.
-        let mut stack = vec![(0usize, words[0])];
+        // word lie at its pointer, in the pool's order, blocks or plain words alike. Where a
+        // file's walk does not follow its pool (a word of another kind, or out of bounds), the
+        // slots below keep no slab: the GPU then walks them cell by cell.
+        let internal = |w: u32| w & (node::LEAF | node::EMPTY) == 0;
+        let mut stack: Vec<(usize, u32)> = words.first().map(|&w| (0, w)).into_iter().collect();
         while let Some((slot, walk_word)) = stack.pop() {
             let word = view.nodes[slot];
-            if node::is_leaf(word) {
-                let slab = self.leaves[node::ptr(walk_word) as usize].slab;
-                if slab.iter().all(|x| x.is_finite()) {
-                    out[slot] = with_flag(slab);
+            if node::is_leaf(word) && node::is_leaf(walk_word) {
+                if let Some(leaf) = self.leaves.get(node::ptr(walk_word) as usize) {
+                    if leaf.slab.iter().all(|x| x.is_finite()) {
+                        out[slot] = with_flag(leaf.slab);
+                    }
                 }
-            } else if !node::is_empty(word) {
+            } else if internal(word) && internal(walk_word) {
+                let (pool, walk) = (node::ptr(word) as usize, node::ptr(walk_word) as usize);
+                let span = if self.slabs { BLOCK_WORDS as usize } else { 8 };
+                if walk + span > words.len() {
+                    continue;
+                }
                 if let Some(s) = self.slabs.then(|| node_slab(words, walk_word)).flatten() {
                     out[slot] = with_flag(s.to_array());
                 }
-                let (pool, walk) = (node::ptr(word) as usize, node::ptr(walk_word) as usize);
                 stack.extend((0..8).map(|c| (pool + c, words[walk + c])));
             }
         }

@@ -143,6 +143,61 @@ fn tiny_cells_at_max_depth_are_not_skipped() {
     check_scene(&o, &rays);
 }
 
+/// The slabs the GPU walks by, one a pool slot: each slot that has one holds every disk listed
+/// in the leaves below its node (the CPU walk's slabs placed on the pool), and most internal
+/// nodes of a flat-walled scene have one. A walk that does not follow the pool (another
+/// tree's) places what it can and panics on nothing.
+#[test]
+fn pool_slabs_hold_every_disk_listed_below_their_node() {
+    use pc_artifact::octree::node;
+    let (s, classes) = mixed_scene(0.06);
+    let o = fine_octree(&s, &classes);
+    let view = o.view();
+    let slabs = pc_tree::accel::Accel::new(&view).pool_slabs(&view);
+    assert_eq!(slabs.len(), view.nodes.len());
+    let (mut internal, mut checked) = (0, 0);
+    for (slot, words) in slabs.iter().enumerate() {
+        if words[5] == 0 {
+            continue;
+        }
+        let f = |k: usize| f32::from_bits(words[k]);
+        let (axis, lo, hi) = (Vec3::new(f(0), f(1), f(2)), f(3), f(4));
+        internal += !node::is_leaf(view.nodes[slot]) as usize;
+        let mut below = vec![slot];
+        while let Some(b) = below.pop() {
+            let w = view.nodes[b];
+            if node::is_leaf(w) {
+                let (own, refs) = view.leaf(w);
+                for j in own.chain(refs.iter().copied()) {
+                    let d = &view.splats[j as usize];
+                    let level = axis.dot(Vec3::from(d.position));
+                    let sin = (1.0 - axis.dot(Vec3::from(d.normal)).powi(2))
+                        .max(0.0)
+                        .sqrt();
+                    let reach = d.radius * sin;
+                    assert!(
+                        level - reach >= lo && level + reach <= hi,
+                        "slot {slot}: disk {j} reaches {}..{} outside {lo}..{hi}",
+                        level - reach,
+                        level + reach
+                    );
+                    checked += 1;
+                }
+            } else if !node::is_empty(w) {
+                below.extend((0..8).map(|c| (node::ptr(w) + c) as usize));
+            }
+        }
+    }
+    assert!(internal > 10, "{internal} internal nodes with a slab");
+    assert!(checked > 10_000, "{checked} disks checked");
+    // Another tree's walk on this pool.
+    let (s2, classes2) = mixed_scene(0.09);
+    let other = fine_octree(&s2, &classes2);
+    let other_view = other.view();
+    let placed = pc_tree::accel::Accel::new(&other_view).pool_slabs(&view);
+    assert_eq!(placed.len(), view.nodes.len());
+}
+
 /// The GPU's walk by the slabs (a node whose slab the ray misses passed whole, a jump to where
 /// it enters one it meets, a leaf whose slab it misses not tested) finds the hits of its walk
 /// through every cell, bit for bit: plain rays, bounce rays leaving a splat and segments,
