@@ -143,6 +143,31 @@ fn tiny_cells_at_max_depth_are_not_skipped() {
     check_scene(&o, &rays);
 }
 
+/// Ray `k` of a mix over the scene of [`mixed_scene`]: from a random point inside it, every
+/// third one a segment (from 0.03 to 1), and every third one a bounce ray leaving a random
+/// splat half a radius out (the packed walk skips leaves by their slabs, which such rays cross
+/// right at their start).
+fn mixed_ray(view: &pc_tree::OctreeView, rng: &mut Pcg64, k: usize) -> Ray {
+    let origin = Vec3::new(
+        rng.random_range(-0.9..0.9),
+        rng.random_range(-0.9..0.9),
+        rng.random_range(-0.9..0.9),
+    );
+    let mut r = Ray::new(origin, random_dir(rng));
+    if k.is_multiple_of(3) {
+        r.t_min = 0.03;
+        r.t_max = 1.0;
+    }
+    if k % 3 == 1 {
+        let sp = &view.splats[rng.random_range(0..view.splats.len())];
+        let n = Vec3::from(sp.normal);
+        let d = random_dir(rng);
+        r = Ray::new(Vec3::from(sp.position), if d.dot(n) < 0.0 { -d } else { d });
+        r.t_min = 0.5 * sp.radius;
+    }
+    r
+}
+
 /// The slabs the GPU walks by, one a pool slot: each slot that has one holds every disk listed
 /// in the leaves below its node (the CPU walk's slabs placed on the pool), and most internal
 /// nodes of a flat-walled scene have one. A walk that does not follow the pool (another
@@ -213,26 +238,7 @@ fn the_gpu_walk_by_the_slabs_finds_the_hits_of_every_cell() {
     assert!(pc_tree::accel::Accel::new(&view).slabbed_nodes() > 0);
     let mut rng = Pcg64::seed_from_u64(34);
     let rays: Vec<pc_tree::gpu::RayIn> = (0..6000)
-        .map(|k| {
-            let origin = Vec3::new(
-                rng.random_range(-0.9..0.9),
-                rng.random_range(-0.9..0.9),
-                rng.random_range(-0.9..0.9),
-            );
-            let mut r = Ray::new(origin, random_dir(&mut rng));
-            if k % 3 == 0 {
-                r.t_min = 0.03;
-                r.t_max = rng.random_range(0.1..2.0);
-            }
-            if k % 3 == 1 {
-                let sp = &view.splats[rng.random_range(0..view.splats.len())];
-                let n = Vec3::from(sp.normal);
-                let d = random_dir(&mut rng);
-                r = Ray::new(Vec3::from(sp.position), if d.dot(n) < 0.0 { -d } else { d });
-                r.t_min = 0.5 * sp.radius;
-            }
-            (&r).into()
-        })
+        .map(|k| (&mixed_ray(&view, &mut rng, k)).into())
         .collect();
     let slabbed = pc_tree::gpu::RayCaster::new(&ctx, &view).unwrap();
     let plain = pc_tree::gpu::RayCaster::with_slabs(&ctx, &view, false).unwrap();
@@ -320,25 +326,7 @@ fn packed_leaf_lists_give_identical_hits() {
     let mut st = TraversalStats::default();
     let mut covered = 0;
     for k in 0..5000 {
-        let origin = Vec3::new(
-            rng.random_range(-0.9..0.9),
-            rng.random_range(-0.9..0.9),
-            rng.random_range(-0.9..0.9),
-        );
-        let mut r = Ray::new(origin, random_dir(&mut rng));
-        if k % 3 == 0 {
-            r.t_min = 0.03;
-            r.t_max = 1.0;
-        }
-        if k % 3 == 1 {
-            // A bounce ray leaving a splat (the packed walk skips leaves by their slabs, which
-            // such rays cross right at their start).
-            let sp = &view.splats[rng.random_range(0..view.splats.len())];
-            let n = Vec3::from(sp.normal);
-            let d = random_dir(&mut rng);
-            r = Ray::new(Vec3::from(sp.position), if d.dot(n) < 0.0 { -d } else { d });
-            r.t_min = 0.5 * sp.radius;
-        }
+        let r = mixed_ray(&view, &mut rng, k);
         let hit = accel.intersect(&view, &r, &mut st);
         assert_eq!(hit, pc_tree::intersect(&view, &r, &mut st), "ray {k}");
         assert_eq!(hit, portable.intersect(&view, &r, &mut st), "ray {k}");
