@@ -41,7 +41,7 @@ fn has_avx2() -> bool {
     if tests::PORTABLE_ONLY.load(std::sync::atomic::Ordering::Relaxed) {
         return false;
     }
-    std::is_x86_feature_detected!("avx2")
+    pc_tree::has_avx2()
 }
 
 /// Area each splat stands for: A_i = ∫_{disk i} [x ∈ S_i] / m(x) dA, where m(x) counts the

@@ -20,6 +20,22 @@ pub mod ray;
 pub mod rng;
 pub mod shaft;
 pub use between::Between;
+
+/// Whether this CPU has AVX2, for the loops built for it beside the baseline's and chosen at
+/// run time (the walk's eight-lane disk tests here, pc-octree's area pass, pc-vmap's sample
+/// indices): false off x86-64. The same results either way (Rust fuses no multiply-add).
+#[inline]
+pub fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 pub use pc_artifact::octree::{locate_normalized, Located, OctreeView};
 pub use ray::{
     covering, intersect, intersect_splat, occluded, occluded_between, Hit, Ray, TraversalStats,

@@ -5,6 +5,7 @@
 //! other bit for bit by `simd_lanes_match_scalar_lanes`; and the cache hint [`prefetch`].
 
 use super::{Chunk, LANES};
+pub(super) use crate::has_avx2;
 
 /// Asks the cache for the line holding `x` (a hint: no effect on any result).
 #[inline(always)]
@@ -144,18 +145,6 @@ pub(super) unsafe fn lanes8(
     t[..LANES].copy_from_slice(&t0);
     t[LANES..].copy_from_slice(&t1);
     (t, m0 | m1 << LANES)
-}
-
-/// Whether this CPU runs the walk's AVX2 build ([`lanes8`]).
-pub(super) fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
 }
 
 #[cfg(not(target_arch = "x86_64"))]

@@ -51,7 +51,7 @@ pub(super) fn sample_pairs(v: (&VNode, &VNode), seed: u32, stream: u32, n: u32) 
         fn avx2(v: (&VNode, &VNode), seed: u32, stream: u32, n: u32) -> Vec<(u32, u32)> {
             sample_pairs_portable(v, seed, stream, n)
         }
-        if std::is_x86_feature_detected!("avx2") {
+        if pc_tree::has_avx2() {
             // SAFETY: the CPU has AVX2, checked just above.
             return unsafe { avx2(v, seed, stream, n) };
         }
